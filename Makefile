@@ -1,0 +1,35 @@
+# rfir: every target sets up what it needs first (a fresh machine needs nothing but `make`).
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+RFIR   := $(VENV)/bin/rfir
+STAMP  := $(VENV)/.rfir-setup
+DEPS   := pyproject.toml setup.py scripts/setup.sh $(wildcard ext/csrc/*)
+DEMO   ?= demo_out
+
+.PHONY: setup demo test test-all bench lint clean
+
+setup: $(STAMP)
+
+$(STAMP): $(DEPS)
+	bash scripts/setup.sh
+	touch $(STAMP)
+
+## The built-in demo: every stage that exists so far, at demo size.
+demo: setup
+	bash scripts/demo.sh $(DEMO)
+
+## Fast default suite (slow end-to-end runs are deselected; `make test-all` runs them too).
+test: setup
+	$(PY) -m pytest -q
+
+test-all: setup
+	$(PY) -m pytest -q -m "slow or not slow"
+
+bench: setup
+	@for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+lint: setup
+	$(VENV)/bin/python -m pip install -q ruff && $(VENV)/bin/ruff check src stages ext tests
+
+clean:
+	rm -rf build *.egg-info ext/rfir_tracer/*.so $(DEMO)

@@ -1,0 +1,276 @@
+"""Reading, writing and validating rfir artifacts (HDF5). The only module that imports h5py.
+
+Writes go to a temporary file in the target's folder and are renamed into place, so a crash or a
+kill never leaves a half-written file at the target path, nor damages an earlier artifact there.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import h5py
+import numpy as np
+
+from . import __version__
+from .errors import InputFileError, SchemaError
+from .provenance import Provenance
+from .schema import SCHEMA_MAJOR, SCHEMA_VERSION, FieldSpec, KindSpec, get_kind
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_DTYPE_CHECK = {
+    "float": lambda d: d.kind == "f",
+    "int": lambda d: d.kind in "iu",
+    "complex": lambda d: d.kind == "c",
+    "uint8": lambda d: d == np.uint8,
+    "bool": lambda d: d.kind == "b",
+    "str": lambda d: d.kind in "OSU",
+}
+
+
+@dataclass
+class Artifact:
+    """An artifact loaded into memory.
+
+    data: dataset path ("group/name") -> numpy array (strings come back as str arrays).
+    attrs: root attributes other than kind/schema_version/producer/created.
+    free: free-form groups: group path -> {dataset name -> array}, plus "<group>@attrs" -> dict.
+    """
+
+    path: Path
+    kind: str
+    schema_version: str
+    producer: str
+    created: str
+    attrs: dict
+    data: dict[str, np.ndarray]
+    provenance: Provenance
+    free: dict = field(default_factory=dict)
+
+    def get(self, name: str, default=None):
+        return self.data.get(name, default)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[name]
+
+
+def _utc_now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
+def _check_array(spec: FieldSpec, array: np.ndarray, dims: dict[str, int], where: str) -> list[str]:
+    """Return the problems of one field's array against its spec (dims is filled as symbols bind)."""
+    problems = []
+    if not _DTYPE_CHECK[spec.dtype](array.dtype):
+        problems.append(f"{where}: dataset '{spec.name}' has dtype {array.dtype}, expected {spec.dtype}")
+        return problems
+    if array.ndim != len(spec.shape):
+        problems.append(f"{where}: dataset '{spec.name}' has shape {array.shape}, expected {_shape_text(spec.shape)}")
+        return problems
+    for size, want in zip(array.shape, spec.shape):
+        if isinstance(want, int):
+            if size != want:
+                problems.append(f"{where}: dataset '{spec.name}' has shape {array.shape}, expected {_shape_text(spec.shape)}")
+                break
+        elif dims.setdefault(want, size) != size:
+            problems.append(f"{where}: dataset '{spec.name}' has {want}={size} but another field has {want}={dims[want]}")
+            break
+    if spec.finite and spec.dtype in ("float", "complex") and array.size and not np.all(np.isfinite(array)):
+        bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
+        problems.append(f"{where}: dataset '{spec.name}' holds {bad} NaN or Inf values")
+    return problems
+
+
+def _shape_text(shape: tuple) -> str:
+    return "(" + ", ".join(str(s) for s in shape) + ")"
+
+
+def check_data(kind: str, data: Mapping[str, np.ndarray], attrs: Mapping, where: str) -> list[str]:
+    """All schema problems of in-memory data for `kind` (empty list when valid)."""
+    spec = get_kind(kind)
+    problems, dims = [], {}
+    for f in spec.fields:
+        if f.name not in data:
+            if f.required:
+                problems.append(f"{where}: missing required dataset '{f.name}' for kind '{kind}'")
+            continue
+        problems += _check_array(f, np.asarray(data[f.name]), dims, where)
+    for name in data:
+        if spec.field(name) is None and not _in_free_group(spec, name):
+            problems.append(f"{where}: dataset '{name}' is not part of kind '{kind}'")
+    for key in spec.required_attrs:
+        if key not in attrs:
+            problems.append(f"{where}: missing required attribute '{key}' for kind '{kind}'")
+    return problems
+
+
+def _in_free_group(spec: KindSpec, name: str) -> bool:
+    return any(name == g or name.startswith(g + "/") for g in spec.free_groups)
+
+
+def _to_h5(array: np.ndarray, spec: FieldSpec | None):
+    array = np.asarray(array)
+    if (spec is not None and spec.dtype == "str") or array.dtype.kind in "OU":
+        return np.asarray([str(s) for s in array.ravel()], dtype=h5py.string_dtype()).reshape(array.shape)
+    return array
+
+
+def write_artifact(path: str | Path, kind: str, data: Mapping[str, np.ndarray], *,
+                   attrs: Mapping | None = None, provenance: Provenance | None = None,
+                   free: Mapping[str, Mapping] | None = None) -> Path:
+    """Validate and write an artifact atomically.
+
+    data: dataset path -> array for the kind's fields; free: free-form group path -> {name: array}
+    (e.g. network weights under "model"), group attributes under the key "@attrs".
+    Raises SchemaError (naming the field) if the data breaks the schema; nothing is written then.
+    """
+    path = Path(path)
+    attrs = dict(attrs or {})
+    problems = check_data(kind, data, attrs, str(path))
+    if problems:
+        raise SchemaError("refusing to write invalid artifact: " + "; ".join(p.split(": ", 1)[1] for p in problems[:3]),
+                          path=path)
+    spec = get_kind(kind)
+    for group in free or {}:
+        if not _in_free_group(spec, group):
+            raise SchemaError(f"group '{group}' is not a free-form group of kind '{kind}'", path=path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.partial-{os.getpid()}"
+    provenance = provenance or Provenance(stage="unknown")
+    try:
+        with h5py.File(tmp, "w") as h5:
+            h5.attrs.update({"kind": kind, "schema_version": SCHEMA_VERSION,
+                             "producer": f"rfir {__version__} ({provenance.stage})", "created": _utc_now()})
+            for key, value in attrs.items():
+                h5.attrs[key] = value
+            for name, array in data.items():
+                f = spec.field(name)
+                ds = h5.create_dataset(name, data=_to_h5(array, f))
+                if f is not None:
+                    ds.attrs["unit"] = f.unit
+                    if f.frame:
+                        ds.attrs["frame"] = f.frame
+            for group, content in (free or {}).items():
+                g = h5.require_group(group)
+                for name, value in content.items():
+                    if name == "@attrs":
+                        g.attrs.update(value)
+                    else:
+                        g.create_dataset(name, data=_to_h5(value, None))
+            h5.require_group("provenance").attrs.update(provenance.to_attrs())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _open(path: Path) -> h5py.File:
+    if not path.exists():
+        raise InputFileError("file not found", path=path)
+    if path.is_dir():
+        raise InputFileError("is a folder, expected an HDF5 artifact file", path=path)
+    with open(path, "rb") as handle:
+        if handle.read(8) != _HDF5_SIGNATURE:
+            raise InputFileError("not an HDF5 file (wrong signature)", path=path)
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise InputFileError(f"cannot read HDF5 file (truncated or damaged): {str(exc).split(';')[0]}", path=path) from None
+
+
+def _header(h5: h5py.File, path: Path, kind: str | Iterable[str] | None) -> tuple[str, str]:
+    found = h5.attrs.get("kind")
+    if found is None:
+        raise SchemaError("not an rfir artifact (no 'kind' attribute)", path=path)
+    found = str(found)
+    wanted = [kind] if isinstance(kind, str) else list(kind or [])
+    if wanted and found not in wanted:
+        raise SchemaError(f"artifact of kind '{found}', expected {' or '.join(repr(w) for w in wanted)}", path=path)
+    try:
+        get_kind(found)
+    except KeyError as exc:
+        raise SchemaError(str(exc.args[0]), path=path) from None
+    version = str(h5.attrs.get("schema_version", ""))
+    try:
+        major = int(version.split(".")[0])
+    except ValueError:
+        raise SchemaError(f"bad schema_version {version!r}", path=path) from None
+    if major != SCHEMA_MAJOR:
+        raise SchemaError(f"schema version {version} is not supported (this rfir reads {SCHEMA_MAJOR}.x)", path=path)
+    return found, version
+
+
+def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
+    if h5py.check_string_dtype(ds.dtype) is not None:
+        return np.asarray(ds.asstr()[()], dtype=object).astype(str)
+    return ds[()]
+
+
+def read_artifact(path: str | Path, kind: str | Iterable[str] | None = None) -> Artifact:
+    """Load and validate an artifact. Raises InputFileError / SchemaError with one clear line."""
+    path = Path(path)
+    with _open(path) as h5:
+        try:
+            found, version = _header(h5, path, kind)
+            spec = get_kind(found)
+            data, free = {}, {}
+            for f in spec.fields:
+                if f.name in h5:
+                    data[f.name] = _read_dataset(h5[f.name])
+            for group in spec.free_groups:
+                if group in h5:
+                    free[group] = {n: _read_dataset(d) for n, d in h5[group].items() if isinstance(d, h5py.Dataset)}
+                    free[group + "@attrs"] = dict(h5[group].attrs)
+            root = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()
+                    if k not in ("kind", "schema_version", "producer", "created")}
+            prov = Provenance.from_attrs(dict(h5["provenance"].attrs)) if "provenance" in h5 else Provenance(stage="")
+            producer, created = str(h5.attrs.get("producer", "")), str(h5.attrs.get("created", ""))
+        except OSError as exc:
+            raise InputFileError(f"cannot read HDF5 data (truncated or damaged): {exc}", path=path) from None
+    problems = check_data(found, data, root, str(path))
+    if problems:
+        raise SchemaError(problems[0].split(": ", 1)[1], path=path)
+    return Artifact(path, found, version, producer, created, root, data, prov, free)
+
+
+def describe_artifact(path: str | Path) -> dict:
+    """A summary for `rfir info`: header, provenance and every dataset with shape, dtype, unit."""
+    path = Path(path)
+    with _open(path) as h5:
+        found, version = _header(h5, path, None)
+        datasets = []
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and not name.startswith("provenance"):
+                datasets.append({"name": name, "shape": tuple(obj.shape), "dtype": str(obj.dtype),
+                                 "unit": str(obj.attrs.get("unit", "")), "frame": str(obj.attrs.get("frame", ""))})
+
+        h5.visititems(visit)
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
+        prov = Provenance.from_attrs(dict(h5["provenance"].attrs)) if "provenance" in h5 else None
+    return {"path": str(path), "kind": found, "schema_version": version, "attrs": attrs,
+            "datasets": datasets, "provenance": prov}
+
+
+def validate_artifact(path: str | Path, kind: str | None = None) -> list[str]:
+    """All problems of an artifact file (empty when valid); raises only for unreadable files."""
+    path = Path(path)
+    with _open(path) as h5:
+        found, _ = _header(h5, path, kind)
+        spec = get_kind(found)
+        data = {f.name: _read_dataset(h5[f.name]) for f in spec.fields if f.name in h5}
+        root = dict(h5.attrs)
+        problems = check_data(found, data, root, str(path))
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and not name.startswith("provenance") and spec.field(name) is None \
+                    and not _in_free_group(spec, name):
+                problems.append(f"{path}: dataset '{name}' is not part of kind '{found}'")
+
+        h5.visititems(visit)
+        if "provenance" not in h5:
+            problems.append(f"{path}: missing /provenance group")
+    return problems

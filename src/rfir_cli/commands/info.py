@@ -1,0 +1,64 @@
+"""`rfir info ARTIFACT`: a readable summary of an artifact; `rfir info --tracer`: the tracer back-end."""
+from __future__ import annotations
+
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from ..context import console, run_guarded
+from ..errors import ConfigError
+
+
+def register(app: typer.Typer) -> None:
+    app.command("info")(info)
+
+
+def info(
+    ctx: typer.Context,
+    artifact: Annotated[Optional[str], typer.Argument(help="An rfir artifact (.h5).")] = None,
+    tracer: Annotated[bool, typer.Option("--tracer", help="Show the ray tracer back-end in use.")] = False,
+) -> None:
+    """Summarise an artifact: kind, version, producer, provenance, datasets with shapes and units."""
+
+    def work():
+        if tracer:
+            _show_tracer()
+        if artifact is None:
+            if not tracer:
+                raise ConfigError("give an ARTIFACT to describe, or --tracer")
+            return
+        from ..artifacts import describe_artifact
+
+        _show(describe_artifact(artifact))
+
+    run_guarded(ctx, work)
+
+
+def _show(summary: dict) -> None:
+    attrs = summary["attrs"]
+    console.print(f"[bold]{summary['path']}[/bold]")
+    console.print(f"  kind: {summary['kind']}   schema: {summary['schema_version']}   "
+                  f"producer: {attrs.get('producer', '?')}   created: {attrs.get('created', '?')}")
+    extra = {k: v for k, v in attrs.items() if k not in ("kind", "schema_version", "producer", "created")}
+    if extra:
+        console.print("  attributes: " + ", ".join(f"{k}={v}" for k, v in sorted(extra.items())), highlight=False)
+    prov = summary["provenance"]
+    if prov is not None:
+        console.print(f"  provenance: stage={prov.stage} device={prov.device} wall_time={prov.wall_time_s or 0:.1f}s "
+                      f"git={prov.git_revision[:12]}", highlight=False)
+        for path, digest in prov.inputs.items():
+            console.print(f"    input {path}  sha256={digest[:12]}", highlight=False)
+    table = Table("dataset", "shape", "dtype", "unit", "frame", box=None, pad_edge=False)
+    for ds in summary["datasets"]:
+        table.add_row(ds["name"], "x".join(str(s) for s in ds["shape"]) or "scalar", ds["dtype"], ds["unit"], ds["frame"])
+    console.print(table)
+
+
+def _show_tracer() -> None:
+    try:
+        import rfir_tracer
+    except ImportError as exc:
+        raise ConfigError(f"the tracer extension is not importable ({exc}); re-run `make setup`") from None
+    details = rfir_tracer.backend_info()
+    console.print("tracer: " + ", ".join(f"{k}={v}" for k, v in details.items()), highlight=False)

@@ -1,0 +1,114 @@
+"""Configuration: TOML defaults per stage in configs/, a user file, then `--set` overrides.
+
+Resolution order (later wins): configs/<stage>.toml defaults, configs/recipes/<name>.toml when a
+recipe is named, `--config FILE.toml`, `--set section.key=value`. Keys must exist in the defaults,
+so a typo is an error rather than a silently ignored setting. The resolved config is recorded in
+every artifact's provenance as TOML text. No eval, no pickle.
+"""
+from __future__ import annotations
+
+import copy
+import os
+import tomllib
+from pathlib import Path
+
+import tomli_w
+
+from .errors import ConfigError
+
+
+def config_dir() -> Path:
+    """The folder of default configs (RFIR_CONFIG_DIR overrides the repository's configs/)."""
+    override = os.environ.get("RFIR_CONFIG_DIR")
+    return Path(override) if override else Path(__file__).resolve().parents[2] / "configs"
+
+
+def _read_toml(path: Path, what: str) -> dict:
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{what} not found", path=path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", path=path) from None
+
+
+def load_defaults() -> dict:
+    """Merge every configs/*.toml (one table per stage) into one dict."""
+    merged: dict = {}
+    for path in sorted(config_dir().glob("*.toml")):
+        for section, table in _read_toml(path, "default config").items():
+            if section in merged:
+                raise ConfigError(f"section [{section}] is defined twice in configs/", path=path)
+            merged[section] = table
+    return merged
+
+
+def _merge(base: dict, update: dict, origin: str, prefix: str = "") -> None:
+    """Merge `update` into `base` in place, refusing keys the defaults do not have."""
+    for key, value in update.items():
+        dotted = f"{prefix}{key}"
+        if key not in base:
+            raise ConfigError(f"unknown config key '{dotted}' in {origin}")
+        if isinstance(base[key], dict):
+            if not isinstance(value, dict):
+                raise ConfigError(f"'{dotted}' in {origin} must be a table")
+            _merge(base[key], value, origin, dotted + ".")
+        else:
+            base[key] = _coerce(base[key], value, dotted, origin)
+
+
+def _coerce(default, value, dotted: str, origin: str):
+    """Check `value` against the type of the default (ints are accepted where floats are)."""
+    if isinstance(default, bool) or isinstance(value, bool):
+        if isinstance(default, bool) and isinstance(value, bool):
+            return value
+    elif isinstance(default, float) and isinstance(value, (int, float)):
+        return float(value)
+    elif isinstance(default, list) and isinstance(value, list):
+        return value
+    elif type(default) is type(value):
+        return value
+    raise ConfigError(f"'{dotted}' in {origin} must be {type(default).__name__}, got {value!r}")
+
+
+def parse_override(text: str) -> dict:
+    """Turn 'section.key=value' into a nested dict; the value is read as TOML (bare words as strings)."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected section.key=value")
+    dotted, raw = (part.strip() for part in text.split("=", 1))
+    keys = dotted.split(".")
+    if len(keys) < 2 or not all(keys):
+        raise ConfigError(f"--set {text!r}: key must look like section.key")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        if not raw or any(c in raw for c in "[]{}\"'=,"):
+            raise ConfigError(f"--set {text!r}: cannot read value {raw!r}") from None
+        value = raw
+    nested: dict = value
+    for key in reversed(keys):
+        nested = {key: nested}
+    return nested
+
+
+def resolve_config(config_file: str | Path | None = None, overrides: list[str] | tuple = (),
+                   recipe: str | None = None) -> dict:
+    """The resolved configuration dict (all sections)."""
+    config = copy.deepcopy(load_defaults())
+    if recipe:
+        path = config_dir() / "recipes" / f"{recipe}.toml"
+        if not path.exists():
+            known = sorted(p.stem for p in (config_dir() / "recipes").glob("*.toml"))
+            raise ConfigError(f"unknown recipe {recipe!r} (known: {', '.join(known) or 'none'})")
+        _merge(config, _read_toml(path, "recipe"), f"recipe {recipe}")
+    if config_file:
+        _merge(config, _read_toml(Path(config_file), "config file"), str(config_file))
+    for text in overrides:
+        _merge(config, parse_override(text), f"--set {text}")
+    return config
+
+
+def to_toml(config: dict) -> str:
+    """TOML text of a config (recorded in provenance)."""
+    return tomli_w.dumps(config)

@@ -1,0 +1,136 @@
+"""What every command shares: global options, config resolution, device choice, error mapping.
+
+Command modules stay thin: they read options, call `opts.config(section)`, hand a progress
+reporter to the stage, and let `run_guarded` turn rfir errors into one line and an exit code.
+"""
+from __future__ import annotations
+
+import sys
+import traceback
+from dataclasses import dataclass, field
+from typing import Callable, TypeVar
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn, \
+    TimeRemainingColumn
+
+from .config import resolve_config, to_toml
+from .errors import ConfigError, RfirError
+
+T = TypeVar("T")
+console = Console()
+err_console = Console(stderr=True)
+
+
+@dataclass
+class GlobalOptions:
+    """Options given before the command name (`rfir --set a.b=1 simulate ...`)."""
+
+    config_file: str | None = None
+    overrides: list[str] = field(default_factory=list)
+    recipe: str | None = None
+    device: str = "auto"
+    seed: int = 0
+    verbosity: int = 0
+
+    def config(self) -> dict:
+        """The resolved config (all sections)."""
+        return resolve_config(self.config_file, self.overrides, self.recipe)
+
+    def config_toml(self) -> str:
+        return to_toml(self.config())
+
+    def torch_device(self) -> str:
+        """'cpu' or 'cuda', refusing cuda where there is none."""
+        import torch
+
+        if self.device == "auto":
+            return "cuda" if torch.cuda.is_available() else "cpu"
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise ConfigError("--device cuda asked for, but this torch has no CUDA device (use --device cpu or auto)")
+        if self.device not in ("cpu", "cuda"):
+            raise ConfigError(f"--device {self.device!r}: expected auto, cpu or cuda")
+        return self.device
+
+
+def options(ctx: typer.Context) -> GlobalOptions:
+    """The GlobalOptions stored by the app callback (defaults when called without one)."""
+    root = ctx.find_root()
+    if not isinstance(root.obj, GlobalOptions):
+        root.obj = GlobalOptions()
+    return root.obj
+
+
+class RichReporter:
+    """A `rfir_cli.progress.Progress` backed by rich progress bars (quiet when verbosity < 0)."""
+
+    def __init__(self, verbosity: int = 0):
+        self.verbosity = verbosity
+        self._bars = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console,
+                                  disable=verbosity < 0, transient=False)
+
+    def __enter__(self):
+        self._bars.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        return self._bars.__exit__(*exc)
+
+    def task(self, description: str, total: float | None = None):
+        return _RichTask(self._bars, description, total)
+
+    def log(self, message: str) -> None:
+        if self.verbosity >= 0:
+            self._bars.console.print(message)
+
+
+class _RichTask:
+    def __init__(self, bars: RichProgress, description: str, total: float | None):
+        self._bars, self._description, self._total = bars, description, total
+
+    def __enter__(self):
+        self._id = self._bars.add_task(self._description, total=self._total)
+        return self
+
+    def __exit__(self, *exc):
+        task = self._bars.tasks[self._bars.task_ids.index(self._id)]
+        if task.total is not None and not exc[0]:
+            self._bars.update(self._id, completed=task.total)
+        return False
+
+    def advance(self, amount: float = 1) -> None:
+        self._bars.advance(self._id, amount)
+
+    def update(self, *, total: float | None = None, description: str | None = None) -> None:
+        self._bars.update(self._id, total=total, description=description)
+
+
+def run_guarded(ctx: typer.Context, work: Callable[[], T]) -> T:
+    """Run `work`, mapping RfirError to one red line and its exit code; tracebacks only with -v."""
+    verbosity = options(ctx).verbosity
+    try:
+        return work()
+    except RfirError as exc:
+        if verbosity > 0:
+            traceback.print_exc()
+        err_console.print(f"[red]error:[/red] {exc}", markup=True, highlight=False, soft_wrap=True)
+        raise typer.Exit(exc.exit_code) from None
+    except KeyboardInterrupt:
+        err_console.print("[red]interrupted[/red]")
+        raise typer.Exit(130) from None
+    except typer.Exit:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback unless -v
+        if verbosity > 0:
+            traceback.print_exc()
+        err_console.print(f"[red]internal error:[/red] {type(exc).__name__}: {exc} (run with -v for the traceback)",
+                          soft_wrap=True, highlight=False)
+        raise typer.Exit(70) from None
+
+
+def fail(message: str, code: int = 2) -> None:
+    """Print one error line and exit (for option problems detected in a command module)."""
+    err_console.print(f"[red]error:[/red] {message}", soft_wrap=True, highlight=False)
+    sys.exit(code)

@@ -1,0 +1,61 @@
+"""The `rfir` command line: global options, then one command per module in rfir_cli.commands."""
+from __future__ import annotations
+
+import importlib
+from typing import Annotated, Optional
+
+import typer
+
+from . import __version__
+from .context import GlobalOptions
+
+# A command is listed here only once it works end to end.
+COMMANDS = ("info", "check")
+
+app = typer.Typer(
+    name="rfir",
+    help="Radio-frequency inverse rendering: photos + radio measurements -> a Gaussian scene with radio "
+         "materials that predicts RCS and RSSI for setups nobody measured.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"rfir {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main_callback(
+    ctx: typer.Context,
+    config: Annotated[Optional[str], typer.Option("--config", help="TOML file overriding configs/ defaults.")] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Override one key: section.key=value (repeatable).")] = None,
+    recipe: Annotated[Optional[str], typer.Option("--recipe", help="Named recipe from configs/recipes/ (e.g. demo).")] = None,
+    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
+    seed: Annotated[int, typer.Option("--seed", help="Random seed for every stage.")] = 0,
+    verbose: Annotated[int, typer.Option("-v", "--verbose", count=True, help="More output; tracebacks on errors.")] = 0,
+    quiet: Annotated[bool, typer.Option("-q", "--quiet", help="Only errors and final results.")] = False,
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Show the version.")] = False,
+) -> None:
+    """Global options apply to every command; put them before the command name."""
+    if device not in ("auto", "cpu", "cuda"):
+        raise typer.BadParameter(f"{device!r}: expected auto, cpu or cuda", param_hint="--device")
+    ctx.obj = GlobalOptions(config_file=config, overrides=list(set_ or []), recipe=recipe, device=device,
+                            seed=seed, verbosity=-1 if quiet else verbose)
+
+
+for _name in COMMANDS:
+    importlib.import_module(f"rfir_cli.commands.{_name}").register(app)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

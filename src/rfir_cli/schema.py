@@ -1,0 +1,174 @@
+"""The rfir artifact schema: every kind, field, dtype, shape and unit, in one place.
+
+An artifact is an HDF5 file. Root attributes: `kind`, `schema_version` (semver), `producer`,
+`created`. Group `/provenance` records how it was made. Datasets sit at fixed paths
+("group/name") and carry a `unit` attribute (and `frame` where spatial).
+
+Shapes use symbolic dimensions (e.g. "L" links, "F" frequencies, "G" Gaussians); a symbol must
+have the same size in every field of one file. Readers accept files of the same major version
+(minor versions only add optional fields). See docs/artifacts.md for the user-facing description.
+
+Change history
+- 1.0.0 (2026-11-23): first release: measurements, cameras, calib, scene, rf, predictions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+SCHEMA_VERSION = "1.0.0"
+SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """One dataset of an artifact kind.
+
+    dtype: "float", "int", "complex", "uint8", "bool" or "str" (UTF-8).
+    shape: tuple of int (fixed size) or str (symbolic dimension shared across the file).
+    unit: SI unit or "1" for dimensionless, "dB"/"dBsm" at the edges; "" for labels and text.
+    frame: "world" (z up, metres) or "camera" (OpenCV) for spatial quantities, else "".
+    finite: NaN or Inf are refused (for float and complex fields).
+    """
+
+    name: str
+    dtype: str
+    shape: tuple
+    unit: str
+    doc: str
+    required: bool = True
+    frame: str = ""
+    finite: bool = True
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """An artifact kind: its fields, its required root attributes, and free-form groups."""
+
+    kind: str
+    doc: str
+    fields: tuple[FieldSpec, ...]
+    required_attrs: tuple[str, ...] = ()
+    free_groups: tuple[str, ...] = field(default_factory=tuple)
+
+    def field(self, name: str) -> FieldSpec | None:
+        return next((f for f in self.fields if f.name == name), None)
+
+
+def F(name, dtype, shape, unit, doc, **kw) -> FieldSpec:
+    return FieldSpec(name, dtype, tuple(shape), unit, doc, **kw)
+
+
+_GAUSSIANS = (
+    F("gaussians/means", "float", ("G", 3), "m", "Gaussian centres", frame="world"),
+    F("gaussians/log_scales", "float", ("G", 3), "log(m)", "natural log of the standard deviations along the local axes"),
+    F("gaussians/rotations", "float", ("G", 4), "1", "unit quaternions (w, x, y, z), local-to-world"),
+    F("gaussians/opacities", "float", ("G",), "1", "visual opacity in [0, 1]"),
+    F("gaussians/colors", "float", ("G", "C"), "1", "appearance: RGB in [0, 1] or SH coefficients", required=False),
+    F("gaussians/normals", "float", ("G", 3), "1", "unit surface normals", frame="world"),
+    F("gaussians/labels", "int", ("G",), "", "object label per Gaussian (-1: none); names in attr label_names", required=False),
+)
+
+KINDS: dict[str, KindSpec] = {}
+
+
+def _register(spec: KindSpec) -> None:
+    KINDS[spec.kind] = spec
+
+
+_register(KindSpec(
+    "measurements",
+    "Radio measurements: one row per link (Tx, Rx pair), one column per frequency.",
+    (
+        F("tx_pos", "float", ("L", 3), "m", "transmitter positions", frame="world"),
+        F("rx_pos", "float", ("L", 3), "m", "receiver positions", frame="world"),
+        F("freq_hz", "float", ("F",), "Hz", "carrier frequencies"),
+        F("path_gain_db", "float", ("L", "F"), "dB", "received / transmitted power, 10 log10"),
+        F("channel", "complex", ("L", "F"), "1", "complex baseband channel (|h|^2 = path gain)", required=False),
+        F("rcs_dbsm", "float", ("L", "F"), "dBsm", "monostatic radar cross section", required=False),
+        F("aspect_rad", "float", ("L",), "rad", "turntable aspect angle of the object", required=False),
+        F("range_m", "float", ("L",), "m", "radar-to-object-centre range", required=False),
+        F("tx_id", "int", ("L",), "", "transmitter index", required=False),
+        F("rx_id", "int", ("L",), "", "receiver index", required=False),
+        F("split", "int", ("L",), "", "0 = train, 1 = test, -1 = unassigned", required=False),
+        F("scene_bounds", "float", (2, 3), "m", "axis-aligned bounds (min, max) of the scene", required=False, frame="world"),
+    ),
+    required_attrs=("task", "scene"),
+    free_groups=("simulator",),
+))
+
+_register(KindSpec(
+    "cameras",
+    "Ground-truth or user-supplied camera intrinsics and poses for a folder of images.",
+    (
+        F("image_names", "str", ("N",), "", "file names relative to the images folder"),
+        F("intrinsics", "float", ("N", 3, 3), "px", "pinhole camera matrices K"),
+        F("world_from_camera", "float", ("N", 4, 4), "m", "camera-to-world rigid transforms (OpenCV camera axes)", frame="world"),
+        F("image_size", "int", ("N", 2), "px", "width, height"),
+    ),
+    required_attrs=("scene",),
+))
+
+_register(KindSpec(
+    "calib",
+    "Camera calibration from structure from motion, aligned to metres in the scene frame.",
+    (
+        F("image_paths", "str", ("N",), "", "image paths (absolute, or relative to the artifact)"),
+        F("image_sha256", "str", ("N",), "", "SHA-256 of each image file"),
+        F("image_size", "int", ("N", 2), "px", "width, height (after undistortion)"),
+        F("intrinsics", "float", ("N", 3, 3), "px", "pinhole camera matrices K"),
+        F("world_from_camera", "float", ("N", 4, 4), "m", "camera-to-world rigid transforms (OpenCV axes)", frame="world"),
+        F("reproj_error_px", "float", ("N",), "px", "mean reprojection error per image"),
+        F("points_xyz", "float", ("P", 3), "m", "sparse SfM points", frame="world"),
+        F("points_rgb", "uint8", ("P", 3), "", "point colours"),
+        F("points_track_length", "int", ("P",), "", "number of images observing each point"),
+        F("alignment_sim3", "float", (4, 4), "m", "similarity transform from SfM frame to world (scale in the rotation block)"),
+        F("alignment_residuals_m", "float", ("A",), "m", "residuals of the metric alignment references", required=False),
+    ),
+    required_attrs=("metric",),
+))
+
+_register(KindSpec(
+    "scene",
+    "3D Gaussians with normals, fitted to calibrated photos (geometry only).",
+    _GAUSSIANS,
+    free_groups=("training",),
+))
+
+_register(KindSpec(
+    "rf",
+    "A scene with per-Gaussian radio materials fitted to measurements.",
+    _GAUSSIANS + (
+        F("rf/opacity", "float", ("G",), "1", "RF opacity a in [0, 1]"),
+        F("rf/roughness", "float", ("G",), "1", "lobe exponent R >= 1"),
+        F("rf/gamma_abs", "float", ("G",), "1", "|Gamma| in [0, 1]"),
+        F("rf/gamma_phase_rad", "float", ("G",), "rad", "angle of Gamma"),
+        F("rf/freq_hz", "float", ("F",), "Hz", "frequencies the model was fitted at"),
+    ),
+    required_attrs=("task",),
+    free_groups=("model", "training", "effects"),
+))
+
+_register(KindSpec(
+    "predictions",
+    "Predicted radio quantities per link, optionally beside the measured ones.",
+    (
+        F("tx_pos", "float", ("L", 3), "m", "transmitter positions", frame="world"),
+        F("rx_pos", "float", ("L", 3), "m", "receiver positions", frame="world"),
+        F("freq_hz", "float", ("F",), "Hz", "frequencies"),
+        F("path_gain_db", "float", ("L", "F"), "dB", "predicted path gain"),
+        F("rcs_dbsm", "float", ("L", "F"), "dBsm", "predicted RCS", required=False),
+        F("measured_db", "float", ("L", "F"), "dB", "measured value of the same quantity, when given", required=False),
+        F("aspect_rad", "float", ("L",), "rad", "aspect angle", required=False),
+        F("range_m", "float", ("L",), "m", "range", required=False),
+        F("split", "int", ("L",), "", "0 train, 1 test, -1 unassigned", required=False),
+    ),
+    required_attrs=("task",),
+    free_groups=("metrics",),
+))
+
+
+def get_kind(kind: str) -> KindSpec:
+    """Return the spec of `kind`, raising KeyError with the known kinds listed."""
+    if kind not in KINDS:
+        raise KeyError(f"unknown artifact kind {kind!r} (known: {', '.join(sorted(KINDS))})")
+    return KINDS[kind]
