@@ -7,10 +7,10 @@ from typing import Annotated, Optional
 import typer
 
 from . import __version__
-from .context import GlobalOptions
+from .context import GlobalOptions, run_guarded
 
 # A command is listed here only once it works end to end.
-COMMANDS = ("info", "check")
+COMMANDS = ("info", "check", "import_")
 
 app = typer.Typer(
     name="rfir",
@@ -46,6 +46,8 @@ def main_callback(
         raise typer.BadParameter(f"{device!r}: expected auto, cpu or cuda", param_hint="--device")
     ctx.obj = GlobalOptions(config_file=config, overrides=list(set_ or []), recipe=recipe, device=device,
                             seed=seed, verbosity=-1 if quiet else verbose)
+    # Resolve once now, so a bad --config/--set/--recipe fails before any work starts.
+    run_guarded(ctx, ctx.obj.config)
 
 
 for _name in COMMANDS:

@@ -1,7 +1,7 @@
 """`rfir check ARTIFACT...`: validate files against the schema; exit non-zero on the first bad one."""
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 
@@ -16,6 +16,7 @@ def register(app: typer.Typer) -> None:
 def check(
     ctx: typer.Context,
     artifacts: Annotated[list[str], typer.Argument(help="Artifacts (.h5) to validate.")],
+    kind: Annotated[Optional[str], typer.Option("--kind", help="Require this artifact kind.")] = None,
 ) -> None:
     """Validate artifacts: kind, schema version, required datasets, shapes, dtypes, finite values."""
     from ..artifacts import validate_artifact
@@ -23,7 +24,7 @@ def check(
     def work():
         bad = 0
         for path in artifacts:
-            problems = validate_artifact(path)
+            problems = validate_artifact(path, kind)
             if problems:
                 bad += 1
                 for problem in problems:

@@ -1,0 +1,61 @@
+"""`rfir import csv FILE` and `rfir import nerf2-ble DIR`: real measurements into a measurements artifact."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from ..context import console, options, run_guarded
+
+import_app = typer.Typer(help="Bring real measurements in (CSV links, NeRF2 BLE).", no_args_is_help=True)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(import_app, name="import")
+
+
+Out = Annotated[Path, typer.Option("-o", "--out", help="Measurements artifact to write (.h5).")]
+Scale = Annotated[float, typer.Option("--position-scale", help="Multiply coordinates by this (0.001 for mm).")]
+
+
+def _report(result) -> None:
+    console.print(f"[green]wrote[/green] {result.path}: {result.links} links x {result.freqs} frequencies, "
+                  f"task {result.task}", highlight=False)
+
+
+@import_app.command("csv")
+def import_csv_command(
+    ctx: typer.Context,
+    file: Annotated[Path, typer.Argument(help="CSV with tx_x,tx_y,tx_z,rx_x,rx_y,rx_z,freq_hz,power_db[,...].")],
+    out: Out,
+    scene: Annotated[str, typer.Option("--scene", help="Scene name recorded in the artifact.")] = "imported",
+    tx_power_dbm: Annotated[Optional[float], typer.Option(
+        "--tx-power-dbm", help="Read power_db as received dBm and subtract this transmit power.")] = None,
+    position_scale: Scale = 1.0,
+) -> None:
+    """Import links from a CSV file (see docs/artifacts.md for the columns)."""
+    from rfir_stages.importers import import_csv
+
+    opts = options(ctx)
+    result = run_guarded(ctx, lambda: import_csv(file, out, scene=scene, tx_power_dbm=tx_power_dbm,
+                                                 position_scale=position_scale, config_toml=opts.config_toml()))
+    _report(result)
+
+
+@import_app.command("nerf2-ble")
+def import_nerf2_command(
+    ctx: typer.Context,
+    folder: Annotated[Path, typer.Argument(help="Folder with gateway_position.yml, tx_pos.csv, gateway_rssi.csv.")],
+    out: Out,
+    freq_hz: Annotated[float, typer.Option("--freq-hz", help="Carrier frequency [Hz].")] = 2.4e9,
+    tx_power_dbm: Annotated[float, typer.Option("--tx-power-dbm", help="Beacon transmit power [dBm].")] = 0.0,
+    position_scale: Scale = 1.0,
+) -> None:
+    """Import NeRF2's BLE data set layout (RSSI -100 dBm = not received, dropped)."""
+    from rfir_stages.importers import import_nerf2_ble
+
+    opts = options(ctx)
+    result = run_guarded(ctx, lambda: import_nerf2_ble(folder, out, freq_hz=freq_hz, tx_power_dbm=tx_power_dbm,
+                                                       position_scale=position_scale, config_toml=opts.config_toml()))
+    _report(result)

@@ -1,0 +1,58 @@
+"""Config resolution: defaults, recipes, files, --set, and clear errors for bad keys and values."""
+import pytest
+
+from rfir_cli.config import parse_override, resolve_config, to_toml
+from rfir_cli.errors import ConfigError
+
+
+@pytest.fixture
+def config_dir(tmp_path, monkeypatch):
+    folder = tmp_path / "configs"
+    (folder / "recipes").mkdir(parents=True)
+    (folder / "fit.toml").write_text('[fit]\nsteps = 100\nlr = 0.01\nname = "a"\nuse_phase = true\n[fit.lobe]\nmin = 1.0\n')
+    (folder / "recipes" / "quick.toml").write_text("[fit]\nsteps = 5\n")
+    monkeypatch.setenv("RFIR_CONFIG_DIR", str(folder))
+    return folder
+
+
+def test_defaults_recipe_file_and_set_compose_in_order(config_dir, tmp_path):
+    user = tmp_path / "user.toml"
+    user.write_text("[fit]\nlr = 0.5\n")
+    cfg = resolve_config(user, ["fit.name=b", "fit.lobe.min=2", "fit.use_phase=false"], recipe="quick")
+    assert cfg["fit"] == {"steps": 5, "lr": 0.5, "name": "b", "use_phase": False, "lobe": {"min": 2.0}}
+    assert "steps = 5" in to_toml(cfg)
+
+
+def test_int_accepted_for_float_but_not_the_reverse(config_dir):
+    assert resolve_config(None, ["fit.lr=1"])["fit"]["lr"] == 1.0
+    with pytest.raises(ConfigError, match="'fit.steps' .* must be int"):
+        resolve_config(None, ["fit.steps=1.5"])
+
+
+@pytest.mark.parametrize("override, message", [
+    ("fit.stepz=3", "unknown config key 'fit.stepz'"),
+    ("nosection.a=1", "unknown config key 'nosection'"),
+    ("fit.steps", "expected section.key=value"),
+    ("steps=3", "key must look like section.key"),
+    ("fit.name=[1", "cannot read value"),
+    ("fit.use_phase=maybe", "must be bool"),
+])
+def test_bad_overrides_name_the_problem(config_dir, override, message):
+    with pytest.raises(ConfigError, match=message):
+        resolve_config(None, [override])
+
+
+def test_bad_files_and_recipes(config_dir, tmp_path):
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[fit\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        resolve_config(broken)
+    with pytest.raises(ConfigError, match="config file not found"):
+        resolve_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="unknown recipe 'nope' \\(known: quick\\)"):
+        resolve_config(None, recipe="nope")
+
+
+def test_bare_words_become_strings():
+    assert parse_override("a.b=hello") == {"a": {"b": "hello"}}
+    assert parse_override("a.b.c=3") == {"a": {"b": {"c": 3}}}
