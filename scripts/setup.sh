@@ -21,9 +21,9 @@ fi
 
 [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
 PIP="$VENV/bin/python -m pip"
-$PIP install -q --upgrade pip "setuptools>=68" wheel ninja
+$PIP install -q --upgrade pip "setuptools>=77" wheel ninja
 # torch is pinned: an unpinned torch makes pip fetch a multi-GB CUDA build.
-$PIP install -q torch==2.13.0
+$PIP install -q torch==2.13.0 numpy
 # --no-build-isolation: build the extension against the torch just installed (not a fresh download).
 $PIP install -q --no-build-isolation -e ".[all]"
 "$VENV/bin/python" -c "import rfir_cli, rfir_stages; print('setup: rfir', rfir_cli.__version__, 'ready')"

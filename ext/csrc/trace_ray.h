@@ -51,9 +51,10 @@ RFIR_HD bool ray_box(const BVHNode& nd, const float* o, const float* inv, float 
   for (int a = 0; a < 3; ++a) {
     float ta = (nd.lo[a] - o[a]) * inv[a];
     float tb = (nd.hi[a] - o[a]) * inv[a];
-    float tn = fminf(ta, tb), tf = fmaxf(ta, tb);  // fmin/fmax drop NaN from 0 * inf
-    t0 = fmaxf(t0, tn);
-    t1 = fminf(t1, tf);
+    // plain compares (inlined to minss/maxss); a NaN from 0 * inf leaves t0 / t1 unchanged
+    const float tn = ta < tb ? ta : tb, tf = ta < tb ? tb : ta;
+    t0 = tn > t0 ? tn : t0;
+    t1 = tf < t1 ? tf : t1;
   }
   entry = t0;
   return t0 <= t1;

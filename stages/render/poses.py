@@ -45,9 +45,11 @@ def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
 
 
 def object_poses(center, radius_m: float, n_views: int, K: np.ndarray, width: int, height: int,
-                 rng: np.random.Generator, elevations_deg=None, fill: float = 0.7) -> np.ndarray:
+                 rng: np.random.Generator, elevations_deg=None, fill: float = 0.9,
+                 azimuth_span_deg: float = 360.0) -> np.ndarray:
     """(n, 4, 4) views on rings around a bounding sphere (centre, radius) that fills `fill` of the
-    shorter image side; ring sizes follow cos(elevation), azimuths are staggered between rings."""
+    shorter image side; ring sizes follow cos(elevation), azimuths are staggered between rings.
+    azimuth_span_deg < 360 puts the views on an arc (a partial orbit, for small test sets)."""
     center = np.asarray(center, np.float64)
     half = np.arctan(0.5 * min(width, height) / K[0, 0])
     dist = radius_m / np.sin(fill * half)
@@ -60,9 +62,11 @@ def object_poses(center, radius_m: float, n_views: int, K: np.ndarray, width: in
     counts[: n_views - counts.sum()] += 1
     poses = []
     for ring, (el, count) in enumerate(zip(elev, counts)):
-        offset = rng.uniform(0, 2 * np.pi)
+        span = np.radians(min(azimuth_span_deg, 360.0))
+        full = azimuth_span_deg >= 360.0
+        offset = rng.uniform(0, 2 * np.pi) if full else (ring % 2) * 0.5 * span / max(count, 1)
         for k in range(count):
-            az = offset + 2 * np.pi * k / count
+            az = offset + (span * k / count if full else span * k / max(count, 1))
             eye = center + dist * direction(az, el)
             target = center + rng.normal(0.0, 0.04 * radius_m, 3)
             poses.append(look_at(eye, target))

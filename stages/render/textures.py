@@ -50,8 +50,10 @@ def blobs(rng: np.random.Generator, size: int, count: int, radius_px: tuple[floa
 
 def _detail(rng, size) -> np.ndarray:
     """The shared high-frequency layer: fine noise plus blobs of several sizes."""
-    return (0.5 * fractal_noise(rng, size, octaves=(32, 64, 128, 256, 512), persistence=0.8)
-            + 0.9 * blobs(rng, size, size // 2, (1.5, 6.0)) + 0.6 * blobs(rng, size, size // 16, (6.0, 20.0)))
+    scale = size / 1024.0
+    return (0.5 * fractal_noise(rng, size, octaves=(16, 32, 64, 128, 256), persistence=0.9)
+            + 1.0 * blobs(rng, size, int(900 * scale ** 2), (3.0 * scale, 10.0 * scale))
+            + 0.8 * blobs(rng, size, int(120 * scale ** 2), (10.0 * scale, 36.0 * scale)))
 
 
 def _grid_cells(size: int, nx: int, ny: int, stagger: bool, mortar_px: int, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -105,9 +107,9 @@ def make_texture(visual: str, color, size: int = 1024, seed: int = 0) -> np.ndar
     The same (visual, color, size, seed) always gives the same image.
     """
     rng = np.random.default_rng(_stable_seed(visual, tuple(np.round(color, 4)), size, seed))
-    lum = _pattern(visual, rng, size) + 0.35 * _detail(rng, size)
+    lum = _pattern(visual, rng, size) + 0.6 * _detail(rng, size)
     # Hue jitter keeps neighbouring features distinguishable in colour as well as brightness.
-    hue = 0.05 * np.stack([fractal_noise(rng, size, octaves=(4, 16, 64)) for _ in range(3)], axis=-1)
-    color = np.clip(np.asarray(color, np.float32), 0.08, 1.0)
-    factor = np.clip(1.0 + 0.28 * lum, 0.25, 1.9)[..., None]
-    return np.clip(color[None, None, :] * factor + hue, 0.0, 1.0).astype(np.float32)
+    hue = 0.22 * np.stack([fractal_noise(rng, size, octaves=(4, 16, 64)) for _ in range(3)], axis=-1)
+    color = np.clip(np.asarray(color, np.float32), 0.01, 1.0)
+    factor = np.clip(1.0 + 0.45 * lum, 0.15, 2.2)[..., None]
+    return np.clip(color[None, None, :] * factor * (1.0 + hue), 0.0, 1.0).astype(np.float32)

@@ -1,0 +1,190 @@
+"""Structure from motion with pycolmap's Python API (the only module that imports pycolmap).
+
+Features, matching, incremental mapping with bundle adjustment, undistortion to pinhole, and
+reading an existing COLMAP model. Everything runs in a temporary work folder.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.errors import InputFileError, StageError
+
+from .images import ImageSet
+
+
+@dataclass
+class SfmOptions:
+    """Structure-from-motion settings (section [calibrate.sfm] of configs/calibrate.toml).
+
+    matcher: "auto" (exhaustive up to exhaustive_max_images, else sequential), "exhaustive" or
+      "sequential" (each photo against the next `sequential_overlap`, plus quadratic jumps);
+    max_num_features: SIFT features per image; max_image_size: longer side used for features (px);
+    camera_model: COLMAP model when intrinsics are unknown ("SIMPLE_RADIAL", "PINHOLE", "OPENCV"...);
+    max_ignored_distortion_px: distortion smaller than this at the image corners is dropped (no
+      resampled copies of the photos are written); min_model_size: smallest model kept;
+    num_threads: -1 for all cores; seed: RANSAC / mapper seed (for repeatable runs).
+    """
+
+    matcher: str = "auto"
+    exhaustive_max_images: int = 200
+    sequential_overlap: int = 15
+    max_num_features: int = 8192
+    max_image_size: int = 3200
+    camera_model: str = "SIMPLE_RADIAL"
+    max_ignored_distortion_px: float = 0.1
+    min_model_size: int = 3
+    num_threads: int = -1
+    seed: int = 0
+
+
+def _pycolmap():
+    try:
+        import pycolmap
+    except ImportError as exc:  # pragma: no cover - the vision extra is missing
+        raise StageError(f"pycolmap is not installed ({exc}); install rfir[vision]") from None
+    # stages never print: keep COLMAP's own log to errors only
+    pycolmap.logging.minloglevel = 2
+    pycolmap.logging.stderrthreshold = 2
+    return pycolmap
+
+
+def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, known_K: np.ndarray | None = None):
+    """Run SfM on `images` in `work_dir`; return (largest pycolmap.Reconstruction or None, number of models).
+
+    known_K (3,3, OpenCV pixel convention): fixed pinhole intrinsics shared by all photos.
+    """
+    pycolmap = _pycolmap()
+    if hasattr(pycolmap, "set_random_seed"):
+        pycolmap.set_random_seed(options.seed)
+    db = work_dir / "database.db"
+    reader = pycolmap.ImageReaderOptions()
+    if known_K is not None:
+        reader.camera_model = "PINHOLE"
+        # COLMAP's pixel centres sit at +0.5 relative to OpenCV's
+        reader.camera_params = ",".join(f"{v:.10g}" for v in (known_K[0, 0], known_K[1, 1],
+                                                              known_K[0, 2] + 0.5, known_K[1, 2] + 0.5))
+    else:
+        reader.camera_model = options.camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = options.num_threads
+    extraction.max_image_size = options.max_image_size
+    extraction.sift.max_num_features = options.max_num_features
+    extraction.use_gpu = False
+    chunk = 8
+    with progress.task("features", total=len(images.names)) as task:
+        for start in range(0, len(images.names), chunk):
+            names = images.names[start:start + chunk]
+            pycolmap.extract_features(db, images.folder, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                                      reader_options=reader, extraction_options=extraction,
+                                      device=pycolmap.Device.cpu)
+            task.advance(len(names))
+            reader.existing_camera_id = 1  # the later chunks share the first chunk's camera
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = options.num_threads
+    matching.use_gpu = False
+    matcher = options.matcher
+    if matcher == "auto":
+        matcher = "exhaustive" if len(images.names) <= options.exhaustive_max_images else "sequential"
+    with progress.task(f"matching ({matcher})", total=1) as task:
+        if matcher == "exhaustive":
+            pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+        elif matcher == "sequential":
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = options.sequential_overlap
+            pairing.quadratic_overlap = True
+            pairing.loop_detection = False  # needs a vocabulary tree download
+            pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing,
+                                      device=pycolmap.Device.cpu)
+        else:
+            raise StageError(f"unknown matcher {options.matcher!r} (expected auto, exhaustive or sequential)")
+        task.advance(1)
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = options.num_threads
+    mapping.random_seed = options.seed
+    mapping.min_model_size = options.min_model_size
+    mapping.ba_use_gpu = False
+    if known_K is not None:
+        mapping.ba_refine_focal_length = False
+        mapping.ba_refine_principal_point = False
+        mapping.ba_refine_extra_params = False
+    out = work_dir / "sparse"
+    out.mkdir(parents=True, exist_ok=True)
+    with progress.task("mapping", total=len(images.names)) as task:
+        models = pycolmap.incremental_mapping(db, images.folder, out, options=mapping,
+                                              next_image_callback=lambda: task.advance(1))
+    if not models:
+        return None, 0
+    best = max(models.values(), key=lambda r: r.num_reg_images())
+    return best, len(models)
+
+
+def read_colmap_model(folder: str | Path):
+    """Read an existing COLMAP sparse model (cameras/images/points3D as .bin or .txt)."""
+    pycolmap = _pycolmap()
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputFileError("COLMAP model folder not found", path=folder)
+    candidates = [folder] + sorted(p for p in folder.iterdir() if p.is_dir())
+    for cand in candidates:
+        if any((cand / f"cameras.{ext}").exists() for ext in ("bin", "txt")):
+            try:
+                return pycolmap.Reconstruction(str(cand))
+            except Exception as exc:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError
+                raise InputFileError(f"cannot read COLMAP model: {exc}", path=cand) from None
+    raise InputFileError("no COLMAP model here (expected cameras.bin/.txt, images.*, points3D.*)", path=folder)
+
+
+def write_colmap_model(rec, folder: Path) -> None:
+    """Write a reconstruction as a binary COLMAP model."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rec.write(str(folder))
+
+
+def max_distortion_px(rec) -> float:
+    """The largest displacement (px) that the cameras' distortion causes at the image corners/edges."""
+    worst = 0.0
+    for cam in rec.cameras.values():
+        if not cam.extra_params_idxs():
+            continue
+        w, h = cam.width, cam.height
+        border = np.array([[0, 0], [w, 0], [0, h], [w, h], [w / 2, 0], [0, h / 2], [w, h / 2], [w / 2, h]], float)
+        rays = np.asarray(cam.cam_from_img(border))
+        K = np.asarray(cam.calibration_matrix())
+        ideal = rays @ K[:2, :2].T + K[:2, 2]
+        worst = max(worst, float(np.max(np.linalg.norm(ideal - border, axis=1))))
+    return worst
+
+
+def drop_distortion(rec) -> None:
+    """Set the cameras' distortion parameters to zero in place (used when they are negligible)."""
+    for cam in rec.cameras.values():
+        params = np.asarray(cam.params, np.float64).copy()
+        for i in cam.extra_params_idxs():
+            params[i] = 0.0
+        cam.params = params
+
+
+def undistort(rec_dir: Path, image_folder: Path, out_dir: Path, names: list[str]):
+    """Undistort the photos of a model to pinhole copies in out_dir/images; return the new model."""
+    pycolmap = _pycolmap()
+    pycolmap.undistort_images(str(out_dir), str(rec_dir), str(image_folder), image_names=names)
+    return pycolmap.Reconstruction(str(out_dir / "sparse"))
+
+
+def camera_from_image(rec, name: str, uv_opencv: np.ndarray) -> np.ndarray | None:
+    """Normalised camera coordinates (M,2) of OpenCV-convention pixels in image `name` (distortion removed)."""
+    image = rec.find_image_with_name(name)
+    if image is None or not image.has_pose:
+        return None
+    return np.asarray(image.camera.cam_from_img(np.asarray(uv_opencv, float) + 0.5))
+
+
+def cam_from_world(rec, name: str) -> np.ndarray | None:
+    """(3,4) cam_from_world of a registered image, None if it is not registered."""
+    image = rec.find_image_with_name(name)
+    if image is None or not image.has_pose:
+        return None
+    return np.asarray(image.cam_from_world().matrix())
