@@ -33,7 +33,7 @@ def _extensions():
         ext = CUDAExtension(
             "rfir_tracer._C", cpp + cu, include_dirs=include,
             define_macros=[("RFIR_WITH_CUDA", "1")],
-            extra_compile_args={"cxx": cxx, "nvcc": ["-O3", "--use_fast_math", "-std=c++17"]},
+            extra_compile_args={"cxx": cxx, "nvcc": ["-O3", "-std=c++17"]},
             extra_link_args=["-fopenmp"],
         )
     else:

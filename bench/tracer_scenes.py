@@ -82,14 +82,14 @@ def surface_scene(n_target: int, seed: int = 0, dtype=torch.float32):
         ex = R[:, 0].abs()
         along_u = float(torch.dot(ex, u.abs() / u.norm())) > 0.5
         sx, sy = (pitch[0], pitch[1]) if along_u else (pitch[1], pitch[0])
-        ls = torch.log(torch.tensor([0.6 * sx, 0.6 * sy, 1e-3 * min(sx, sy)], dtype=torch.float64))
+        ls = torch.log(torch.tensor([0.8 * sx, 0.8 * sy, 1e-3 * min(sx, sy)], dtype=torch.float64))
         parts["means"].append(m)
         parts["log_scales"].append(ls.expand(k, 3))
         parts["rotations"].append(q.expand(k, 4))
         parts["normals"].append(n.expand(k, 3))
     out = {k: torch.cat(v).to(dtype).contiguous() for k, v in parts.items()}
     n_total = out["means"].shape[0]
-    out["opacities"] = (0.7 + 0.29 * torch.rand(n_total, generator=g, dtype=torch.float64)).to(dtype)
+    out["opacities"] = (0.85 + 0.14 * torch.rand(n_total, generator=g, dtype=torch.float64)).to(dtype)
     out["features"] = torch.rand(n_total, 3, generator=g, dtype=torch.float64).to(dtype)
     return out
 

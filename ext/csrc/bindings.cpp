@@ -134,9 +134,11 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
       .def_readwrite("t_stop", &TraceParams::t_stop)
       .def_readwrite("alpha_max", &TraceParams::alpha_max)
       .def_readwrite("kappa2", &TraceParams::kappa2);
-  m.def("forward", &forward, "Trace rays: composited outputs and optional CSR hit lists");
-  m.def("backward", &backward, "Gradients of the traced outputs w.r.t. the Gaussians");
-  m.def("build_bvh", &build_bvh, "Build a BVH (binned SAH) over the Gaussians' bounds");
-  m.def("refit_bvh", &refit_bvh, "Refit a BVH's bounds to moved Gaussians");
+  // The heavy calls release the GIL: other Python threads (data loading, monitoring) keep running.
+  using release = py::call_guard<py::gil_scoped_release>;
+  m.def("forward", &forward, "Trace rays: composited outputs and optional CSR hit lists", release());
+  m.def("backward", &backward, "Gradients of the traced outputs w.r.t. the Gaussians", release());
+  m.def("build_bvh", &build_bvh, "Build a BVH (binned SAH) over the Gaussians' bounds", release());
+  m.def("refit_bvh", &refit_bvh, "Refit a BVH's bounds to moved Gaussians", release());
   m.def("build_info", &build_info, "Compile-time configuration of the extension");
 }

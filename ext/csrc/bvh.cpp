@@ -46,10 +46,10 @@ std::vector<Box> gaussian_boxes(const torch::Tensor& means, const torch::Tensor&
   const double* mp = m.data_ptr<double>();
   const double* lp = l.data_ptr<double>();
   const double* qp = q.data_ptr<double>();
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (n > 4096)
   for (int64_t i = 0; i < n; ++i) {
     double prim[kPrimStride], half[3];
-    preprocess_gaussian(mp + 3 * i, lp + 3 * i, qp + 4 * i, prim);
+    preprocess_gaussian(mp + 3 * i, lp + 3 * i, qp + 4 * i, 1.0, prim);
     gaussian_half_extent(prim, kappa, half);
     for (int a = 0; a < 3; ++a) {
       const double lo = prim[a] - half[a], hi = prim[a] + half[a];

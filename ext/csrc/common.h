@@ -16,14 +16,15 @@
 
 namespace rfir {
 
-// Layout of one preprocessed Gaussian ("prim"), kPrimStride scalars, computed once per call from
-// (mean, log-scale, quaternion): mean, rotation matrix R (row-major, columns = principal axes),
-// 1/scale and scale. Sigma = R diag(s^2) R^T, and the whitening map is M = diag(1/s) R^T.
+// Layout of one preprocessed Gaussian ("prim"), kPrimStride = 16 scalars (one 64-byte cache line
+// in float32), computed once per call from (mean, log-scale, quaternion, opacity): the mean, the
+// whitening map M = diag(1/s) R^T (row-major; Sigma^-1 = M^T M), the scales s and the opacity.
+// R (columns = principal axes) is recovered as R_ji = M_ij s_i where the adjoint needs it.
 constexpr int kMu = 0;
-constexpr int kRot = 3;
-constexpr int kInvS = 12;
-constexpr int kS = 15;
-constexpr int kPrimStride = 18;
+constexpr int kM = 3;
+constexpr int kS = 12;
+constexpr int kOpa = 15;  // opacity used by this call (scene's or an override)
+constexpr int kPrimStride = 16;
 
 // Number of scalars of per-Gaussian gradient accumulated by the backward pass before the
 // quaternion epilogue: d/dmean (3), d/dlog-scale (3), d/dR (9), d/dopacity (1), d/dnormal (3).
@@ -44,9 +45,11 @@ struct BVHNode {
 };
 
 // Read-only view of the scene for one call. Pointers to contiguous tensors.
+// The forward pass reads prims in BVH leaf order (prim slot k holds Gaussian prim_order[k], so a
+// leaf's prims are contiguous in memory); the backward pass reads them by Gaussian id.
 template <typename T>
 struct SceneView {
-  const T* prims;       // [N, kPrimStride]
+  const T* prims;       // [N, kPrimStride], BVH order (forward) or id order (backward)
   const T* opacity;     // [N] in [0, 1]
   const T* normals;     // [N, 3] (may be null when no normal output is wanted)
   const T* features;    // [N, K] (null when K == 0)
@@ -83,7 +86,8 @@ struct ForwardOut {
   T* depth_sq;       // [R]
   T* normal;         // [R, 3]
   T* transmittance;  // [R]
-  int32_t* count;    // [R]
+  int32_t* count;    // [R] composited hits
+  int32_t* evals;    // [R] Gaussians evaluated (BVH candidates; diagnostic), may be null
 };
 
 // Per-ray upstream gradients (same shapes as ForwardOut, counts excluded).

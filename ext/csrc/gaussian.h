@@ -14,30 +14,32 @@
 
 namespace rfir {
 
-// (mean [3], log-scale [3], quaternion wxyz [4], not necessarily unit) -> prim [kPrimStride].
+// (mean [3], log-scale [3], quaternion wxyz [4], not necessarily unit, opacity) -> prim.
 template <typename T>
-RFIR_HD void preprocess_gaussian(const T* mean, const T* log_scale, const T* quat, T* prim) {
+RFIR_HD void preprocess_gaussian(const T* mean, const T* log_scale, const T* quat, T opacity, T* prim) {
   T w = quat[0], x = quat[1], y = quat[2], z = quat[3];
   const T inv_n = T(1) / r_sqrt(w * w + x * x + y * y + z * z);
   w *= inv_n; x *= inv_n; y *= inv_n; z *= inv_n;
-  T* R = prim + kRot;
-  R[0] = 1 - 2 * (y * y + z * z); R[1] = 2 * (x * y - w * z);     R[2] = 2 * (x * z + w * y);
-  R[3] = 2 * (x * y + w * z);     R[4] = 1 - 2 * (x * x + z * z); R[5] = 2 * (y * z - w * x);
-  R[6] = 2 * (x * z - w * y);     R[7] = 2 * (y * z + w * x);     R[8] = 1 - 2 * (x * x + y * y);
+  const T R[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z),     2 * (x * z + w * y),
+                  2 * (x * y + w * z),     1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                  2 * (x * z - w * y),     2 * (y * z + w * x),     1 - 2 * (x * x + y * y)};
   for (int i = 0; i < 3; ++i) {
+    const T inv_s = r_exp(-log_scale[i]);
     prim[kMu + i] = mean[i];
     prim[kS + i] = r_exp(log_scale[i]);
-    prim[kInvS + i] = r_exp(-log_scale[i]);
+    for (int j = 0; j < 3; ++j) prim[kM + 3 * i + j] = R[3 * j + i] * inv_s;  // M_ij = R_ji / s_i
   }
+  prim[kOpa] = opacity;
 }
 
-// Axis-aligned half extents of the ellipsoid {maha <= kappa^2}.
+// Axis-aligned half extents of the ellipsoid {maha <= kappa^2}: kappa sqrt(Sigma_kk),
+// Sigma_kk = sum_j (R_kj s_j)^2 with R_kj s_j = M_jk s_j^2.
 template <typename T>
 RFIR_HD void gaussian_half_extent(const T* prim, T kappa, T* half) {
-  const T* R = prim + kRot;
+  const T* M = prim + kM;
   const T* s = prim + kS;
   for (int k = 0; k < 3; ++k) {
-    T a = R[3 * k] * s[0], b = R[3 * k + 1] * s[1], c = R[3 * k + 2] * s[2];
+    T a = M[k] * s[0] * s[0], b = M[3 + k] * s[1] * s[1], c = M[6 + k] * s[2] * s[2];
     half[k] = kappa * r_sqrt(a * a + b * b + c * c);
   }
 }
@@ -55,13 +57,12 @@ struct Peak {
 // Returns false when the whitened direction is degenerate (never for finite inputs and d != 0).
 template <typename T>
 RFIR_HD bool peak_along_ray(const T* prim, const T* o, const T* d, Peak<T>& pk) {
-  const T* R = prim + kRot;
-  const T* is = prim + kInvS;
+  const T* M = prim + kM;
   const T p[3] = {prim[0] - o[0], prim[1] - o[1], prim[2] - o[2]};
   T dw[3];
-  for (int i = 0; i < 3; ++i) {  // (R^T v)_i = sum_j R_ji v_j
-    pk.pw[i] = is[i] * (R[i] * p[0] + R[3 + i] * p[1] + R[6 + i] * p[2]);
-    dw[i] = is[i] * (R[i] * d[0] + R[3 + i] * d[1] + R[6 + i] * d[2]);
+  for (int i = 0; i < 3; ++i) {
+    pk.pw[i] = M[3 * i] * p[0] + M[3 * i + 1] * p[1] + M[3 * i + 2] * p[2];
+    dw[i] = M[3 * i] * d[0] + M[3 * i + 1] * d[1] + M[3 * i + 2] * d[2];
   }
   T len2 = dot3(dw, dw);
   T len;
@@ -86,31 +87,31 @@ RFIR_HD bool peak_along_ray(const T* prim, const T* o, const T* d, Peak<T>& pk) 
 // Adjoint of one hit's (G, t*) with respect to the Gaussian's geometry.
 // g_maha = dL/dmaha, g_t = dL/dt*. Adds into acc (layout kGradStride: mean, log-scale, R).
 // Envelope theorem for maha (t* is its minimiser), explicit derivative for t*:
-//   v = 2 g_maha r + g_t u / |d'|,  dL/dmean = R (v / s),
+//   v = 2 g_maha r + g_t u / |d'|,  dL/dmean = M^T v,
 //   dL/dlog s_i = -r_i (v_i + g_t u_i / |d'|),
 //   dL/dR_ji = (v_i q_j + (g_t / |d'|^2) r_i d_j) / s_i,  q = mu - x(t*) = R (s * r).
 template <typename T>
 RFIR_HD void peak_backward(const T* prim, const T* d, const Peak<T>& pk, T g_maha, T g_t, T* acc) {
-  const T* R = prim + kRot;
-  const T* is = prim + kInvS;
+  const T* M = prim + kM;
   const T* s = prim + kS;
   T c[3], r[3];
   cross3(pk.pw, pk.u, c);
   cross3(pk.u, c, r);
-  T sr[3] = {s[0] * r[0], s[1] * r[1], s[2] * r[2]};
+  const T ssr[3] = {s[0] * s[0] * r[0], s[1] * s[1] * r[1], s[2] * s[2] * r[2]};
   T q[3];
-  for (int j = 0; j < 3; ++j) q[j] = R[3 * j] * sr[0] + R[3 * j + 1] * sr[1] + R[3 * j + 2] * sr[2];
+  for (int j = 0; j < 3; ++j) q[j] = M[j] * ssr[0] + M[3 + j] * ssr[1] + M[6 + j] * ssr[2];
   const T gu = g_t * pk.inv_len;
   const T beta = gu * pk.inv_len;
-  T a[3], b[3];
+  T v[3], a[3], b[3];
   for (int i = 0; i < 3; ++i) {
-    const T v = 2 * g_maha * r[i] + gu * pk.u[i];
-    acc[gLogS + i] -= r[i] * (v + gu * pk.u[i]);
-    a[i] = v * is[i];
-    b[i] = beta * r[i] * is[i];
+    v[i] = 2 * g_maha * r[i] + gu * pk.u[i];
+    acc[gLogS + i] -= r[i] * (v[i] + gu * pk.u[i]);
+    const T inv_s = T(1) / s[i];
+    a[i] = v[i] * inv_s;
+    b[i] = beta * r[i] * inv_s;
   }
   for (int j = 0; j < 3; ++j) {
-    acc[gMu + j] += R[3 * j] * a[0] + R[3 * j + 1] * a[1] + R[3 * j + 2] * a[2];
+    acc[gMu + j] += M[j] * v[0] + M[3 + j] * v[1] + M[6 + j] * v[2];
     for (int i = 0; i < 3; ++i) acc[gRot + 3 * j + i] += a[i] * q[j] + b[i] * d[j];
   }
 }

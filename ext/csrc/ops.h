@@ -31,7 +31,8 @@ struct RayTensors {
 };
 
 // Forward returns {features [R,K], depth [R], depth_sq [R], normal [R,3], transmittance [R],
-// count [R] int32, hit_offsets [R+1] int64, hit_ids [H] int32, hit_t [H], hit_response [H]}.
+// count [R] int32, hit_offsets [R+1] int64, hit_ids [H] int32, hit_t [H], hit_response [H],
+// evaluations [R] int32}.
 // Without want_hits the four hit tensors are empty (offsets all zero).
 std::vector<torch::Tensor> forward_cpu(const SceneTensors& s, const RayTensors& r,
                                        const TraceParams& p, bool want_hits);

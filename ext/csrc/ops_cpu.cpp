@@ -15,19 +15,26 @@
 namespace rfir {
 namespace {
 
-constexpr int kBufCpu = 32;                      // k-buffer size per ray
+constexpr int kBufCpu = 64;                      // k-buffer size per ray
 constexpr int64_t kGradBufferBytes = 1LL << 30;  // cap on per-thread gradient buffers
+constexpr int64_t kMinParallel = 512;            // smaller loops run on one thread (no fork cost)
 
+// Prims in BVH leaf order (bvh_order) for the forward pass, or by Gaussian id.
 template <typename T>
-torch::Tensor preprocess(const SceneTensors& s) {
+torch::Tensor preprocess(const SceneTensors& s, bool bvh_order) {
   const int64_t n = s.means.size(0);
   auto prims = torch::empty({n, kPrimStride}, s.means.options());
   const T* m = s.means.data_ptr<T>();
   const T* l = s.log_scales.data_ptr<T>();
   const T* q = s.rotations.data_ptr<T>();
+  const T* a = s.opacities.data_ptr<T>();
+  const int32_t* order = s.prim_order.data_ptr<int32_t>();
   T* out = prims.data_ptr<T>();
-#pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < n; ++i) preprocess_gaussian(m + 3 * i, l + 3 * i, q + 4 * i, out + kPrimStride * i);
+#pragma omp parallel for schedule(static) if (n > 8 * kMinParallel)
+  for (int64_t k = 0; k < n; ++k) {
+    const int64_t i = bvh_order ? order[k] : k;
+    preprocess_gaussian(m + 3 * i, l + 3 * i, q + 4 * i, a[i], out + kPrimStride * k);
+  }
   return prims;
 }
 
@@ -46,7 +53,7 @@ struct VectorSink {
 template <typename T>
 std::vector<torch::Tensor> forward_impl(const SceneTensors& s, const RayTensors& r,
                                         const TraceParams& p, bool want_hits) {
-  const torch::Tensor prims = preprocess<T>(s);
+  const torch::Tensor prims = preprocess<T>(s, true);
   const int64_t R = r.origins.size(0);
   const int64_t K = s.features.size(1);
   auto opt = s.means.options();
@@ -54,22 +61,24 @@ std::vector<torch::Tensor> forward_impl(const SceneTensors& s, const RayTensors&
   auto depth_sq = torch::empty({R}, opt), normal = torch::empty({R, 3}, opt);
   auto trans = torch::empty({R}, opt);
   auto count = torch::empty({R}, opt.dtype(torch::kInt32));
+  auto evals = torch::empty({R}, opt.dtype(torch::kInt32));
   const ForwardOut<T> fo{feat.data_ptr<T>(), depth.data_ptr<T>(), depth_sq.data_ptr<T>(),
-                         normal.data_ptr<T>(), trans.data_ptr<T>(), count.data_ptr<int32_t>()};
+                         normal.data_ptr<T>(), trans.data_ptr<T>(), count.data_ptr<int32_t>(),
+                         evals.data_ptr<int32_t>()};
   const SceneView<T> sc = make_scene_view<T>(s, prims);
   const RayBatch<T> rb = make_ray_batch<T>(r);
   auto offsets = torch::zeros({R + 1}, opt.dtype(torch::kInt64));
   if (!want_hits) {
-#pragma omp parallel for schedule(dynamic, 32)
+#pragma omp parallel for schedule(dynamic, 32) if (R > kMinParallel)
     for (int64_t i = 0; i < R; ++i) {
       NullHitSink sink;
       trace_ray_forward<T, kBufCpu>(sc, rb, i, p, fo, sink);
     }
     auto e = torch::empty({0}, opt);
     return {feat, depth, depth_sq, normal, trans, count, offsets,
-            torch::empty({0}, opt.dtype(torch::kInt32)), e, e.clone()};
+            torch::empty({0}, opt.dtype(torch::kInt32)), e, e.clone(), evals};
   }
-  const int nth = omp_get_max_threads();
+  const int nth = R > kMinParallel ? omp_get_max_threads() : 1;
   std::vector<std::vector<int32_t>> ids(nth);
   std::vector<std::vector<T>> ts(nth), gs(nth);
   std::vector<int64_t> start(R);
@@ -94,14 +103,14 @@ std::vector<torch::Tensor> forward_impl(const SceneTensors& s, const RayTensors&
   int32_t* hi = hit_ids.data_ptr<int32_t>();
   T* ht = hit_t.data_ptr<T>();
   T* hg = hit_g.data_ptr<T>();
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (H > 64 * kMinParallel)
   for (int64_t i = 0; i < R; ++i) {
     const int o = owner[i];
     std::copy_n(ids[o].data() + start[i], cnt[i], hi + off[i]);
     std::copy_n(ts[o].data() + start[i], cnt[i], ht + off[i]);
     std::copy_n(gs[o].data() + start[i], cnt[i], hg + off[i]);
   }
-  return {feat, depth, depth_sq, normal, trans, count, offsets, hit_ids, hit_t, hit_g};
+  return {feat, depth, depth_sq, normal, trans, count, offsets, hit_ids, hit_t, hit_g, evals};
 }
 
 template <typename T>
@@ -124,18 +133,19 @@ std::vector<torch::Tensor> backward_impl(const SceneTensors& s, const RayTensors
                                          const std::vector<torch::Tensor>& grads,
                                          const torch::Tensor& hit_offsets, const torch::Tensor& hit_ids,
                                          const torch::Tensor& hit_t) {
-  const torch::Tensor prims = preprocess<T>(s);
+  const torch::Tensor prims = preprocess<T>(s, false);
   const int64_t R = r.origins.size(0), N = s.means.size(0), K = s.features.size(1);
   const int64_t per_thread = std::max<int64_t>(1, N * (kGradStride + K) * int64_t(sizeof(T)));
+  const int max_threads = R > kMinParallel ? omp_get_max_threads() : 1;
   const int nth = static_cast<int>(
-      std::max<int64_t>(1, std::min<int64_t>(omp_get_max_threads(), kGradBufferBytes / per_thread)));
+      std::max<int64_t>(1, std::min<int64_t>(max_threads, kGradBufferBytes / per_thread)));
   auto opt = s.means.options();
   auto acc = torch::zeros({nth, N, kGradStride}, opt);
   auto gfeat = torch::zeros({nth, N, K}, opt);
   const SceneView<T> sc = make_scene_view<T>(s, prims);
   const RayBatch<T> rb = make_ray_batch<T>(r);
   const ForwardOut<T> fo{outs[0].data_ptr<T>(), outs[1].data_ptr<T>(), outs[2].data_ptr<T>(),
-                         outs[3].data_ptr<T>(), outs[4].data_ptr<T>(), nullptr};
+                         outs[3].data_ptr<T>(), outs[4].data_ptr<T>(), nullptr, nullptr};
   const GradIn<T> gi{grads[0].data_ptr<T>(), grads[1].data_ptr<T>(), grads[2].data_ptr<T>(),
                      grads[3].data_ptr<T>(), grads[4].data_ptr<T>()};
   const HitsView<T> hv{hit_offsets.data_ptr<int64_t>(), hit_ids.data_ptr<int32_t>(), hit_t.data_ptr<T>()};
@@ -155,7 +165,7 @@ std::vector<torch::Tensor> backward_impl(const SceneTensors& s, const RayTensors
   const T* ap = a.data_ptr<T>();
   const T* qp = s.rotations.data_ptr<T>();
   T* grp = g_rot.data_ptr<T>();
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (N > 8 * kMinParallel)
   for (int64_t i = 0; i < N; ++i) quat_backward(qp + 4 * i, ap + i * kGradStride + gRot, grp + 4 * i);
   return {a.slice(1, gMu, gMu + 3).contiguous(), a.slice(1, gLogS, gLogS + 3).contiguous(), g_rot,
           a.select(1, gOpa).contiguous(), a.slice(1, gNrm, gNrm + 3).contiguous(), g_feat.contiguous()};

@@ -76,7 +76,7 @@ RFIR_HD float widen_hi(T v) {
 template <typename T, int C>
 RFIR_HD void collect_hits(const SceneView<T>& sc, const T* o, const T* d, T t_lo, T t_hi,
                           T last_t, int32_t last_id, int32_t exclude, const TraceParams& p,
-                          HitBuffer<T, C>& buf) {
+                          HitBuffer<T, C>& buf, int32_t& evals) {
   buf.n = 0;
   if (sc.n_nodes == 0) return;
   const float of[3] = {float(o[0]), float(o[1]), float(o[2])};
@@ -97,12 +97,14 @@ RFIR_HD void collect_hits(const SceneView<T>& sc, const T* o, const T* d, T t_lo
       for (int k = nd.first; k < nd.first + nd.count; ++k) {
         const int32_t id = sc.prim_order[k];
         if (id == exclude) continue;
+        const T* prim = sc.prims + int64_t(k) * kPrimStride;
+        ++evals;
         Peak<T> pk;
-        if (!peak_along_ray(sc.prims + int64_t(id) * kPrimStride, o, d, pk)) continue;
+        if (!peak_along_ray(prim, o, d, pk)) continue;
         if (!(pk.maha <= kappa2) || !(pk.t > t_lo && pk.t < t_hi)) continue;
         if (pk.t < last_t || (pk.t == last_t && id <= last_id)) continue;
         const T G = r_exp(T(-0.5) * pk.maha);
-        T alpha = sc.opacity[id] * G;
+        T alpha = prim[kOpa] * G;
         alpha = alpha > amax ? amax : alpha;
         if (!(alpha >= amin)) continue;
         buf.insert(pk.t, id, G, alpha);
@@ -158,13 +160,13 @@ RFIR_HD void trace_ray_forward(const SceneView<T>& sc, const RayBatch<T>& rays, 
   T* F = out.features + r * K;
   for (int k = 0; k < K; ++k) F[k] = T(0);
   T D = 0, D2 = 0, N[3] = {0, 0, 0}, Tr = 1;
-  int32_t count = 0;
+  int32_t count = 0, evals = 0;
   T last_t = -INFINITY;
   int32_t last_id = -1;
   HitBuffer<T, C> buf;
   bool done = false;
   while (!done) {
-    collect_hits<T, C>(sc, o, d, t_lo, t_hi, last_t, last_id, exclude, p, buf);
+    collect_hits<T, C>(sc, o, d, t_lo, t_hi, last_t, last_id, exclude, p, buf, evals);
     for (int i = 0; i < buf.n; ++i) {
       const int32_t id = buf.id[i];
       const T t = buf.t[i], a = buf.alpha[i], w = a * Tr;
@@ -189,6 +191,7 @@ RFIR_HD void trace_ray_forward(const SceneView<T>& sc, const RayBatch<T>& rays, 
   out.normal[3 * r] = N[0]; out.normal[3 * r + 1] = N[1]; out.normal[3 * r + 2] = N[2];
   out.transmittance[r] = Tr;
   out.count[r] = count;
+  if (out.evals) out.evals[r] = evals;
 }
 
 // GradSink needs add(id, const T* acc /*kGradStride*/) and add_features(id, T w, const T* gF, K).
@@ -216,7 +219,7 @@ RFIR_HD void trace_ray_backward(const SceneView<T>& sc, const RayBatch<T>& rays,
     peak_along_ray(prim, o, d, pk);
     const T t = pk.t;
     const T G = r_exp(T(-0.5) * pk.maha);
-    const T opa = sc.opacity[id];
+    const T opa = prim[kOpa];
     const bool clamped = opa * G > amax;
     const T alpha = clamped ? amax : opa * G;
     const T* f = sc.features + int64_t(id) * K;

@@ -62,9 +62,8 @@ def _trace_chunk(mu, sinv, opac, feat, nrm, o, d, tmin, tmax, excl, alpha_min, t
     depth_sq = (w * ts * ts).sum(1)
     trans = torch.where(inc, 1.0 - a, torch.ones_like(a)).prod(1)
     count = inc.sum(1)
-    hit_ids = [order[i][inc[i]] for i in range(order.shape[0])]
-    hit_t = [ts[i][inc[i]] for i in range(order.shape[0])]
-    hit_g = [torch.gather(G, 1, order)[i][inc[i]] for i in range(order.shape[0])]
+    # boolean indexing walks row-major: ray by ray, front to back within a ray
+    hit_ids, hit_t, hit_g = order[inc], ts[inc], torch.gather(G, 1, order)[inc]
     return out_f, depth, depth_sq, out_n, trans, count, hit_ids, hit_t, hit_g
 
 
@@ -98,13 +97,13 @@ def trace_reference(means, log_scales, rotations, opacities, origins, directions
         b = min(r, a + chunk)
         parts.append(_trace_chunk(mu, sinv, opac, feat, nrm, o[a:b], d[a:b], tmin[a:b], tmax[a:b],
                                   None if excl is None else excl[a:b], alpha_min, t_stop))
-    cat = [torch.cat([p[i] for p in parts]) for i in range(6)]
-    ids = [x for p in parts for x in p[6]]
-    counts = torch.tensor([len(x) for x in ids], dtype=torch.int64)
-    offsets = torch.cat([torch.zeros(1, dtype=torch.int64), torch.cumsum(counts, 0)])
-    hits = HitLists(offsets, torch.cat(ids).to(torch.int32) if ids else torch.zeros(0, dtype=torch.int32),
-                    torch.cat([x for p in parts for x in p[7]]) if ids else mu.new_zeros(0),
-                    torch.cat([x for p in parts for x in p[8]]) if ids else mu.new_zeros(0))
+    if not parts:  # no rays
+        z = mu.new_zeros(0)
+        parts = [(mu.new_zeros(0, feat.shape[1]), z, z, mu.new_zeros(0, 3), z,
+                  torch.zeros(0, dtype=torch.int64), torch.zeros(0, dtype=torch.int64), z, z)]
+    cat = [torch.cat([p[i] for p in parts]) for i in range(9)]
+    offsets = torch.cat([torch.zeros(1, dtype=torch.int64), torch.cumsum(cat[5].long(), 0)])
+    hits = HitLists(offsets, cat[6].to(torch.int32), cat[7], cat[8])
     return TraceResult(features=cat[0], depth=cat[1], depth_sq=cat[2], normal=cat[3],
                        transmittance=cat[4], hit_count=cat[5].to(torch.int32), hits=hits)
 

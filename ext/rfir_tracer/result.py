@@ -42,7 +42,9 @@ class TraceResult:
     features = sum_i w_i f_i [..., K]; depth = sum_i w_i t*_i [...] (ray parameter units, metres
     for unit directions); depth_sq = sum_i w_i t*_i^2 [...]; normal = sum_i w_i n_i [..., 3];
     transmittance = prod_i (1 - alpha_i) [...] (1 for rays that hit nothing);
-    hit_count [...] int32; hits: optional CSR hit lists over the flattened rays.
+    hit_count [...] int32; hits: optional CSR hit lists over the flattened rays;
+    evaluations [...] int32: Gaussians whose response was evaluated (BVH candidates), a
+    diagnostic of traversal cost (None from the reference).
     """
 
     features: torch.Tensor
@@ -52,6 +54,7 @@ class TraceResult:
     transmittance: torch.Tensor
     hit_count: torch.Tensor
     hits: HitLists | None = None
+    evaluations: torch.Tensor | None = None
 
     @property
     def opacity(self) -> torch.Tensor:

@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass
 
 import torch
+from torch.autograd.function import once_differentiable
 
 from . import _checks
 from ._ext import native
@@ -49,14 +50,15 @@ class _TraceFn(torch.autograd.Function):
     def forward(ctx, means, log_scales, rotations, opacities, normals, features, st: _Static):
         s, r = _scene_tensors(means, log_scales, rotations, opacities, normals, features, st)
         outs = native().forward(s, r, st.params, st.want_hits)
-        feat, depth, depth_sq, normal, trans, count, off, ids, ht, hg = outs
-        ctx.mark_non_differentiable(count, off, ids, ht, hg)
+        feat, depth, depth_sq, normal, trans, count, off, ids, ht, hg, evals = outs
+        ctx.mark_non_differentiable(count, off, ids, ht, hg, evals)
         ctx.save_for_backward(means, log_scales, rotations, opacities, normals, features,
                               feat, depth, depth_sq, normal, trans, off, ids, ht)
         ctx.st = st
-        return feat, depth, depth_sq, normal, trans, count, off, ids, ht, hg
+        return feat, depth, depth_sq, normal, trans, count, off, ids, ht, hg, evals
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, g_feat, g_depth, g_depth_sq, g_normal, g_trans, *_unused):
         (means, log_scales, rotations, opacities, normals, features,
          feat, depth, depth_sq, normal, trans, off, ids, ht) = ctx.saved_tensors
@@ -110,11 +112,17 @@ def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor,
     _checks.check_opacities(opac, n)
     if features is None:
         features = torch.zeros(n, 0, dtype=dtype, device=device)
-    _checks.check_matrix(features, "features", features.shape[1] if features.dim() == 2 else -1, n)
+    if not isinstance(features, torch.Tensor) or features.dim() != 2:
+        raise ValueError("features must be a tensor of shape [N, K]")
+    _checks.check_matrix(features, "features", features.shape[1], n)
     _checks.check_finite(features, "features")
     normals = scene.normals
     if normals is None:
         normals = torch.zeros(0, 3, dtype=dtype, device=device)
+    _checks.check_finite(normals, "normals")
+    for t, name in ((opac, "opacities"), (features, "features"), (normals, "normals")):
+        if t.device != device:
+            raise ValueError(f"{name} is on {t.device} but the scene is on {device}")
     ex = None
     if exclude is not None:
         ex = torch.broadcast_to(torch.as_tensor(exclude, device=device), batch).reshape(-1)
@@ -125,11 +133,12 @@ def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor,
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
     st = _Static(scene.nodes, scene.prim_order, o, d, tmin, tmax, ex, _params(alpha_min, t_stop),
                  bool(return_hits or needs_grad))
-    feat, depth, depth_sq, normal, trans, count, off, ids, ht, hg = _TraceFn.apply(*tensors, st)
+    feat, depth, depth_sq, normal, trans, count, off, ids, ht, hg, ev = _TraceFn.apply(*tensors, st)
     hits = HitLists(off, ids, ht, hg) if return_hits else None
     return TraceResult(features=feat.reshape(batch + (feat.shape[1],)), depth=depth.reshape(batch),
                        depth_sq=depth_sq.reshape(batch), normal=normal.reshape(batch + (3,)),
-                       transmittance=trans.reshape(batch), hit_count=count.reshape(batch), hits=hits)
+                       transmittance=trans.reshape(batch), hit_count=count.reshape(batch), hits=hits,
+                       evaluations=ev.reshape(batch))
 
 
 def transmittance_to_points(scene: GaussianScene, origins: torch.Tensor, gaussian_ids: torch.Tensor,

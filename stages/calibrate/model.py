@@ -42,6 +42,13 @@ class SfmModel:
     def index(self) -> dict[str, int]:
         return {str(n): i for i, n in enumerate(self.names)}
 
+    def without(self, drop: set[str]) -> "SfmModel":
+        """The model without the named images (their points stay)."""
+        keep = np.array([str(n) not in drop for n in self.names], bool)
+        return replace(self, names=self.names[keep], intrinsics=self.intrinsics[keep],
+                       world_from_camera=self.world_from_camera[keep], image_size=self.image_size[keep],
+                       reproj_error_px=self.reproj_error_px[keep])
+
     def transformed(self, sim3: np.ndarray) -> "SfmModel":
         """The model moved by a similarity x -> s R x + t (sim3 = [[sR, t], [0, 1]])."""
         scale = float(np.cbrt(np.linalg.det(sim3[:3, :3])))
@@ -74,15 +81,18 @@ def _reproj_errors(rec, image) -> float:
     return float(np.mean(np.linalg.norm(proj[:, :2] - np.asarray(obs)[ok], axis=1)))
 
 
-def from_reconstruction(rec) -> SfmModel:
-    """Convert a pycolmap.Reconstruction (registered images only, sorted by name)."""
+def from_reconstruction(rec, errors: bool = True) -> SfmModel:
+    """Convert a pycolmap.Reconstruction (registered images only, sorted by name).
+
+    errors=False skips the per-image reprojection errors (zeros), for a quick look at the poses.
+    """
     images = sorted((rec.image(i) for i in rec.reg_image_ids()), key=lambda im: im.name)
     n = len(images)
     names = np.array([im.name for im in images])
     Ks = np.zeros((n, 3, 3))
     poses = np.zeros((n, 4, 4))
     sizes = np.zeros((n, 2), np.int64)
-    errors = np.zeros(n)
+    errors_px = np.zeros(n)
     distorted = False
     models = set()
     for k, im in enumerate(images):
@@ -99,10 +109,10 @@ def from_reconstruction(rec) -> SfmModel:
         poses[k] = np.linalg.inv(cam_from_world)
         poses[k, 3] = (0.0, 0.0, 0.0, 1.0)
         sizes[k] = (cam.width, cam.height)
-        errors[k] = _reproj_errors(rec, im)
+        errors_px[k] = _reproj_errors(rec, im) if errors else 0.0
     pids = sorted(rec.point3D_ids())
     xyz = np.array([rec.point3D(p).xyz for p in pids], np.float64).reshape(-1, 3)
     rgb = np.array([rec.point3D(p).color for p in pids], np.uint8).reshape(-1, 3)
     track = np.array([rec.point3D(p).track.length() for p in pids], np.int64)
-    return SfmModel(names, Ks, poses, sizes, errors, xyz, rgb, track,
+    return SfmModel(names, Ks, poses, sizes, errors_px, xyz, rgb, track,
                     camera_model="/".join(sorted(models)), distorted=distorted)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import InputFileError, StageError
+from rfir_cli.errors import ConfigError, InputFileError, StageError
 
 from .images import ImageSet
 
@@ -38,6 +38,17 @@ class SfmOptions:
     min_model_size: int = 3
     num_threads: int = -1
     seed: int = 0
+
+    def check(self) -> None:
+        """Refuse settings that would only fail after minutes of work."""
+        if self.matcher not in ("auto", "exhaustive", "sequential"):
+            raise ConfigError(f"calibrate.sfm.matcher = {self.matcher!r}: expected auto, exhaustive or sequential")
+        known = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
+                 "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE")
+        if self.camera_model not in known:
+            raise ConfigError(f"calibrate.sfm.camera_model = {self.camera_model!r}: expected one of {', '.join(known)}")
+        if self.max_num_features < 100 or self.sequential_overlap < 1:
+            raise ConfigError("calibrate.sfm: max_num_features must be >= 100 and sequential_overlap >= 1")
 
 
 def _pycolmap():

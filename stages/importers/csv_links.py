@@ -93,6 +93,11 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
     return _assemble(path, records, present, problems, position_scale)
 
 
+def _link_key(rec: dict) -> tuple:
+    """Rows with the same positions, aspect and range belong to one link."""
+    return tuple(rec[c] for c in REQUIRED[:6]) + tuple(rec.get(c, 0.0) for c in ("aspect_deg", "range_m"))
+
+
 def _assemble(path: Path, records: list, present: list, problems: RowProblems, scale: float) -> dict:
     """Group rows into links x frequencies, refusing conflicting duplicates and missing cells."""
     freqs = sorted({rec["freq_hz"] for _, rec in records})
@@ -101,8 +106,7 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
     cells: dict[tuple, tuple] = {}
     value_cols = ["power_db"] + [c for c in ("phase_rad", "rcs_dbsm") if c in present]
     for line, rec in records:
-        key = tuple(rec[c] for c in REQUIRED[:6]) + tuple(rec.get(c, 0.0) for c in ("aspect_deg", "range_m"))
-        link = link_keys.setdefault(key, len(link_keys))
+        link = link_keys.setdefault(_link_key(rec), len(link_keys))
         cell = (link, freq_index[rec["freq_hz"]])
         values = tuple(rec[c] for c in value_cols)
         if cell in cells:
@@ -114,18 +118,17 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
         cells[cell] = (line, values)
     n_links, n_freqs = len(link_keys), len(freqs)
     if len(cells) != n_links * n_freqs:
-        have = {}
+        have: dict[int, tuple[int, set]] = {}
         for (link, f), (line, _) in cells.items():
             have.setdefault(link, (line, set()))[1].add(f)
-        for link, (line, got) in list(have.items())[:3]:
-            if len(got) != n_freqs:
-                lacking = [f"{freqs[i]:g}" for i in range(n_freqs) if i not in got]
-                problems.add(f"link first seen on line {line} lacks frequency {', '.join(lacking[:3])} Hz "
-                             f"(every link needs every frequency)")
+        incomplete = [(line, got) for line, got in have.values() if len(got) != n_freqs]
+        for line, got in incomplete:
+            lacking = [f"{freqs[i]:g}" for i in range(n_freqs) if i not in got]
+            problems.add(f"link first seen on line {line} lacks frequency {', '.join(lacking[:3])} Hz "
+                         f"(every link needs every frequency)")
     first_row = {}
-    for line, rec in records:
-        key = tuple(rec[c] for c in REQUIRED[:6]) + tuple(rec.get(c, 0.0) for c in ("aspect_deg", "range_m"))
-        first_row.setdefault(link_keys[key], rec)
+    for _, rec in records:
+        first_row.setdefault(link_keys[_link_key(rec)], rec)
     ordered = [first_row[i] for i in range(n_links)]
     tx = np.array([[r["tx_x"], r["tx_y"], r["tx_z"]] for r in ordered]) * scale
     rx = np.array([[r["rx_x"], r["rx_y"], r["rx_z"]] for r in ordered]) * scale

@@ -1,8 +1,8 @@
 """Turning a SceneSpec into a Mitsuba 3 scene (llvm_ad_rgb) for the photo renderer.
 
 Meshes are built in memory; every face gets planar UVs on its dominant axis plane in world units
-(so the texture density is the same everywhere and nothing stretches), scaled by a per-scene tile
-size and shifted by a per-object offset so identical objects do not look identical.
+(so the texture density is the same everywhere and nothing stretches). Each object gets its own
+texture, sized to cover it once, so no pattern repeats (repeats confuse structure from motion).
 
 Mitsuba's cameras look along +z with +x to the left of the image and +y up; ours (OpenCV) have +x
 right and +y down, so Mitsuba's to_world is our world_from_camera times diag(-1, -1, 1, 1).
@@ -14,10 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .textures import _stable_seed, make_texture
+from .textures import stable_seed, make_texture
 
 MITSUBA_VARIANT = "llvm_ad_rgb"
 OPENCV_TO_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])
+NEAR_CLIP_M = 0.01  # Mitsuba starts camera rays on the near plane; depth AOVs count from there
 
 
 @contextlib.contextmanager
@@ -46,84 +47,81 @@ class LightSetup:
     background: tuple = (0.55, 0.6, 0.66)
 
 
-def face_uvs(tri: np.ndarray, tile_m: float, offset: np.ndarray) -> np.ndarray:
+def face_uvs(tri: np.ndarray, origin: np.ndarray, tile_m: float) -> np.ndarray:
     """Planar UVs (F, 3, 2) for triangles (F, 3, 3): project each face onto the axis plane its
-    normal is closest to, in units of `tile_m`."""
+    normal is closest to, measured from `origin`, in units of `tile_m` (so [0, 1] spans a tile)."""
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     axis = np.argmax(np.abs(normal), axis=1)
     keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]  # (F, 2): the two coordinates in the plane
-    uv = np.take_along_axis(tri, keep[:, None, :].repeat(3, axis=1), axis=2)
-    # a different offset per dominant axis so a wall and the floor do not show the same patch
-    return uv / tile_m + offset[axis][:, None, :]
+    uv = np.take_along_axis(tri - origin, keep[:, None, :].repeat(3, axis=1), axis=2)
+    return uv / tile_m
 
 
-def build_mesh(mi, name: str, vertices: np.ndarray, faces: np.ndarray, tile_m: float, seed: int):
-    """A flat-shaded mitsuba Mesh with per-face planar UVs (vertices are split per face)."""
-    tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]  # (F, 3, 3)
-    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    tri = tri[area > 1e-12]
-    if len(tri) == 0:
-        return None
-    offset = np.random.default_rng(_stable_seed(name, seed)).uniform(0.0, 1.0, (3, 2))
-    uv = face_uvs(tri, tile_m, offset)
+def build_mesh(mi, name: str, tri: np.ndarray, origin: np.ndarray, tile_m: float):
+    """A flat-shaded mitsuba Mesh from triangles (F,3,3) with planar UVs (vertices are split per face)."""
     mesh = mi.Mesh(name, 3 * len(tri), len(tri), has_vertex_normals=False, has_vertex_texcoords=True)
     params = mi.traverse(mesh)
     params["vertex_positions"] = mi.Float(tri.reshape(-1).astype(np.float32))
     params["faces"] = mi.UInt32(np.arange(3 * len(tri), dtype=np.uint32))
-    params["vertex_texcoords"] = mi.Float(uv.reshape(-1).astype(np.float32))
+    params["vertex_texcoords"] = mi.Float(face_uvs(tri, origin, tile_m).reshape(-1).astype(np.float32))
     params.update()
     return mesh
 
 
+def _triangles(obj) -> np.ndarray:
+    tri = np.asarray(obj.vertices, np.float64)[np.asarray(obj.faces, np.int64)].reshape(-1, 3, 3)
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return tri[area > 1e-12]
+
+
 def default_lights(spec) -> LightSetup:
-    """Lights for a scene: a grid under the ceiling for rooms, three lights above for objects."""
+    """One point light (noise-free direct lighting with hard, view-independent shadows) plus the
+    ambient fill: under the ceiling in the middle of a room, above and in front of an object."""
     lo, hi = np.asarray(spec.bounds[0], float), np.asarray(spec.bounds[1], float)
     center, ext = 0.5 * (lo + hi), hi - lo
     if spec.kind == "room":
-        z = hi[2] - 0.3
-        xs = lo[0] + ext[0] * np.array([0.25, 0.75])
-        ys = lo[1] + ext[1] * np.array([0.25, 0.75])
-        pos = np.array([[x, y, z] for x in xs for y in ys])
-        reach = max(z - lo[2] - 0.8, 1.0)
-        return LightSetup(pos, intensity=1.6 * reach ** 2, ambient=0.4)
+        pos = np.array([[center[0], center[1], hi[2] - 0.3]])
+        reach = max(hi[2] - lo[2] - 1.0, 1.0)
+        return LightSetup(pos, intensity=1.2 * reach ** 2, ambient=0.45)
     radius = 0.5 * float(np.linalg.norm(ext))
     d = 4.0 * max(radius, 1e-3)
-    az = np.radians([30.0, 150.0, 270.0])
-    el = np.radians([55.0, 40.0, 65.0])
-    pos = center + d * np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
-    return LightSetup(pos, intensity=1.0 * d ** 2, ambient=0.35)
+    az, el = np.radians(30.0), np.radians(55.0)
+    pos = center + d * np.array([[np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]])
+    return LightSetup(pos, intensity=1.2 * d ** 2, ambient=0.4)
 
 
-def tile_size_m(spec) -> float:
-    """World size of one texture tile: about 2 mm per texel in rooms, finer for small objects."""
+def texel_size_m(spec) -> float:
+    """World size of one texel: 4 mm in rooms, 1/1024 of the object's size for objects."""
     ext = np.asarray(spec.bounds[1], float) - np.asarray(spec.bounds[0], float)
     if spec.kind == "room":
-        return 2.5
-    return float(np.clip(0.8 * np.max(ext), 0.05, 2.5))
+        return 0.004
+    return float(max(np.max(ext), 0.05) / 1024.0)
 
 
 def build_scene(mi, spec, width: int, height: int, K: np.ndarray, spp: int, seed: int = 0,
-                texture_px: int = 1024, lights: LightSetup | None = None):
+                texture_px: int = 1024, lights: LightSetup | None = None, max_texture_px: int = 3072):
     """A Mitsuba scene for `spec` with an AOV integrator (RGBA, albedo, ray distance).
 
-    The sensor's field of view and principal point reproduce K exactly (square pixels).
+    Every object gets its own texture covering it once; texture_px sets the texel density (texels
+    per texel_size_m(spec) * 1024 metres; 1024 is the reference). The sensor reproduces K exactly.
     """
     lights = lights or default_lights(spec)
-    tile = tile_size_m(spec)
+    texel = texel_size_m(spec) * 1024.0 / texture_px
     fx, cx, cy = K[0, 0], K[0, 2], K[1, 2]
     if abs(K[1, 1] - fx) > 1e-6 * fx:
         raise ValueError("the renderer needs square pixels (fx == fy)")
     if abs(cx - (width - 1) / 2) > 1e-6 or abs(cy - (height - 1) / 2) > 1e-6:
         raise ValueError("the renderer needs the principal point at the image centre")
     hfov = np.degrees(2 * np.arctan(0.5 * width / fx))
-    bsdfs: dict = {}
     scene: dict = {
         "type": "scene",
         "integrator": {"type": "aov", "aovs": "albedo:albedo,dist:depth",
-                       "integrator": {"type": "path", "max_depth": 2, "hide_emitters": True}},
+                       # direct light only: one shadow ray per sample, no noisy indirect bounces
+                       "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0,
+                                      "hide_emitters": True}},
         "sensor": {
             "type": "perspective", "fov": float(hfov), "fov_axis": "x",
-            "near_clip": 0.01, "far_clip": 1000.0,
+            "near_clip": NEAR_CLIP_M, "far_clip": 1000.0,
             "film": {"type": "hdrfilm", "width": int(width), "height": int(height), "pixel_format": "rgba",
                      "rfilter": {"type": "box"}},
             "sampler": {"type": "independent", "sample_count": int(spp)},
@@ -133,18 +131,25 @@ def build_scene(mi, spec, width: int, height: int, K: np.ndarray, spp: int, seed
         scene[f"light_{i}"] = {"type": "point", "position": [float(v) for v in pos],
                                "intensity": {"type": "rgb", "value": float(lights.intensity)}}
     for i, obj in enumerate(spec.objects):
+        tri = _triangles(obj)
+        if len(tri) == 0:
+            continue
+        # one texture per object, one tile over the whole object: nothing repeats, nothing wraps
+        lo, hi = tri.reshape(-1, 3).min(0), tri.reshape(-1, 3).max(0)
+        size = int(np.clip(np.ceil(np.max(hi - lo) / texel), 64, max_texture_px))
+        tile = size * texel
         visual = getattr(obj, "visual", "noise") or "noise"
         color = tuple(float(c) for c in getattr(obj, "color", (0.6, 0.6, 0.6)))
-        key = (visual, color)
-        if key not in bsdfs:
-            tex = make_texture(visual, color, texture_px, seed)
-            bsdfs[key] = mi.load_dict({"type": "diffuse", "reflectance": {
-                "type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True,
-                "filter_type": "bilinear", "wrap_mode": "repeat"}})
-        mesh = build_mesh(mi, f"obj{i}_{obj.name}", obj.vertices, obj.faces, tile, seed)
-        if mesh is None:
-            continue
-        mesh.set_bsdf(bsdfs[key])
+        tex = getattr(obj, "texture", None)  # an explicit image (e.g. a printed marker) wins
+        if tex is not None:
+            tile = float(np.max(hi - lo))
+        else:
+            tex = make_texture(visual, color, size, seed=stable_seed(obj.name, seed), texel_m=tile / size)
+        bsdf = mi.load_dict({"type": "diffuse", "reflectance": {
+            "type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True, "filter_type": "bilinear",
+            "wrap_mode": "mirror"}})
+        mesh = build_mesh(mi, f"obj{i}_{obj.name}", tri, lo, tile)
+        mesh.set_bsdf(bsdf)
         scene[f"obj{i}"] = mesh
     return mi.load_dict(scene), lights
 

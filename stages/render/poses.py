@@ -45,7 +45,7 @@ def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
 
 
 def object_poses(center, radius_m: float, n_views: int, K: np.ndarray, width: int, height: int,
-                 rng: np.random.Generator, elevations_deg=None, fill: float = 0.9,
+                 rng: np.random.Generator, elevations_deg=None, fill: float = 1.0,
                  azimuth_span_deg: float = 360.0) -> np.ndarray:
     """(n, 4, 4) views on rings around a bounding sphere (centre, radius) that fills `fill` of the
     shorter image side; ring sizes follow cos(elevation), azimuths are staggered between rings.

@@ -9,7 +9,7 @@ import numpy as np
 
 from rfir_cli.progress import NullProgress, Progress
 
-from .mitsuba_scene import build_scene, mitsuba_to_world, mitsuba_variant, ray_caster
+from .mitsuba_scene import NEAR_CLIP_M, build_scene, mitsuba_to_world, mitsuba_variant, ray_caster
 from .poses import intrinsics, obstacle_boxes, object_poses, room_poses
 
 
@@ -43,7 +43,10 @@ def scene_poses(spec, n_views: int, K: np.ndarray, width: int, height: int, seed
     if spec.kind == "room":
         boxes = [np.stack([o.vertices.min(0), o.vertices.max(0)]) for o in spec.objects if len(o.vertices)]
         return room_poses(np.stack([lo, hi]), n_views, obstacle_boxes(boxes, np.stack([lo, hi])), rng, ray_distance)
-    verts = np.concatenate([o.vertices for o in spec.objects if len(o.vertices)])
+    parts = [o.vertices for o in spec.objects if len(o.vertices)]
+    if not parts:
+        raise ValueError(f"scene {spec.name!r} has no geometry to photograph")
+    verts = np.concatenate(parts)
     center = 0.5 * (verts.min(0) + verts.max(0))
     radius = float(np.max(np.linalg.norm(verts - center, axis=1)))
     return object_poses(center, radius, n_views, K, width, height, rng)
@@ -55,15 +58,16 @@ def _to_srgb8(linear: np.ndarray) -> np.ndarray:
     return np.round(srgb * 255.0).astype(np.uint8)
 
 
-def _depth_from_distance(dist: np.ndarray, alpha: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Ray distance (coverage-weighted) -> depth along camera z; 0 where nothing was hit."""
+def _depth_from_distance(dist: np.ndarray, alpha: np.ndarray, K: np.ndarray, near_clip_m: float) -> np.ndarray:
+    """Mitsuba's depth AOV (coverage-weighted ray distance, counted from the near clip plane, where
+    its camera rays start) -> depth along the camera z axis; 0 where nothing was hit."""
     h, w = dist.shape
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     x = (u - K[0, 2]) / K[0, 0]
     y = (v - K[1, 2]) / K[1, 1]
     hit = alpha > 1e-3
     t = np.where(hit, dist / np.maximum(alpha, 1e-3), 0.0)
-    return (t / np.sqrt(1.0 + x * x + y * y)).astype(np.float32)
+    return np.where(hit, t / np.sqrt(1.0 + x * x + y * y) + near_clip_m, 0.0).astype(np.float32)
 
 
 def render_views(spec, out_dir: str | Path, n_views: int | None = None, width: int = 640, height: int = 480,
@@ -73,7 +77,8 @@ def render_views(spec, out_dir: str | Path, n_views: int | None = None, width: i
     """Render `n_views` photos of `spec` (SceneSpec) into `out_dir` and write `cameras.h5`.
 
     n_views defaults to 60 (objects) or 120 (rooms); `poses` (N,4,4, OpenCV world_from_camera)
-    overrides the generated ones. Deterministic for a given seed.
+    overrides the generated ones; texture_px scales the texture resolution (1024: 4 mm texels in
+    rooms, 1/1024 of the object's size for objects). Deterministic for a given seed.
     """
     from rfir_cli.artifacts import write_artifact
     from rfir_cli.provenance import Provenance
@@ -106,7 +111,7 @@ def render_views(spec, out_dir: str | Path, n_views: int | None = None, width: i
                 images.append(path)
                 if write_depth:
                     dpath = out_dir / "depth" / f"view_{i:03d}.npy"
-                    np.save(dpath, _depth_from_distance(dist, alpha, K))
+                    np.save(dpath, _depth_from_distance(dist, alpha, K, NEAR_CLIP_M))
                     depths.append(dpath)
                 task.advance(1)
     n = len(poses)

@@ -17,6 +17,7 @@ class SimpleObject:
     color: tuple = (0.6, 0.6, 0.6)
     label: int = 0
     radio_material: str = "concrete"
+    texture: np.ndarray | None = None  # (H, W, 3) in [0, 1], mapped once over the object's extent
 
 
 @dataclass
@@ -64,6 +65,37 @@ def marker_scene(marker_center, marker_radius: float = 0.01) -> SimpleScene:
     """A dark box with one bright octahedron marker (for projection tests)."""
     v, f = box_mesh((-0.5, -0.5, -0.2), (0.5, 0.5, 0.0))
     mv, mf = octahedron_mesh(marker_center, marker_radius)
-    objects = [SimpleObject("floor", v, f, "plastic", (0.08, 0.08, 0.08)),
-               SimpleObject("marker", mv, mf, "plastic", (1.0, 1.0, 1.0), label=1)]
+    # explicit flat textures: the largest contrast, untouched by the procedural texture look
+    objects = [SimpleObject("floor", v, f, texture=np.full((8, 8, 3), 0.03, np.float32)),
+               SimpleObject("marker", mv, mf, label=1, texture=np.ones((8, 8, 3), np.float32))]
     return SimpleScene("marker", "object", objects, np.array([[-0.5, -0.5, -0.2], [0.5, 0.5, 0.2]]))
+
+
+def aruco_marker(marker_id: int, size_m: float, centre, yaw_deg: float = 0.0, dictionary: str = "DICT_4X4_50",
+                 z_offset_m: float = 5e-4) -> SimpleObject:
+    """A printed ArUco marker lying flat (facing +z) with a white quiet zone of one cell.
+
+    size_m is the black square's side; at yaw 0 the printed top edge points to +y (the layout
+    convention of rfir_stages.calibrate.markers).
+    """
+    import cv2
+
+    dic = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+    cells = dic.markerSize + 2
+    px = 40 * cells
+    img = cv2.aruco.generateImageMarker(dic, marker_id, px)
+    pad = px // cells
+    img = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=255)
+    # the texture's first row lands at low v, i.e. at -y: flip so the printed top edge is at +y
+    img = np.flipud(img)
+    if yaw_deg % 90:
+        raise ValueError("toy markers support yaw in multiples of 90 degrees (planar UVs are axis-aligned)")
+    img = np.rot90(img, k=int(round(yaw_deg / 90.0)) % 4, axes=(1, 0))  # turns the print by +yaw about +z
+    tex = np.repeat(np.ascontiguousarray(img)[..., None], 3, axis=2).astype(np.float32) / 255.0 * 0.9 + 0.02
+    half = 0.5 * size_m * (cells + 2) / cells
+    cx, cy, cz = (float(x) for x in centre)
+    v = np.array([[cx - half, cy - half, cz + z_offset_m], [cx + half, cy - half, cz + z_offset_m],
+                  [cx + half, cy + half, cz + z_offset_m], [cx - half, cy + half, cz + z_offset_m]])
+    f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    return SimpleObject(f"aruco_{marker_id}", v, f, "plastic", (0.9, 0.9, 0.9), texture=tex)
+

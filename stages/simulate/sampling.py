@@ -58,10 +58,11 @@ class _FieldCalcWrapper:
 
 @contextlib.contextmanager
 def focused_sampling(solver, axis, cos_cutoff: float):
-    """Within the block, `solver` shoots its rays inside the cone (axis, cos_cutoff).
+    """Within the block, `solver` shoots its rays inside cones (axis, cos_cutoff).
 
-    One cone for all sources: use it with a single transmitter per solve. cos_cutoff <= -1
-    means the whole sphere (no change).
+    axis: (3,) one cone for every source, or (T, 3) one per source, in the order of
+    `scene.transmitters`. One half-angle for all. cos_cutoff <= -1 means the whole sphere
+    (no change).
     """
     if cos_cutoff <= -1.0:
         yield
@@ -70,8 +71,8 @@ def focused_sampling(solver, axis, cos_cutoff: float):
     import mitsuba as mi
     import sionna.rt.path_solvers.sb_candidate_generator as sbcg
 
-    axis = np.asarray(axis, float)
-    axis = axis / np.linalg.norm(axis)
+    axis = np.atleast_2d(np.asarray(axis, float))
+    axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
     omega = 2.0 * math.pi * (1.0 - cos_cutoff)
     original_spawn = sbcg.spawn_ray_from_sources
     original_fc = solver._field_calculator
@@ -80,11 +81,13 @@ def focused_sampling(solver, axis, cos_cutoff: float):
         num_sources = dr.shape(src_positions)[1]
         sq = lattice(samples_per_src)
         cos_c = mi.Float(float(cos_cutoff))
-        ax = mi.Vector3f(*[float(a) for a in axis])
+        if len(axis) not in (1, num_sources):
+            raise ValueError(f"focused sampling: {len(axis)} cone axes for {num_sources} sources")
+        ax = mi.Vector3f(*[np.ascontiguousarray(np.resize(axis[:, k], num_sources), np.float32)
+                           for k in range(3)])
         dr.make_opaque(cos_c, ax)
-        d_local = mi.warp.square_to_uniform_cone(sq, cos_c)
-        d = mi.Frame3f(ax).to_world(d_local)
-        d = dr.tile(d, num_sources)
+        d_local = dr.tile(mi.warp.square_to_uniform_cone(sq, cos_c), num_sources)
+        d = mi.Frame3f(dr.repeat(ax, samples_per_src)).to_world(d_local)
         ray = mi.Ray3f(o=dr.repeat(src_positions, samples_per_src), d=d)
         ray.time = dr.zeros(mi.Float, dr.width(d))
         return ray

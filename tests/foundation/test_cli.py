@@ -96,3 +96,9 @@ def test_verbose_shows_traceback_on_error(tmp_path):
 def test_bad_device_option(measurements_file):
     result = invoke("--device", "tpu", "info", str(measurements_file))
     assert result.exit_code != 0 and "tpu" in result.output
+
+
+def test_info_tracer_reports_backend():
+    result = invoke("info", "--tracer")
+    assert result.exit_code == 0, result.output
+    assert "tracer:" in result.output and "cpu" in result.output.lower()

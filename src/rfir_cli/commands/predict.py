@@ -1,0 +1,78 @@
+"""`rfir predict rcs RF -o PRED`: RCS predicted by a fitted rf artifact (plots, MAE table, results JSON)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from ..context import RichReporter, console, options, run_guarded
+from ..errors import ConfigError
+
+predict_app = typer.Typer(help="Predict radio quantities from a fitted rf artifact.", no_args_is_help=True)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(predict_app, name="predict")
+
+
+def _parse_list(text: Optional[str], what: str) -> Optional[list[float]]:
+    """'0:360:2' (start:stop:step, stop excluded) or '2,2.5,3' -> floats."""
+    if text is None:
+        return None
+    try:
+        if ":" in text:
+            import numpy as np
+
+            start, stop, step = (float(x) for x in text.split(":"))
+            return [float(v) for v in np.arange(start, stop - 1e-9, step)]
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ConfigError(f"{what} {text!r}: expected a comma list or start:stop:step") from None
+
+
+@predict_app.command("rcs")
+def predict_rcs(
+    ctx: typer.Context,
+    rf: Annotated[Path, typer.Argument(help="rf artifact from `rfir rf-fit`.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="predictions artifact to write (.h5).")],
+    measurements: Annotated[Optional[Path], typer.Option(
+        "--measurements", help="Measurements to predict and compare with (their rows and split).")] = None,
+    aspects: Annotated[Optional[str], typer.Option("--aspects", help="Degrees: '0:360:1' or '0,90,180'.")] = None,
+    ranges: Annotated[Optional[str], typer.Option("--ranges", help="Metres: '3' or '2,3,5'.")] = None,
+    freqs: Annotated[Optional[str], typer.Option("--freqs", help="Hz: '2.4e9' (must be fitted ones).")] = None,
+    plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for PNG plots.")] = None,
+    results: Annotated[Optional[Path], typer.Option(
+        "--results", help="JSON with metrics (default results/<OUT stem>.json when --measurements).")] = None,
+) -> None:
+    """Predict monostatic RCS versus aspect, range and frequency; compare on the test split when measured."""
+    opts = options(ctx)
+
+    def work():
+        from rfir_stages.predict import run_rcs
+
+        results_path = results
+        if results_path is None and measurements is not None:
+            results_path = Path("results") / f"{out.stem}.json"
+        with RichReporter(opts.verbosity) as reporter:
+            return run_rcs(rf, out, dict(opts.config().get("predict", {})), measurements_path=measurements,
+                           aspects_deg=_parse_list(aspects, "--aspects"), ranges_m=_parse_list(ranges, "--ranges"),
+                           freqs_hz=_parse_list(freqs, "--freqs"), plots_dir=plots, results_path=results_path,
+                           seed=opts.seed, config_toml=opts.config_toml(), progress=reporter)
+
+    r = run_guarded(ctx, work)
+    console.print(f"[green]wrote[/green] {r.path}: {r.num_links} links x {len(r.freqs_hz)} freq "
+                  f"({r.render_time_s:.1f} s rendering)", highlight=False)
+    m = r.metrics
+    if "mae_db" in m:
+        table = Table("method", f"MAE on the test split, dB (n = {m['num_test']})", box=None, pad_edge=False)
+        table.add_row("rfir (this model)", f"{m['mae_db']:.2f}")
+        for k, text in (("nearest", "nearest training aspect"), ("linear", "linear interpolation of training aspects")):
+            if f"baseline_{k}_mae_db" in m:
+                table.add_row(f"baseline: {text}", f"{m[f'baseline_{k}_mae_db']:.2f}")
+        console.print(table)
+    if r.plots:
+        console.print(f"plots: {len(r.plots)} PNG in {Path(r.plots[0]).parent}", highlight=False)
+    if r.results_json:
+        console.print(f"results: {r.results_json}", highlight=False)

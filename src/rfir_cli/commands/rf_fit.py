@@ -1,0 +1,47 @@
+"""`rfir rf-fit SCENE MEASUREMENTS -o RF`: per-Gaussian radio materials by inverse rendering."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from ..context import RichReporter, console, options, run_guarded
+
+
+def register(app: typer.Typer) -> None:
+    app.command("rf-fit")(rf_fit)
+
+
+def rf_fit(
+    ctx: typer.Context,
+    scene: Annotated[Path, typer.Argument(help="Scene artifact (Gaussians + normals), or an rf artifact to refit.")],
+    measurements: Annotated[Path, typer.Argument(help="Measurements artifact; rows with split == 0 are fitted.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="rf artifact to write (.h5).")],
+    iterations: Annotated[Optional[int], typer.Option("--iterations", help="Adam steps (rf_fit.iterations).")] = None,
+    freq_hz: Annotated[Optional[list[float]], typer.Option(
+        "--freq-hz", help="Fit only these frequencies (repeatable; default: all in the file).")] = None,
+    checkpoint: Annotated[Optional[Path], typer.Option(
+        "--checkpoint", help="Checkpoint file (default: OUT.ckpt.pt).")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue from the checkpoint when it exists.")] = False,
+) -> None:
+    """Fit RF opacity, roughness and complex reflection coefficient of every Gaussian (geometry frozen)."""
+    opts = options(ctx)
+
+    def work():
+        from rfir_stages.rf_fit import run
+
+        table = dict(opts.config().get("rf_fit", {}))
+        if iterations is not None:
+            table["iterations"] = int(iterations)
+        if freq_hz:
+            table["freqs_hz"] = [float(f) for f in freq_hz]
+        with RichReporter(opts.verbosity) as reporter:
+            return run(scene, measurements, out, table, seed=opts.seed, config_toml=opts.config_toml(),
+                       progress=reporter, checkpoint=checkpoint, resume=resume)
+
+    r = run_guarded(ctx, work)
+    console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
+                  f"{len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
+                  f"{r.iterations} steps ({r.wall_time_s:.0f} s, trace {r.trace_time_s:.0f} s, {r.occlusion})",
+                  highlight=False)

@@ -1,0 +1,142 @@
+"""Flat Gaussians (surfels) tiled on a triangle mesh: a geometry oracle for rf-fit and tests.
+
+Every triangle is split into m x m congruent sub-triangles (m = ceil(longest edge / spacing)), and
+each sub-triangle becomes one Gaussian:
+- mean: the sub-triangle's centroid [m];
+- normal: the face normal (winding v0 -> v1 -> v2, right hand);
+- in-plane covariance: the sub-triangle's own second moments, scaled so that the Gaussian's
+  projected cross-section along the normal, pi sqrt(det Sigma_2D), equals the sub-triangle's
+  area. So the areas A_l seen face-on add up to the mesh area (PHYSICS.md step 1);
+- thickness: `thickness_ratio` times the smaller in-plane standard deviation.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+
+def _quat_from_matrix(rot: np.ndarray) -> np.ndarray:
+    """Rotation matrices [N, 3, 3] (proper) -> unit quaternions [N, 4] (w, x, y, z)."""
+    m = rot
+    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    cands = np.stack([
+        np.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1),
+        np.stack([m[:, 2, 1] - m[:, 1, 2], 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2], m[:, 0, 1] + m[:, 1, 0],
+                  m[:, 0, 2] + m[:, 2, 0]], -1),
+        np.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
+                  m[:, 1, 2] + m[:, 2, 1]], -1),
+        np.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1],
+                  1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1),
+    ], 1)  # [N, 4 candidates, 4]; candidate i has component i = 4 q_i^2 (largest is the stable one)
+    diag = np.stack([1 + tr, 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2], 1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
+                     1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1)
+    q = cands[np.arange(len(m)), diag.argmax(1)]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
+
+
+def _subdivide(tri: np.ndarray, m: int) -> np.ndarray:
+    """One triangle [3, 3] -> its m*m congruent sub-triangles [m*m, 3, 3]."""
+    a, b, c = tri
+    e1, e2 = (b - a) / m, (c - a) / m
+    out = []
+    for i in range(m):
+        for j in range(m - i):
+            p = a + i * e1 + j * e2
+            out.append((p, p + e1, p + e2))
+            if i + j <= m - 2:
+                out.append((p + e1, p + e1 + e2, p + e2))
+    return np.asarray(out, dtype=np.float64)
+
+
+def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: float,
+                        labels: np.ndarray | None = None, thickness_ratio: float = 0.05) -> dict[str, np.ndarray]:
+    """Scene fields (`gaussians/...`) of surfels tiling the mesh.
+
+    vertices [V, 3] m, faces [F, 3] int (any winding; the normal follows it), spacing_m: the
+    largest sub-triangle edge [m]; labels [F] int per face (optional) -> `gaussians/labels`.
+    Returns dict with means [G, 3], log_scales [G, 3] (in-plane, in-plane, normal), rotations
+    [G, 4] wxyz, opacities [G] (ones), normals [G, 3], (labels [G]). Degenerate faces are skipped.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if spacing_m <= 0:
+        raise ValueError(f"spacing_m must be positive, got {spacing_m}")
+    tris = vertices[faces]  # [F, 3, 3]
+    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    keep = area2 > 1e-14
+    means, covs, normals, labs = [], [], [], []
+    for f in np.flatnonzero(keep):
+        tri = tris[f]
+        longest = max(np.linalg.norm(tri[1] - tri[0]), np.linalg.norm(tri[2] - tri[1]), np.linalg.norm(tri[0] - tri[2]))
+        m = max(1, int(math.ceil(longest / spacing_m - 1e-9)))
+        sub = _subdivide(tri, m)
+        centroid = sub.mean(1)  # [S, 3]
+        d = sub - centroid[:, None]
+        cov = np.einsum("sij,sik->sjk", d, d) / 12.0  # second moments of a uniform triangle
+        means.append(centroid)
+        covs.append(np.broadcast_to(cov[0], (len(sub), 3, 3)))  # congruent: same covariance
+        normals.append(np.broadcast_to(cross[f] / area2[f], (len(sub), 3)))
+        if labels is not None:
+            labs.append(np.full(len(sub), int(labels[f])))
+        covs[-1] = _scaled_to_area(covs[-1], 0.5 * area2[f] / m**2)
+    means = np.concatenate(means)
+    normals = np.ascontiguousarray(np.concatenate(normals))
+    cov = np.concatenate(covs)
+    # In-plane axes from the covariance, third axis = the normal.
+    ev, evec = np.linalg.eigh(cov)  # ascending; the smallest (~0) is along the normal
+    e1, e2 = evec[:, :, 2], evec[:, :, 1]
+    e2 = np.cross(normals, e1)  # exactly in-plane, right-handed with (e1, e2, n)
+    e1 = np.cross(e2, normals)
+    rot = np.stack([e1, e2, normals], axis=-1)
+    s1, s2 = np.sqrt(np.maximum(ev[:, 2], 0)), np.sqrt(np.maximum(ev[:, 1], 0))
+    s3 = thickness_ratio * np.minimum(s1, s2)
+    out = {
+        "gaussians/means": means,
+        "gaussians/log_scales": np.log(np.stack([s1, s2, s3], 1)),
+        "gaussians/rotations": _quat_from_matrix(rot),
+        "gaussians/opacities": np.ones(len(means)),
+        "gaussians/normals": normals,
+    }
+    if labels is not None:
+        out["gaussians/labels"] = np.concatenate(labs).astype(np.int64)
+    return out
+
+
+def _scaled_to_area(cov: np.ndarray, area_m2: float) -> np.ndarray:
+    """Scale covariances [S, 3, 3] (rank 2, in-plane) so that pi sqrt(det_2D) = area_m2."""
+    ev = np.linalg.eigvalsh(cov[0])
+    det2 = ev[1] * ev[2]
+    return cov * (area_m2 / (math.pi * math.sqrt(det2)))
+
+
+def scene_from_mesh(scene_name: str, spacing_m: float, thickness_ratio: float = 0.05):
+    """Surfels of a simulate scene (`rfir_stages.simulate.build_scene`): (fields, label_names)."""
+    from rfir_stages.simulate import build_scene
+
+    spec = build_scene(scene_name)
+    verts, faces, labels, off = [], [], [], 0
+    for obj in spec.objects:
+        verts.append(obj.vertices)
+        faces.append(np.asarray(obj.faces) + off)
+        labels.append(np.full(len(obj.faces), obj.label))
+        off += len(obj.vertices)
+    fields = gaussians_from_mesh(np.concatenate(verts), np.concatenate(faces), spacing_m,
+                                 labels=np.concatenate(labels), thickness_ratio=thickness_ratio)
+    return fields, spec.label_names()
+
+
+def write_scene_artifact(path: str | Path, fields: dict, *, label_names=None, source: str = "mesh",
+                         spacing_m: float | None = None) -> Path:
+    """Write surfel fields as a `scene` artifact (records the mesh source in provenance)."""
+    from rfir_cli.artifacts import write_artifact
+    from rfir_cli.provenance import Provenance
+
+    attrs = {"source": source}
+    if label_names is not None:
+        attrs["label_names"] = np.asarray([str(n) for n in label_names], dtype=object)
+    prov = Provenance(stage="geom.from_mesh", extra={"source": source, "spacing_m": spacing_m})
+    return write_artifact(path, "scene", fields, attrs=attrs, provenance=prov)

@@ -1,0 +1,253 @@
+"""`rfir predict rcs`: monostatic RCS from an `rf` artifact, beside measurements when given.
+
+Links come from the measurement file (every row, its split kept) or from --aspects x --ranges in
+simulate's turntable convention. The renderer and antenna are the ones recorded by rf-fit (group
+model/). Outputs: a `predictions` artifact (path_gain_db, rcs_dbsm, measured_db = measured RCS),
+optional PNG plots (polar and linear RCS versus aspect per range and frequency; |Gamma|,
+angle(Gamma), R seen from the first aspect) and results/<name>.json with the MAE on the test
+split beside the nearest-aspect and linear-interpolation baselines.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.errors import ConfigError, StageError
+from rfir_cli.physics.closed_forms import rcs_from_path_gain
+from rfir_cli.progress import NullProgress
+from rfir_cli.provenance import Provenance
+from rfir_stages.rf_fit.antennas import AntennaPattern
+from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_from_artifact, make_links, radar_links,
+                                      scene_centre)
+from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
+
+from .baselines import aspect_baselines
+from .plots import attribute_views, rcs_vs_aspect
+
+
+@dataclass
+class PredictResult:
+    """Summary of one prediction run. metrics: name -> value (MAE in dB on the test split)."""
+
+    path: Path
+    num_links: int
+    freqs_hz: list
+    wall_time_s: float
+    render_time_s: float
+    metrics: dict = field(default_factory=dict)
+    plots: list = field(default_factory=list)
+    results_json: Path | None = None
+
+
+def load_model(rf) -> tuple[Materials, np.ndarray, np.ndarray, AntennaPattern, RenderSettings]:
+    """Materials, fitted freqs [K], system gain [K] dB, antenna and renderer settings of an `rf` artifact."""
+    gamma = torch.polar(torch.as_tensor(np.asarray(rf["rf/gamma_abs"], np.float64)),
+                        torch.as_tensor(np.asarray(rf["rf/gamma_phase_rad"], np.float64)))
+    mats = Materials(torch.as_tensor(np.asarray(rf["rf/opacity"], np.float64)),
+                     torch.as_tensor(np.asarray(rf["rf/roughness"], np.float64)), gamma)
+    model = rf.free.get("model", {})
+    attrs = rf.free.get("model@attrs", {})
+    freqs = np.asarray(rf["rf/freq_hz"], np.float64)
+    s_tx = np.asarray(model.get("s_tx_db", np.zeros(len(freqs))), np.float64)
+    ant = AntennaPattern(str(attrs.get("antenna_kind", "isotropic")), hpbw_deg=float(attrs.get("antenna_hpbw_deg", 40.0)))
+    kw = {}
+    for f in RenderSettings.__dataclass_fields__:
+        if f"render.{f}" in attrs:
+            v = attrs[f"render.{f}"]
+            kw[f] = bool(v) if f in ("visibility", "learn_visibility") else float(v)
+    return mats, freqs, s_tx, ant, RenderSettings(**kw)
+
+
+def system_gain_at(freqs_fit: np.ndarray, s_tx_db: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+    """s_tx per wanted frequency; refuses frequencies the narrowband model was not fitted at."""
+    out = []
+    for f in freqs:
+        hit = np.flatnonzero(np.abs(freqs_fit - f) <= 1e-6 * f)
+        if hit.size == 0:
+            raise StageError(f"{f / 1e9:g} GHz is outside the fitted frequencies "
+                             f"({', '.join(f'{x / 1e9:g}' for x in freqs_fit)} GHz); fit that frequency first")
+        out.append(s_tx_db[hit[0]])
+    return np.asarray(out)
+
+
+def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto", chunk_links: int = 64,
+                         progress=None, render_overrides: dict | None = None) -> np.ndarray:
+    """Path gain [L, K] dB predicted by an `rf` artifact for links tx/rx [L, 3] at freqs [K].
+
+    render_overrides: RenderSettings fields to change (e.g. {"grid_step_deg": 0.5})."""
+    progress = progress or NullProgress()
+    mats, f_fit, s_tx, ant, settings = load_model(rf)
+    for key, value in (render_overrides or {}).items():
+        setattr(settings, key, value)
+    gain = system_gain_at(f_fit, s_tx, np.asarray(freqs, np.float64))
+    geom = geometry_from_artifact(rf)
+    centre = scene_centre(geom)
+    provider = make_provider(occlusion, geom, settings.alpha_min) if settings.visibility else None
+    # Prediction needs no gradients: V and Tbar are traced once per batch with the opacities the
+    # fit saw in them (the learned ones, or the fixed visibility_opacity).
+    frozen = mats.opacity if settings.learn_visibility else None
+    settings.learn_visibility = False
+    out = np.zeros((len(tx), len(freqs)))
+    with progress.task("predict", total=len(tx)) as bar, torch.no_grad():
+        for a in range(0, len(tx), chunk_links):
+            links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
+            cache = build_cache(geom, links, ant, ant, provider, settings, frozen_opacity=frozen)
+            s = render(cache, mats)
+            out[a:a + chunk_links] = 10 * np.log10(np.abs(s.numpy()) ** 2 + 1e-300) + gain[None]
+            bar.advance(links.num)
+    return out
+
+
+def _assert_not_input(out: Path, inputs: list[Path]) -> None:
+    for p in inputs:
+        if p is not None and out.resolve() == Path(p).resolve():
+            raise ConfigError(f"-o {out} would overwrite the input {p}; predicting never overwrites its inputs")
+
+
+def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_deg=None, ranges_m=None,
+            freqs_hz=None, plots_dir=None, results_path=None, name: str | None = None, seed: int = 0,
+            config_toml: str = "", progress=None) -> PredictResult:
+    """Predict monostatic RCS; see the module docstring. config: the [predict] table."""
+    progress = progress or NullProgress()
+    t_start = time.time()
+    rf_path, out_path = Path(rf_path), Path(out_path)
+    _assert_not_input(out_path, [rf_path, measurements_path])
+    if results_path is not None:
+        _assert_not_input(Path(results_path), [rf_path, measurements_path])
+    rf = read_artifact(rf_path, "rf")
+    geom = geometry_from_artifact(rf)
+    centre = scene_centre(geom).numpy()
+    fitted = np.asarray(rf["rf/freq_hz"], np.float64)
+    meas = None
+    if measurements_path is not None:
+        meas = read_artifact(measurements_path, "measurements")
+        check_overlap(geom, meas, str(measurements_path))
+        if meas.get("aspect_rad") is None or meas.get("range_m") is None or meas.get("rcs_dbsm") is None:
+            raise StageError("measurements for `predict rcs` need aspect_rad, range_m and rcs_dbsm",
+                             path=measurements_path)
+        tx, rx = np.asarray(meas["tx_pos"]), np.asarray(meas["rx_pos"])
+        asp, rng = np.asarray(meas["aspect_rad"]), np.asarray(meas["range_m"])
+        f_all = np.asarray(meas["freq_hz"], np.float64)
+        want = fitted if freqs_hz is None else np.asarray(freqs_hz, np.float64)
+        cols = np.flatnonzero([np.any(np.abs(want - f) <= 1e-6 * f) for f in f_all])
+        if cols.size == 0:
+            raise StageError("none of the measured frequencies was fitted "
+                             f"(measured {', '.join(f'{x / 1e9:g}' for x in f_all[:8])} GHz)", path=measurements_path)
+        freqs = f_all[cols]
+        meas_rcs = np.asarray(meas["rcs_dbsm"], np.float64)[:, cols]
+        split = np.asarray(meas["split"]) if meas.get("split") is not None else np.full(len(tx), -1)
+        rows = np.arange(len(tx))
+        if aspects_deg is not None:  # a subset of the measured rows
+            keep = np.any(np.abs(np.mod(asp[:, None] - np.radians(aspects_deg)[None] + math.pi, 2 * math.pi)
+                                 - math.pi) < 1e-6, axis=1)
+            rows = rows[keep]
+        if ranges_m is not None:
+            rows = rows[np.any(np.abs(rng[rows, None] - np.asarray(ranges_m)[None]) < 1e-6, axis=1)]
+        if rows.size == 0:
+            raise StageError("no measured row matches --aspects / --ranges", path=measurements_path)
+        tx, rx, asp, rng, meas_rcs, split = tx[rows], rx[rows], asp[rows], rng[rows], meas_rcs[rows], split[rows]
+    else:
+        aspects = np.radians(np.arange(0.0, 360.0, 1.0) if aspects_deg is None else np.asarray(aspects_deg, float))
+        ranges = np.asarray([3.0] if ranges_m is None else ranges_m, float)
+        freqs = fitted if freqs_hz is None else np.asarray(freqs_hz, np.float64)
+        tx, rx, asp, rng = radar_links(aspects, ranges, centre, float(config.get("separation_m", 0.002)))
+        meas_rcs, split = None, None
+    check_positions(geom, np.concatenate([tx, rx]), "links", float(config.get("min_clearance_m", 0.02)))
+    _, _, _, ant, _ = load_model(rf)
+
+    t0 = time.time()
+    pg_db = predict_path_gain_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
+                                 chunk_links=int(config.get("chunk_links", 64)), progress=progress)
+    render_s = time.time() - t0
+    g0 = ant.boresight_gain
+    rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
+
+    metrics = _metrics(rcs, meas_rcs, split, asp, rng) if meas_rcs is not None else {}
+    data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg_db, "rcs_dbsm": rcs,
+            "aspect_rad": asp, "range_m": rng}
+    if meas_rcs is not None:
+        data.update(measured_db=meas_rcs, split=split.astype(np.int64))
+    prov = Provenance(stage="predict.rcs", config_toml=config_toml)
+    prov.add_input(rf_path)
+    if measurements_path is not None:
+        prov.add_input(measurements_path)
+    prov.wall_time_s = time.time() - t_start
+    prov.extra = {"render_time_s": render_s, "seed": seed}
+    free = {"metrics": {"@attrs": {k: v for k, v in _flat(metrics).items()}}} if metrics else None
+    write_artifact(out_path, "predictions", data, attrs={"task": "rcs", "quantity": "rcs_dbsm"},
+                   provenance=prov, free=free)
+
+    result = PredictResult(out_path, len(tx), freqs.tolist(), time.time() - t_start, render_s, metrics)
+    if plots_dir is not None:
+        result.plots = _plots(Path(plots_dir), rf, asp, rng, freqs, rcs, meas_rcs, split)
+    if results_path is not None:
+        result.results_json = _results(Path(results_path), name or out_path.stem, rf, rf_path, measurements_path,
+                                       result, seed, split)
+    return result
+
+
+def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
+    test, train = np.flatnonzero(split == 1), np.flatnonzero(split == 0)
+    out = {"num_test": int(test.size), "num_train": int(train.size)}
+    if test.size == 0:
+        return out
+    out["mae_db"] = float(np.mean(np.abs(rcs[test] - meas_rcs[test])))
+    out["mae_db_per_freq"] = np.mean(np.abs(rcs[test] - meas_rcs[test]), axis=0).tolist()
+    if train.size:
+        out["mae_train_db"] = float(np.mean(np.abs(rcs[train] - meas_rcs[train])))
+        base = aspect_baselines(asp, rng, meas_rcs, train, test)
+        for k, v in base.items():
+            out[f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(v - meas_rcs[test])))
+    return out
+
+
+def _flat(metrics: dict) -> dict:
+    return {k: (np.asarray(v, float) if isinstance(v, list) else v) for k, v in metrics.items()}
+
+
+def _plots(folder: Path, rf, asp, rng, freqs, rcs, meas_rcs, split) -> list:
+    paths = []
+    for r in np.unique(np.round(rng, 6))[:4]:
+        sel = np.abs(rng - r) < 1e-6
+        for k, f in enumerate(freqs[:4]):
+            stem = f"rcs_{f / 1e9:g}GHz_{r:g}m"
+            title = f"RCS at {f / 1e9:g} GHz, range {r:g} m"
+            m = None if meas_rcs is None else meas_rcs[sel, k]
+            s = None if split is None else split[sel]
+            for polar in (True, False):
+                paths.append(rcs_vs_aspect(folder / f"{stem}_{'polar' if polar else 'linear'}.png", asp[sel],
+                                           rcs[sel, k], m, s, title, polar))
+    a0 = float(asp[0])
+    view = -np.array([math.cos(-a0), math.sin(-a0), 0.0])
+    paths.append(attribute_views(folder / "attributes.png", np.asarray(rf["gaussians/means"]), {
+        "|Gamma|": rf["rf/gamma_abs"], "angle(Gamma) [rad]": rf["rf/gamma_phase_rad"],
+        "roughness R": rf["rf/roughness"], "RF opacity a": rf["rf/opacity"]}, view))
+    return paths
+
+
+def _results(path: Path, name, rf, rf_path, measurements_path, result: PredictResult, seed, split) -> Path:
+    training = rf.free.get("training@attrs", {})
+    doc = {
+        "name": name, "task": "rcs", "scene": str(rf.attrs.get("scene", "")),
+        "freqs_hz": result.freqs_hz, "rf": str(rf_path), "measurements": str(measurements_path),
+        "split": "test = rows with split == 1; model trained on split == 0 (paper: even aspects train, odd test)",
+        "num_test": result.metrics.get("num_test"), "num_train": result.metrics.get("num_train"),
+        "num_gaussians": int(len(rf["rf/opacity"])), "seed": seed,
+        "metrics": result.metrics,
+        "fit": {k: (v.item() if hasattr(v, "item") else v) for k, v in training.items()},
+        "predict_wall_time_s": result.wall_time_s, "predict_render_time_s": result.render_time_s,
+        "num_links": result.num_links,
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(json.dumps(doc, indent=2, default=str) + "\n")
+    tmp.replace(path)
+    return path

@@ -1,0 +1,162 @@
+"""Fitting the RF attributes to measured path gains with Adam (geometry frozen, cache reused).
+
+Loss (config `loss`), over training links and frequencies, in dB of path gain
+(pred_db = 10 log10(|S|^2) + s_tx_db):
+- "db_mse" (default): mean (pred_db - meas_db)^2. The metric is an MAE in dB, and RCS spans
+  tens of dB over aspect; a linear-power loss (the paper's |S^2 - RSSI|^2) is dominated by the few
+  specular flashes and leaves the rest of the pattern unconstrained.
+- "db_huber": smooth L1 in dB (beta `huber_db`), less pulled by deep nulls.
+- "paper": mean |P_pred - P_meas|^2 / mean P_meas^2 in linear power (the paper's loss, scaled).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rfir_cli.errors import ConfigError, InputFileError
+from rfir_cli.progress import NullProgress
+
+from .params import RFParams
+from .render import RenderCache, render
+
+LOSSES = ("db_mse", "db_huber", "paper")
+
+
+@dataclass
+class FitConfig:
+    """Optimiser settings (the [rf_fit] keys of the same names)."""
+
+    iterations: int = 300
+    lr: float = 0.05
+    s_tx_lr: float = 0.5
+    loss: str = "db_mse"
+    huber_db: float = 1.0
+    learn: tuple = ("opacity", "roughness", "gamma_abs", "gamma_phase", "s_tx")
+    init_opacity: float = 0.9
+    init_roughness: float = 4.0
+    init_gamma_abs: float = 0.5
+    init_gamma_phase_rad: float = 0.0
+    sharing: str = "gaussian"
+    checkpoint_every: int = 50
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.loss not in LOSSES:
+            raise ConfigError(f"rf_fit.loss = {self.loss!r}: expected one of {', '.join(LOSSES)}")
+        if self.iterations < 0 or self.lr <= 0:
+            raise ConfigError("rf_fit.iterations must be >= 0 and rf_fit.lr > 0")
+
+
+@dataclass
+class FitResult:
+    """What a fit produced. Arrays are numpy; dB are path-gain dB."""
+
+    opacity: np.ndarray          # [G]
+    roughness: np.ndarray        # [G]
+    gamma_abs: np.ndarray        # [G]
+    gamma_phase_rad: np.ndarray  # [G] wrapped to (-pi, pi]
+    s_tx_db: np.ndarray          # [K]
+    loss_curve: np.ndarray       # [iterations]
+    train_mae_db: float
+    initial_mae_db: float
+    iterations: int
+    wall_time_s: float
+    resumed_at: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+def predict_db(cache: RenderCache, params: RFParams) -> torch.Tensor:
+    """Predicted path gain [M, K] in dB."""
+    s = render(cache, params.materials())
+    return 10 * torch.log10(s.abs() ** 2 + 1e-300) + params.s_tx_db[None]
+
+
+def loss_fn(pred_db: torch.Tensor, meas_db: torch.Tensor, kind: str, huber_db: float = 1.0) -> torch.Tensor:
+    if kind == "db_mse":
+        return ((pred_db - meas_db) ** 2).mean()
+    if kind == "db_huber":
+        return torch.nn.functional.smooth_l1_loss(pred_db, meas_db, beta=huber_db)
+    p, m = 10 ** (pred_db / 10), 10 ** (meas_db / 10)
+    return ((p - m) ** 2).mean() / (m**2).mean()
+
+
+def init_system_gain(cache: RenderCache, params: RFParams, meas_db: torch.Tensor) -> None:
+    """Set s_tx_db so that the median prediction matches the median measurement per frequency."""
+    with torch.no_grad():
+        params.s_tx_db.zero_()
+        pred = predict_db(cache, params)
+        params.s_tx_db.copy_(torch.nanmedian(meas_db - pred, dim=0).values)
+
+
+def _save(path: Path, params: RFParams, opt, it: int, curve: list, key: str) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    torch.save({"params": params.state_dict(), "opt": opt.state_dict(), "iteration": it,
+                "curve": torch.tensor(curve, dtype=torch.float64), "key": key}, tmp)
+    tmp.replace(path)
+
+
+def _load(path: Path, params: RFParams, opt, key: str) -> tuple[int, list]:
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - a damaged checkpoint is a user-fixable input problem
+        raise InputFileError(f"cannot read checkpoint ({exc})", path=path) from None
+    if state.get("key") != key:
+        raise InputFileError("checkpoint was made for other inputs or settings; delete it or drop --resume",
+                             path=path)
+    params.load_state_dict(state["params"])
+    opt.load_state_dict(state["opt"])
+    return int(state["iteration"]), state["curve"].tolist()
+
+
+def fit(cache: RenderCache, meas_db: np.ndarray, params: RFParams, cfg: FitConfig, *, progress=None,
+        checkpoint: Path | None = None, resume: bool = False, key: str = "") -> FitResult:
+    """Optimise `params` so that predicted path gain [M, K] dB matches `meas_db` [M, K]."""
+    progress = progress or NullProgress()
+    torch.manual_seed(cfg.seed)
+    target = torch.as_tensor(meas_db, dtype=torch.float64)
+    groups = params.groups(list(cfg.learn))
+    for g in groups:
+        g["lr"] = cfg.s_tx_lr if g["name"] == "s_tx" else cfg.lr
+    opt = torch.optim.Adam(groups)
+    start, curve = 0, []
+    t0 = time.time()
+    if resume and checkpoint is not None and checkpoint.exists():
+        start, curve = _load(checkpoint, params, opt, key)
+        progress.log(f"resumed from {checkpoint} at iteration {start}")
+    else:
+        init_system_gain(cache, params, target)
+    with torch.no_grad():
+        initial = float((predict_db(cache, params) - target).abs().mean())
+    with progress.task("rf-fit", total=cfg.iterations) as bar:
+        bar.advance(start)
+        for it in range(start, cfg.iterations):
+            opt.zero_grad()
+            loss = loss_fn(predict_db(cache, params), target, cfg.loss, cfg.huber_db)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"loss became {float(loss)} at iteration {it}")
+            loss.backward()
+            opt.step()
+            curve.append(float(loss.detach()))
+            bar.advance(1)
+            if checkpoint is not None and cfg.checkpoint_every > 0 and (it + 1) % cfg.checkpoint_every == 0:
+                _save(checkpoint, params, opt, it + 1, curve, key)
+    with torch.no_grad():
+        mats = params.materials()
+        train_mae = float((predict_db(cache, params) - target).abs().mean())
+    return FitResult(
+        opacity=mats.opacity.numpy().copy(), roughness=mats.roughness.numpy().copy(),
+        gamma_abs=mats.gamma.abs().numpy().copy(), gamma_phase_rad=np.angle(mats.gamma.numpy()),
+        s_tx_db=params.s_tx_db.detach().numpy().copy(), loss_curve=np.asarray(curve, dtype=np.float64),
+        train_mae_db=train_mae, initial_mae_db=initial, iterations=cfg.iterations,
+        wall_time_s=time.time() - t0, resumed_at=start)
+
+
+def mae_db(pred_db: np.ndarray, meas_db: np.ndarray) -> float:
+    """Mean absolute error in dB over finite entries."""
+    d = np.abs(np.asarray(pred_db) - np.asarray(meas_db))
+    return float(np.mean(d[np.isfinite(d)])) if np.isfinite(d).any() else math.nan

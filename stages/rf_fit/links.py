@@ -1,0 +1,145 @@
+"""From artifacts to renderer inputs: frozen geometry, links, antennas, input checks.
+
+Shared by rf-fit and predict so that both see the scene and the links the same way.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from rfir_cli.errors import InputFileError, StageError
+
+from .antennas import AntennaPattern
+from .occlusion import FrozenGeometry
+from .render import LinkSet
+
+
+def geometry_from_artifact(art) -> FrozenGeometry:
+    """FrozenGeometry (float64 torch) from a `scene` or `rf` artifact."""
+    t = lambda k: torch.as_tensor(np.asarray(art[f"gaussians/{k}"], dtype=np.float64))  # noqa: E731
+    normals = t("normals")
+    normals = normals / normals.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    return FrozenGeometry(t("means"), t("log_scales"), t("rotations"), normals)
+
+
+def scene_centre(geom: FrozenGeometry) -> torch.Tensor:
+    """Centre of the Gaussians' bounding box [3] m (the turntable axis point for RCS)."""
+    return 0.5 * (geom.means.min(0).values + geom.means.max(0).values)
+
+
+def antenna_axes(tx_m: torch.Tensor, rx_m: torch.Tensor, centre: torch.Tensor, task: str):
+    """Antenna axes [M, 3]: boresight at the scene centre for rcs/wideband (as simulate does),
+    +z (dipole axis, irrelevant for isotropic) otherwise."""
+    if task in ("rcs", "wideband"):
+        mid = 0.5 * (tx_m + rx_m)
+        bore = centre[None] - mid
+        bore = bore / bore.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        return bore, bore
+    z = torch.zeros_like(tx_m)
+    z[:, 2] = 1.0
+    return z, z
+
+
+def make_links(tx_m, rx_m, freq_hz, centre: torch.Tensor, task: str) -> LinkSet:
+    tx = torch.as_tensor(np.asarray(tx_m, dtype=np.float64))
+    rx = torch.as_tensor(np.asarray(rx_m, dtype=np.float64))
+    tx_axis, rx_axis = antenna_axes(tx, rx, centre, task)
+    return LinkSet(tx, rx, torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)), tx_axis, rx_axis)
+
+
+def _enclosed(geom: FrozenGeometry, pts: torch.Tensor) -> torch.Tensor:
+    """[P] bool: along all six axis directions the first surfel met faces away from the point,
+    i.e. the point is inside a closed surface whose normals point outward (a room's walls face
+    into the room, so antennas inside a room are not 'inside')."""
+    means, normals = geom.means, geom.normals
+    reach = 2.0 * torch.exp(geom.log_scales).max(-1).values                  # [G]
+    inside = torch.ones(len(pts), dtype=torch.bool)
+    for d in torch.cat([torch.eye(3), -torch.eye(3)]).double():
+        diff = means[None] - pts[:, None]                                     # [P, G, 3]
+        t = diff @ d
+        perp = (diff - t[..., None] * d).norm(dim=-1)
+        hit = (t > 0) & (perp < reach[None])
+        t_hit = torch.where(hit, t, torch.full_like(t, float("inf")))
+        first = t_hit.argmin(1)
+        any_hit = torch.isfinite(t_hit.min(1).values)
+        away = (normals[first] @ d) > 0
+        inside &= any_hit & away
+    return inside
+
+
+def check_positions(geom: FrozenGeometry, points_m: np.ndarray, where: str, min_clearance_m: float) -> None:
+    """Refuse antennas inside the geometry: closer than min_clearance_m to a Gaussian's mean, or
+    enclosed by outward-facing surfels (see _enclosed)."""
+    means = geom.means
+    pts = torch.as_tensor(np.asarray(points_m, dtype=np.float64))
+    pts = torch.unique(pts, dim=0)
+    nearest = torch.cat([torch.cdist(pts[i:i + 512], means).min(1).values for i in range(0, len(pts), 512)])
+    bad = torch.nonzero(nearest < min_clearance_m).flatten()
+    if bad.numel():
+        i = int(bad[0])
+        raise InputFileError(f"{bad.numel()} antenna position(s) lie inside the geometry (e.g. "
+                             f"{np.round(pts[i].numpy(), 3).tolist()} m, {float(nearest[i]) * 100:.1f} cm from "
+                             f"a Gaussian; need >= {min_clearance_m * 100:.0f} cm)", path=where)
+    step = max(1, 2_000_000 // max(geom.num, 1))
+    enclosed = torch.cat([_enclosed(geom, pts[i:i + step]) for i in range(0, len(pts), step)])
+    if bool(enclosed.any()):
+        i = int(torch.nonzero(enclosed)[0])
+        raise InputFileError(f"{int(enclosed.sum())} antenna position(s) lie inside the geometry (e.g. "
+                             f"{np.round(pts[i].numpy(), 3).tolist()} m is enclosed by the object's surface)",
+                             path=where)
+
+
+def check_overlap(geom: FrozenGeometry, meas, where: str) -> None:
+    """Refuse a measurement file whose scene bounds do not overlap the Gaussians (another scene)."""
+    bounds = meas.get("scene_bounds")
+    if bounds is None:
+        return
+    lo, hi = geom.means.min(0).values.numpy(), geom.means.max(0).values.numpy()
+    b_lo, b_hi = np.asarray(bounds[0]), np.asarray(bounds[1])
+    slack = 0.05 * max(float(np.max(hi - lo)), 1e-3)
+    inter = np.minimum(hi, b_hi) - np.maximum(lo, b_lo)
+    if np.any(inter < -slack):
+        raise InputFileError(f"the measurements' scene bounds {np.round(b_lo, 2).tolist()}..{np.round(b_hi, 2).tolist()} "
+                             f"m do not overlap the Gaussians ({np.round(lo, 2).tolist()}..{np.round(hi, 2).tolist()} m):"
+                             f" measurements of another scene?", path=where)
+
+
+def pick_rows(split: np.ndarray | None, which: int, where: str) -> np.ndarray:
+    """Row indices with split == which (0 train, 1 test); clear error when there are none."""
+    if split is None:
+        raise StageError("the measurements have no 'split' (0 train, 1 test); add one", path=where)
+    rows = np.flatnonzero(np.asarray(split) == which)
+    if rows.size == 0:
+        name = {0: "training", 1: "test"}[which]
+        raise StageError(f"empty {name} split: no row has split == {which}", path=where)
+    return rows
+
+
+def pick_freqs(available: np.ndarray, wanted: list | None, where: str) -> np.ndarray:
+    """Column indices of the wanted frequencies (all when none given)."""
+    available = np.asarray(available, dtype=np.float64)
+    if not wanted:
+        return np.arange(len(available))
+    cols = []
+    for f in wanted:
+        hit = np.flatnonzero(np.abs(available - float(f)) <= 1e-6 * float(f))
+        if hit.size == 0:
+            raise StageError(f"frequency {float(f) / 1e9:g} GHz is not in the file "
+                             f"({', '.join(f'{x / 1e9:g}' for x in available[:8])} GHz)", path=where)
+        cols.append(int(hit[0]))
+    return np.asarray(cols)
+
+
+def radar_links(aspects_rad: np.ndarray, ranges_m: np.ndarray, centre: np.ndarray, separation_m: float = 0.002):
+    """Monostatic turntable links in simulate's convention (radar at azimuth -theta, range r, at the
+    centre's height; Tx separation/2 above, Rx below). Rows range-major.
+    Returns (tx [L, 3], rx [L, 3], aspect [L], range [L])."""
+    asp = np.tile(np.asarray(aspects_rad, float), len(ranges_m))
+    rng = np.repeat(np.asarray(ranges_m, float), len(aspects_rad))
+    pos = np.stack([rng * np.cos(-asp), rng * np.sin(-asp), np.zeros_like(asp)], 1) + centre
+    off = np.array([0.0, 0.0, separation_m / 2])
+    return pos + off, pos - off, asp, rng
+
+
+def describe_antenna(ant: AntennaPattern) -> dict:
+    return ant.describe()

@@ -1,0 +1,75 @@
+"""Learnable RF attributes with parametrisations that keep each in range.
+
+a = sigmoid(theta_a) in (0, 1); R = 1 + softplus(theta_R) >= 1; |Gamma| = sigmoid(theta_g) in
+(0, 1); angle(Gamma) = theta_phi (free, wrapped when written). Per frequency k a system gain
+s_tx_db[k] [dB] scales the received power: it is |S_tx(f)|^2 of PHYSICS.md step 1, the
+transmitted signal, learned because the model's absolute level depends on the Gaussian density
+(docs/rf-model.md).
+
+Sharing: "gaussian" (one set per Gaussian), "label" (one per object label), "global" (one).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from .render import Materials
+
+
+def _logit(p: float) -> float:
+    p = min(max(p, 1e-6), 1 - 1e-6)
+    return math.log(p / (1 - p))
+
+
+def _softplus_inv(y: float) -> float:
+    return y + math.log(-math.expm1(-y)) if y < 30 else y
+
+
+class RFParams(nn.Module):
+    """Raw parameters [P] gathered to Gaussians by `index` [G] (P groups)."""
+
+    def __init__(self, index: torch.Tensor, num_freqs: int, *, opacity: float = 0.9, roughness: float = 4.0,
+                 gamma_abs: float = 0.5, gamma_phase_rad: float = 0.0):
+        super().__init__()
+        if roughness < 1.0:
+            raise ValueError(f"initial roughness must be >= 1, got {roughness}")
+        p = int(index.max()) + 1 if index.numel() else 0
+        self.register_buffer("index", index.long())
+        full = lambda v: nn.Parameter(torch.full((p,), float(v), dtype=torch.float64))  # noqa: E731
+        self.theta_a = full(_logit(opacity))
+        self.theta_r = full(_softplus_inv(max(roughness - 1.0, 1e-6)))
+        self.theta_g = full(_logit(gamma_abs))
+        self.theta_phi = full(gamma_phase_rad)
+        self.s_tx_db = nn.Parameter(torch.zeros(num_freqs, dtype=torch.float64))
+
+    @staticmethod
+    def sharing_index(kind: str, num_gaussians: int, labels: torch.Tensor | None) -> torch.Tensor:
+        """Group index [G] for "gaussian", "label" or "global" sharing."""
+        if kind == "gaussian":
+            return torch.arange(num_gaussians)
+        if kind == "global":
+            return torch.zeros(num_gaussians, dtype=torch.int64)
+        if kind == "label":
+            if labels is None:
+                raise ValueError("sharing = 'label' needs gaussians/labels in the scene")
+            return torch.unique(labels, return_inverse=True)[1]
+        raise ValueError(f"sharing {kind!r} unknown (gaussian, label, global)")
+
+    def materials(self) -> Materials:
+        i = self.index
+        gamma_abs = torch.sigmoid(self.theta_g)[i]
+        gamma = torch.polar(gamma_abs, self.theta_phi[i])
+        return Materials(torch.sigmoid(self.theta_a)[i], 1.0 + nn.functional.softplus(self.theta_r)[i], gamma)
+
+    def groups(self, names: list[str]) -> list[dict]:
+        """Optimiser groups for the named attributes (opacity, roughness, gamma_abs, gamma_phase, s_tx)."""
+        table = {"opacity": self.theta_a, "roughness": self.theta_r, "gamma_abs": self.theta_g,
+                 "gamma_phase": self.theta_phi, "s_tx": self.s_tx_db}
+        unknown = set(names) - set(table)
+        if unknown:
+            raise ValueError(f"unknown learnable attribute(s) {sorted(unknown)} (known: {sorted(table)})")
+        for key, param in table.items():
+            param.requires_grad_(key in names)
+        return [{"params": [table[n]], "name": n} for n in names]

@@ -1,0 +1,160 @@
+"""`rfir rf-fit`: per-Gaussian radio materials fitted to the training split of a measurement file.
+
+run(scene.h5, measurements.h5, rf.h5, config) reads a `scene` (or `rf`) artifact and a
+`measurements` artifact, traces once (the cache), fits with Adam and writes an `rf` artifact:
+the scene's Gaussians, rf/opacity, rf/roughness, rf/gamma_abs, rf/gamma_phase_rad, rf/freq_hz;
+group model/ (system gain per frequency and the renderer settings predict must reuse, as
+attributes) and group training/ (loss curve, training rows, MAEs).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.errors import ConfigError, InputFileError
+from rfir_cli.progress import NullProgress
+from rfir_cli.provenance import Provenance
+
+from .antennas import resolve_antenna
+from .fit import FitConfig, FitResult, fit
+from .links import (check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, pick_rows,
+                    scene_centre)
+from .occlusion import make_provider
+from .params import RFParams
+from .render import RenderSettings, build_cache
+
+RENDER_KEYS = ("visibility", "grid_step_deg", "center_ray_cells", "self_shadow_margin_m", "alpha_min",
+               "colocated_tol_m", "learn_visibility", "t_stop")
+FIT_KEYS = ("iterations", "lr", "s_tx_lr", "loss", "huber_db", "learn", "init_opacity", "init_roughness",
+            "init_gamma_abs", "init_gamma_phase_rad", "sharing", "checkpoint_every")
+
+
+@dataclass
+class RfFitResult:
+    """Summary of one rf-fit run."""
+
+    path: Path
+    num_gaussians: int
+    num_train_links: int
+    freqs_hz: list
+    train_mae_db: float
+    initial_mae_db: float
+    iterations: int
+    wall_time_s: float
+    trace_time_s: float
+    occlusion: str
+    timings_s: dict = field(default_factory=dict)
+
+
+def settings_from_config(cfg: dict) -> tuple[RenderSettings, FitConfig]:
+    """RenderSettings and FitConfig from the [rf_fit] table (unknown keys were refused upstream)."""
+    render = RenderSettings(**{k: cfg[k] for k in RENDER_KEYS if k in cfg})
+    fit_kw = {k: cfg[k] for k in FIT_KEYS if k in cfg}
+    if "learn" in fit_kw:
+        fit_kw["learn"] = tuple(fit_kw["learn"])
+    return render, FitConfig(**fit_kw)
+
+
+def _key(*parts) -> str:
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0, config_toml: str = "",
+        progress=None, checkpoint: Path | None = None, resume: bool = False) -> RfFitResult:
+    """Fit RF attributes; see the module docstring. config: the [rf_fit] table."""
+    progress = progress or NullProgress()
+    t_start = time.time()
+    scene_path, measurements_path, out_path = Path(scene_path), Path(measurements_path), Path(out_path)
+    if out_path.resolve() in (scene_path.resolve(), measurements_path.resolve()):
+        raise ConfigError(f"-o {out_path} would overwrite an input")
+    torch.manual_seed(seed)
+    render_cfg, fit_cfg = settings_from_config(config)
+    fit_cfg.seed = seed
+    render_cfg.visibility_opacity = fit_cfg.init_opacity
+    scene = read_artifact(scene_path, ("scene", "rf"))
+    meas = read_artifact(measurements_path, "measurements")
+    task = str(meas.attrs.get("task", ""))
+    geom = geometry_from_artifact(scene)
+    check_overlap(geom, meas, str(measurements_path))
+    rows = pick_rows(meas.get("split"), 0, str(measurements_path))
+    cols = pick_freqs(meas["freq_hz"], config.get("freqs_hz"), str(measurements_path))
+    tx, rx = meas["tx_pos"][rows], meas["rx_pos"][rows]
+    check_positions(geom, np.concatenate([tx, rx]), str(measurements_path), float(config.get("min_clearance_m", 0.02)))
+    target = np.asarray(meas["path_gain_db"], dtype=np.float64)[np.ix_(rows, cols)]
+    if not np.isfinite(target).all():
+        raise InputFileError("path_gain_db has non-finite training values", path=measurements_path)
+    max_links = int(config.get("max_links", 0))
+    if max_links and len(rows) > max_links:  # evenly thinned (quick runs)
+        keep = np.linspace(0, len(rows) - 1, max_links).round().astype(int)
+        rows, tx, rx, target = rows[keep], tx[keep], rx[keep], target[keep]
+    freqs = np.asarray(meas["freq_hz"], dtype=np.float64)[cols]
+    centre = scene_centre(geom)
+    links = make_links(tx, rx, freqs, centre, task)
+    sim_attrs = meas.free.get("simulator@attrs", {})
+    ant = resolve_antenna(str(config.get("antenna", "auto")), float(config.get("horn_hpbw_deg", 40.0)),
+                          str(config.get("antenna_table", "")), sim_attrs, task)
+
+    t0 = time.time()
+    provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
+        if render_cfg.visibility else None
+    progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
+                 f"occlusion {getattr(provider, 'name', 'off')}")
+    with progress.task("trace (cache)", total=1) as bar:
+        cache = build_cache(geom, links, ant, ant, provider, render_cfg)
+        bar.advance(1)
+    trace_s = time.time() - t0
+
+    labels = scene.get("gaussians/labels")
+    index = RFParams.sharing_index(fit_cfg.sharing, geom.num,
+                                   None if labels is None else torch.as_tensor(np.asarray(labels)))
+    params = RFParams(index, len(freqs), opacity=fit_cfg.init_opacity, roughness=fit_cfg.init_roughness,
+                      gamma_abs=fit_cfg.init_gamma_abs, gamma_phase_rad=fit_cfg.init_gamma_phase_rad)
+    # A checkpoint fits any run with the same inputs and settings; more iterations may follow it.
+    key = _key(str(scene_path.resolve()), str(measurements_path.resolve()),
+               {k: v for k, v in config.items() if k not in ("iterations", "checkpoint_every")}, seed)
+    ckpt = Path(checkpoint) if checkpoint is not None else out_path.with_name(out_path.name + ".ckpt.pt")
+    result = fit(cache, target, params, fit_cfg, progress=progress, checkpoint=ckpt, resume=resume, key=key)
+
+    prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
+    prov.add_input(scene_path)
+    prov.add_input(measurements_path)
+    prov.wall_time_s = time.time() - t_start
+    prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s,
+                  "occlusion": getattr(provider, "name", "off"), "fit_time_s": result.wall_time_s}
+    _write(out_path, scene, meas, task, freqs, rows, result, ant, render_cfg, fit_cfg, prov, trace_s)
+    return RfFitResult(out_path, geom.num, int(len(rows)), freqs.tolist(), result.train_mae_db,
+                       result.initial_mae_db, result.iterations, time.time() - t_start, trace_s,
+                       getattr(provider, "name", "off"), {"trace": trace_s, "fit": result.wall_time_s})
+
+
+def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, render_cfg: RenderSettings,
+           fit_cfg: FitConfig, prov, trace_s) -> None:
+    data = {k: v for k, v in scene.data.items() if k.startswith("gaussians/")}
+    data.update({
+        "rf/opacity": result.opacity, "rf/roughness": result.roughness, "rf/gamma_abs": result.gamma_abs,
+        "rf/gamma_phase_rad": result.gamma_phase_rad, "rf/freq_hz": np.asarray(freqs, dtype=np.float64),
+    })
+    model_attrs = {"s_tx_db_doc": "system gain |S_tx(f)|^2 per rf/freq_hz [dB], added to 10 log10 |S|^2",
+                   "renderer": "rfir_stages.rf_fit.render (PHYSICS.md steps 1-4)"}
+    model_attrs.update(ant.describe())
+    model_attrs.update({f"render.{k}": getattr(render_cfg, k) for k in RENDER_KEYS + ("visibility_opacity",)})
+    training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr,
+                      "sharing": fit_cfg.sharing, "learn": ",".join(fit_cfg.learn), "seed": fit_cfg.seed,
+                      "train_mae_db": result.train_mae_db, "initial_mae_db": result.initial_mae_db,
+                      "wall_time_s": result.wall_time_s, "trace_time_s": trace_s,
+                      "resumed_at": result.resumed_at, "measurements": str(meas.path),
+                      "split_protocol": "rows with split == 0 (train)"}
+    attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
+    if "label_names" in scene.attrs:
+        attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)
+    free = {"model": {"s_tx_db": result.s_tx_db, "@attrs": model_attrs},
+            "training": {"loss_curve": result.loss_curve, "train_rows": np.asarray(rows, dtype=np.int64),
+                         "@attrs": training_attrs}}
+    write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)

@@ -1,0 +1,225 @@
+"""`run(...)`: make a ground-truth data set for one scene (meshes, photos, radio measurements)."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.errors import ConfigError, StageError
+from rfir_cli.progress import NullProgress
+
+from .antennas import horn_boresight_gain, horn_exponent
+from .measurement import MeasurementEffects, apply_measurement_effects
+from .scenes import SCENES, SceneSpec, build_scene, write_meshes
+from .settings import SimulateSettings, parse_settings
+from .solve import rcs_dbsm_from_gain
+
+TASKS = ("rssi", "rcs", "wideband")
+
+
+@dataclass
+class SimulateResult:
+    """What `run` wrote."""
+
+    scene: str
+    out_dir: Path
+    measurements: dict[str, Path] = field(default_factory=dict)  # task -> artifact
+    links: dict[str, int] = field(default_factory=dict)  # task -> number of links
+    freqs: dict[str, int] = field(default_factory=dict)  # task -> number of frequencies
+    meshes: list[Path] = field(default_factory=list)
+    cameras: Path | None = None
+    images: int = 0
+    timings_s: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def default_tasks(spec: SceneSpec) -> list[str]:
+    if spec.kind == "room":
+        return ["rssi"]
+    if spec.name == "h-target":
+        return ["rcs", "wideband"]
+    return ["rcs"]
+
+
+def artifact_name(task: str, tasks: list[str]) -> str:
+    """measurements.h5 for the first task, measurements_<task>.h5 for the others."""
+    return "measurements.h5" if task == tasks[0] else f"measurements_{task}.h5"
+
+
+def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "", quick: bool | None = None,
+        progress=None) -> SimulateResult:
+    """Simulate `scene` into `out_dir`.
+
+    config: the [simulate] table (defaults from configs/simulate.toml when None).
+    quick: overrides config["quick"] when given.
+    """
+    progress = progress or NullProgress()
+    settings = parse_settings(config, quick=quick)
+    try:
+        spec = build_scene(scene)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    except ImportError as exc:
+        raise StageError(str(exc)) from None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = SimulateResult(scene=spec.name, out_dir=out)
+    tasks = default_tasks(spec) if settings.tasks == ["auto"] else list(settings.tasks)
+    for t in tasks:
+        if t not in TASKS:
+            raise ConfigError(f"simulate.tasks: unknown task {t!r} (known: {', '.join(TASKS)})")
+        if t == "rssi" and spec.kind != "room" or t in ("rcs", "wideband") and spec.kind != "object":
+            raise ConfigError(f"task {t!r} does not fit scene {spec.name!r} ({spec.kind})")
+
+    t0 = time.time()
+    result.meshes = write_meshes(spec, out / "meshes")
+    result.timings_s["meshes"] = time.time() - t0
+
+    if settings.photos:
+        _photos(spec, out, settings, result, progress)
+
+    if tasks:
+        from .radio_scene import MaterialEffects, load_radio_scene
+
+        try:
+            radio = load_radio_scene(spec, out / "radio", 2.4e9, MaterialEffects(
+                settings.physics_scattering_coefficient if settings.physics.diffuse else 0.0,
+                settings.scattering_pattern, settings.alpha_r))
+        except ImportError as exc:
+            raise StageError(f"the radio simulator needs sionna-rt ({exc}); pip install 'rfir[sim]'") from None
+        for task in tasks:
+            t0 = time.time()
+            path = out / artifact_name(task, tasks)
+            n_links, n_f = _radio_task(task, spec, radio, settings, path, config_toml, progress)
+            result.measurements[task] = path
+            result.links[task] = n_links
+            result.freqs[task] = n_f
+            result.timings_s[task] = time.time() - t0
+    return result
+
+
+def _photos(spec, out, settings, result, progress) -> None:
+    try:
+        from rfir_stages.render import render_views
+    except ImportError:
+        result.warnings.append("photos skipped: rfir_stages.render.render_views is not available")
+        return
+    t0 = time.time()
+    rendered = render_views(spec, out, settings.num_views, settings.image_width, settings.image_height,
+                            settings.seed, progress)
+    result.timings_s["photos"] = time.time() - t0
+    result.cameras = Path(rendered.cameras_path)
+    result.images = len(rendered.image_paths)
+
+
+def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, config_toml: str, progress):
+    from rfir_cli.artifacts import write_artifact
+    from rfir_cli.provenance import Provenance
+
+    prov = Provenance(stage="simulate", config_toml=config_toml)
+    started = time.time()
+    if task == "rssi":
+        data, sim_attrs = _rssi(spec, radio, settings, progress)
+    else:
+        data, sim_attrs = _rcs(task, spec, radio, settings, progress)
+    meas: MeasurementEffects = settings.measurement
+    rng = np.random.default_rng(settings.seed + 1)
+    gain_db, channel = apply_measurement_effects(data.pop("_power"), data["channel"], data["freq_hz"], meas, rng)
+    data["channel"] = channel
+    data["path_gain_db"] = gain_db
+    if task != "rssi":
+        data["rcs_dbsm"] = rcs_dbsm_from_gain(10 ** (gain_db / 10), data["range_m"], data["freq_hz"],
+                                              horn_boresight_gain(settings.horn_hpbw_deg))
+    data["scene_bounds"] = np.asarray(spec.bounds, float)
+    prov.wall_time_s = time.time() - started
+    effects = settings.effects_dict()
+    prov.extra = {"task": task, "effects": effects, "sim": {k: v for k, v in sim_attrs.items()
+                                                              if not isinstance(v, np.ndarray)}}
+    sim_group = {"@attrs": {**_flat_attrs(effects), **{k: v for k, v in sim_attrs.items()
+                                                        if not isinstance(v, np.ndarray)}}}
+    sim_group.update({k: v for k, v in sim_attrs.items() if isinstance(v, np.ndarray)})
+    write_artifact(path, "measurements", data, attrs={"task": "wideband" if task == "wideband" else task,
+                                                      "scene": spec.name},
+                   provenance=prov, free={"simulator": sim_group})
+    return len(data["tx_pos"]), len(data["freq_hz"])
+
+
+def _flat_attrs(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flat_attrs(v, key + "."))
+        elif isinstance(v, (list, tuple)):
+            out[key] = np.asarray(v)
+        else:
+            out[key] = v
+    return out
+
+
+def _rssi(spec, radio, s: SimulateSettings, progress):
+    from .rssi import grid_positions, simulate_rssi
+
+    tx = grid_positions(spec.bounds, *s.tx_grid, s.tx_height_m, s.tx_margin_m)
+    rx = grid_positions(spec.bounds, *s.rx_grid, s.rx_height_m, s.rx_margin_m)
+    freqs = np.asarray(s.rssi_freqs_hz, float)
+    channel, power, tx_id, rx_id, n_paths, cap_hits = simulate_rssi(radio, tx, rx, freqs, s.physics_for("rssi"), progress,
+                                                          f"RSSI {len(tx)} Tx x {len(rx)} Rx")
+    rng = np.random.default_rng(s.seed)
+    n = len(tx_id)
+    split = np.zeros(n, np.int64)
+    test = rng.permutation(n)[: int(round(s.test_fraction * n))]
+    split[test] = 1
+    data = {"tx_pos": tx[tx_id], "rx_pos": rx[rx_id], "freq_hz": freqs, "channel": channel, "_power": power,
+            "tx_id": tx_id.astype(np.int64), "rx_id": rx_id.astype(np.int64), "split": split}
+    attrs = {"backend": "sionna-rt", "antenna_tx": "omni (isotropic, V-pol)", "antenna_rx": "omni (isotropic, V-pol)",
+             "split_protocol": f"random {1 - s.test_fraction:.0%}/{s.test_fraction:.0%}, seed {s.seed}",
+             "split_seed": int(s.seed), "num_tx": len(tx), "num_rx": len(rx), "num_paths": n_paths,
+             "paths_cap_hits": int(cap_hits), "num_solves": int(len(tx) * len(freqs))}
+    return data, attrs
+
+
+def _rcs(task, spec, radio, s: SimulateSettings, progress):
+    from .rcs import RadarGrid, aspect_grid, object_radius, simulate_monostatic, wideband_plan
+
+    if task == "rcs":
+        aspects = aspect_grid(s.aspect_step_deg)
+        ranges = np.asarray(s.ranges_m, float)
+        solve_f = np.asarray(s.rcs_freqs_hz, float)
+        out_f = [np.array([f]) for f in solve_f]
+        label = f"RCS {spec.name} {len(aspects)} aspects x {len(ranges)} ranges x {len(solve_f)} freqs"
+    else:
+        aspects = aspect_grid(s.wideband_aspect_step_deg)
+        ranges = np.array([s.wideband_range_m])
+        solve_f, out_f = wideband_plan(s.wideband_centre_hz, s.wideband_bandwidth_hz, s.wideband_num_freqs,
+                                       s.wideband_num_anchors)
+        label = f"wideband {spec.name} {len(aspects)} aspects x {sum(map(len, out_f))} freqs ({len(solve_f)} solves)"
+    grid = RadarGrid(aspects, ranges, np.zeros(3), s.separation_m)
+    raw = simulate_monostatic(radio, grid, object_radius(spec), solve_f, out_f, s.physics_for("rcs"),
+                              s.horn_hpbw_deg, s.focused_sampling, progress, label)
+    asp, rng_m, _ = grid.links()
+    tx, rx = grid.tx_rx()
+    freqs = np.concatenate([np.atleast_1d(f) for f in out_f])
+    aspect_idx = np.rint(np.rad2deg(asp) / (s.aspect_step_deg if task == "rcs" else s.wideband_aspect_step_deg))
+    split = (aspect_idx.astype(np.int64) % 2).astype(np.int64)  # even aspects train, odd test
+    data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "channel": raw.channel, "_power": raw.power,
+            "aspect_rad": asp, "range_m": rng_m, "split": split,
+            "tx_id": np.arange(len(tx), dtype=np.int64), "rx_id": np.arange(len(tx), dtype=np.int64)}
+    attrs = {"backend": "sionna-rt", "antenna_tx": "horn", "antenna_rx": "horn",
+             "antenna_pattern": "cos^q over the front hemisphere, G0 = 2 (q + 1) (rfir_stages.simulate.antennas)",
+             "horn_hpbw_deg": float(s.horn_hpbw_deg), "horn_q": float(horn_exponent(s.horn_hpbw_deg)),
+             "horn_boresight_gain_dbi": float(10 * math.log10(horn_boresight_gain(s.horn_hpbw_deg))),
+             "geometry": "object fixed at origin; aspect theta = radar at azimuth -theta",
+             "tx_rx_separation_m": float(s.separation_m), "split_protocol": "even aspect index train, odd test",
+             "focused_sampling": bool(raw.focused), "num_solves": int(raw.solves),
+             "paths_cap_hits": int(raw.cap_hits),
+             "num_paths": raw.num_paths, "num_diffuse_paths": raw.num_diffuse}
+    if task == "wideband":
+        attrs["wideband_anchor_freqs_hz"] = np.asarray(solve_f, float)
+        attrs["wideband_note"] = ("Sionna re-run at each anchor (materials and paths exact there); other "
+                                  "frequencies use the anchor's paths with exact per-path delay phase and "
+                                  "lambda-scaled amplitude")
+    return data, attrs

@@ -1,0 +1,136 @@
+"""`rfir rf-fit` and `rfir predict rcs` end to end on a tiny scene, checkpoints, and bad input."""
+import json
+
+import numpy as np
+import pytest
+import torch
+import typer
+from typer.testing import CliRunner
+
+from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.context import GlobalOptions
+from rfir_cli.physics.closed_forms import rcs_from_path_gain
+from rfir_stages.geom import write_scene_artifact
+from rfir_stages.rf_fit.antennas import AntennaPattern
+from rfir_stages.rf_fit.links import make_links, radar_links, scene_centre
+from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
+
+from .helpers import DEG, box_fields, geometry
+
+FAST = ["rf_fit.occlusion=brute-force", "rf_fit.grid_step_deg=10.0", "rf_fit.iterations=6",
+        "rf_fit.checkpoint_every=3", "predict.occlusion=brute-force"]
+
+
+def _app(overrides):
+    from rfir_cli.commands import predict, rf_fit
+
+    app = typer.Typer()
+
+    @app.callback()
+    def _cb(ctx: typer.Context):
+        ctx.obj = GlobalOptions(overrides=list(overrides))
+
+    rf_fit.register(app)
+    predict.register(app)
+    return app
+
+
+def _measurements(path, fields, *, shift=0.0, split=None, ranges=(2.0,)):
+    """RCS 'measurements' of the box made by the renderer (horn antennas), 20 deg steps."""
+    geom = geometry(fields)
+    aspects = np.arange(0, 360, 20) * DEG
+    tx, rx, asp, rng = radar_links(aspects, np.asarray(ranges), scene_centre(geom).numpy())
+    horn = AntennaPattern("horn")
+    links = make_links(tx, rx, [2.4e9], scene_centre(geom), "rcs")
+    g = geom.num
+    m = Materials(torch.full((g,), 0.9, dtype=torch.float64), torch.full((g,), 3.0, dtype=torch.float64),
+                  torch.full((g,), 0.5, dtype=torch.complex128))
+    pg = 10 * np.log10(np.abs(render(build_cache(geom, links, horn, horn, None, RenderSettings(visibility=False)),
+                                     m).numpy()) ** 2)
+    rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), rng[:, None], 2.4e9, horn.boresight_gain,
+                                           horn.boresight_gain))
+    lo, hi = fields["gaussians/means"].min(0), fields["gaussians/means"].max(0)
+    data = {"tx_pos": tx + shift, "rx_pos": rx + shift, "freq_hz": np.array([2.4e9]), "path_gain_db": pg,
+            "rcs_dbsm": rcs, "aspect_rad": asp, "range_m": rng,
+            "split": np.asarray(split if split is not None else np.arange(len(asp)) % 2, dtype=np.int64),
+            "scene_bounds": np.stack([lo, hi]) + shift}
+    write_artifact(path, "measurements", data, attrs={"task": "rcs", "scene": "box"})
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiny")
+    fields = box_fields(0.05, 0.05)
+    write_scene_artifact(d / "scene.h5", fields)
+    _measurements(d / "meas.h5", fields)
+    return d, fields
+
+
+def test_rf_fit_then_predict_rcs(tiny, tmp_path, monkeypatch):
+    d, _ = tiny
+    app = _app(FAST)
+    r = CliRunner().invoke(app, ["rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(tmp_path / "rf.h5")])
+    assert r.exit_code == 0, r.output
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert rf.data["rf/roughness"].min() >= 1.0 and 0 <= rf.data["rf/gamma_abs"].min() <= rf.data["rf/gamma_abs"].max() <= 1
+    assert len(rf.free["training"]["loss_curve"]) == 6
+    assert rf.free["model@attrs"]["antenna_kind"] == "horn"
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["predict", "rcs", str(tmp_path / "rf.h5"), "--measurements", str(d / "meas.h5"),
+                                 "-o", str(tmp_path / "pred.h5"), "--plots", str(tmp_path / "plots")])
+    assert r.exit_code == 0, r.output
+    pred = read_artifact(tmp_path / "pred.h5", "predictions")
+    assert pred.data["rcs_dbsm"].shape == (18, 1) and np.isfinite(pred.data["rcs_dbsm"]).all()
+    res = json.loads((tmp_path / "results" / "pred.json").read_text())
+    assert res["num_test"] == 9 and {"mae_db", "baseline_nearest_mae_db", "baseline_linear_mae_db"} <= set(res["metrics"])
+    assert (tmp_path / "plots" / "rcs_2.4GHz_2m_polar.png").exists()
+    assert (tmp_path / "plots" / "attributes.png").exists()
+    # aspects x ranges without measurements
+    r = CliRunner().invoke(app, ["predict", "rcs", str(tmp_path / "rf.h5"), "--aspects", "0:360:30",
+                                 "--ranges", "2,3", "-o", str(tmp_path / "pred2.h5")])
+    assert r.exit_code == 0, r.output
+    assert read_artifact(tmp_path / "pred2.h5", "predictions").data["rcs_dbsm"].shape == (24, 1)
+
+
+def test_checkpoint_and_resume(tiny, tmp_path):
+    d, _ = tiny
+    out = tmp_path / "rf.h5"
+    r = CliRunner().invoke(_app(FAST), ["rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "rf.h5.ckpt.pt").exists()
+    r = CliRunner().invoke(_app(FAST + ["rf_fit.lr=0.2"]),
+                           ["rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(out), "--resume"])
+    assert r.exit_code != 0 and "other inputs or settings" in r.output   # other settings: refused
+    r = CliRunner().invoke(_app(FAST + ["rf_fit.iterations=9"]),
+                           ["rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(out), "--resume"])
+    assert r.exit_code == 0, r.output
+    rf = read_artifact(out, "rf")
+    assert rf.free["training@attrs"]["resumed_at"] == 6 and len(rf.free["training"]["loss_curve"]) == 9
+
+
+def test_bad_inputs_give_clear_errors(tiny, tmp_path):
+    d, fields = tiny
+    app = _app(FAST)
+    fit = lambda meas: CliRunner().invoke(app, ["rf-fit", str(d / "scene.h5"), str(meas), "-o",  # noqa: E731
+                                                str(tmp_path / "rf.h5")])
+    r = fit(_measurements(tmp_path / "far.h5", fields, shift=100.0))
+    assert r.exit_code == 2 and "another scene" in r.output
+    r = fit(_measurements(tmp_path / "inside.h5", fields, ranges=(0.01,)))
+    assert r.exit_code == 2 and "inside the geometry" in r.output
+    r = fit(_measurements(tmp_path / "nosplit.h5", fields, split=np.ones(18)))
+    assert r.exit_code == 5 and "empty training split" in r.output
+    r = CliRunner().invoke(app, ["rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(d / "meas.h5")])
+    assert r.exit_code == 4 and "overwrite" in r.output
+
+
+def test_predict_refuses_unfitted_frequencies_and_overwriting(tiny, tmp_path):
+    d, _ = tiny
+    app = _app(FAST)
+    r = CliRunner().invoke(app, ["rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(tmp_path / "rf.h5")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(app, ["predict", "rcs", str(tmp_path / "rf.h5"), "--freqs", "5.8e9", "-o",
+                                 str(tmp_path / "p.h5")])
+    assert r.exit_code == 5 and "outside the fitted frequencies" in r.output
+    r = CliRunner().invoke(app, ["predict", "rcs", str(tmp_path / "rf.h5"), "-o", str(tmp_path / "rf.h5")])
+    assert r.exit_code == 4 and "never overwrites" in r.output

@@ -1,0 +1,132 @@
+"""Checks of the radio simulator against closed-form physics it did not write (issue 3).
+
+Each test runs Sionna RT through the same code the stage uses (scene export, solve, path
+combination, antenna patterns) and compares with a formula. Sizes are small: a few solves each.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("sionna.rt")
+
+from rfir_stages.simulate.antennas import horn_boresight_gain  # noqa: E402
+from rfir_stages.simulate.radio_scene import C0, MaterialEffects, load_radio_scene  # noqa: E402
+from rfir_stages.simulate.rcs import RadarGrid, object_radius, simulate_monostatic  # noqa: E402
+from rfir_stages.simulate.scenes import build_scene, ground_plate, plate  # noqa: E402
+from rfir_stages.simulate.solve import PhysicsEffects, rcs_dbsm_from_gain, solve_links  # noqa: E402
+
+from rfir_cli.progress import NullProgress  # noqa: E402
+
+FREQS = (2.4e9, 5.8e9)
+SPECULAR_ONLY = PhysicsEffects(max_depth=1, diffuse=False, refraction=False, samples_per_src=100_000,
+                               combine="coherent")
+
+
+def db(x):
+    return 10 * np.log10(np.asarray(x, dtype=float))
+
+
+def fresnel_tm(eta: complex, cos_theta: np.ndarray) -> np.ndarray:
+    """TM (parallel) reflection coefficient of a half-space, ITU-R P.2040 eq. (31) convention."""
+    sin2 = 1.0 - cos_theta ** 2
+    root = np.sqrt(eta - sin2 + 0j)
+    return (eta * cos_theta - root) / (eta * cos_theta + root)
+
+
+def metal_eta(freq_hz: float) -> complex:
+    """Complex relative permittivity of ITU 'metal': eps_r = 1, sigma = 1e7 S/m."""
+    eps0 = 8.8541878128e-12
+    return 1.0 - 1j * 1e7 / (eps0 * 2 * math.pi * freq_hz)
+
+
+@pytest.mark.parametrize("freq_hz", FREQS)
+def test_friis_free_space(tmp_path, freq_hz):
+    scene = load_radio_scene(build_scene("empty"), tmp_path, freq_hz)
+    d = np.array([1.0, 3.0, 10.0])
+    rx = np.stack([d, np.zeros(3), np.full(3, 1.5)], 1)
+    out = solve_links(scene, [0.0, 0.0, 1.5], rx, freq_hz, SPECULAR_ONLY)
+    lam = C0 / freq_hz
+    expected = db((lam / (4 * math.pi * d)) ** 2)
+    np.testing.assert_allclose(db(out.power[:, 0]), expected, atol=0.1)
+
+
+@pytest.mark.parametrize("freq_hz", FREQS)
+def test_two_ray_over_metal_plate(tmp_path, freq_hz):
+    scene = load_radio_scene(ground_plate(40.0), tmp_path, freq_hz)
+    h_t, h_r = 2.0, 1.5
+    x = np.linspace(1.0, 15.0, 97)
+    rx = np.stack([x, np.zeros_like(x), np.full_like(x, h_r)], 1)
+    out = solve_links(scene, [0.0, 0.0, h_t], rx, freq_hz, SPECULAR_ONLY)
+    lam, k = C0 / freq_hz, 2 * math.pi * freq_hz / C0
+    d1 = np.hypot(x, h_t - h_r)
+    d2 = np.hypot(x, h_t + h_r)
+    gamma = fresnel_tm(metal_eta(freq_hz), (h_t + h_r) / d2)  # V-pol antennas: TM over a horizontal plate
+    h = lam / (4 * math.pi) * (np.exp(-1j * k * d1) / d1 + gamma * np.exp(-1j * k * d2) / d2)
+    expected = db(np.abs(h) ** 2)
+    got = db(out.power[:, 0])
+    assert expected.max() - expected.min() > 15, "the line must cross interference nulls"
+    np.testing.assert_allclose(got, expected, atol=0.1)
+
+
+@pytest.mark.parametrize("freq_hz", FREQS)
+@pytest.mark.parametrize("focus", [True, False], ids=["focused", "full-sphere"])
+def test_monostatic_plate_echo(tmp_path, freq_hz, focus):
+    """4 x 4 m metal plate facing the radar: P_R/P_T = G0^2 (lambda / (8 pi r))^2, RCS = pi r^2."""
+    spec = plate(4.0)
+    scene = load_radio_scene(spec, tmp_path, freq_hz)
+    ranges = np.array([2.0, 3.0, 5.0])
+    grid = RadarGrid(np.array([0.0]), ranges, np.zeros(3), 0.002)
+    hpbw = 40.0
+    physics = PhysicsEffects(max_depth=2, diffuse=False, refraction=False, samples_per_src=20_000,
+                             combine="coherent")
+    raw = simulate_monostatic(scene, grid, object_radius(spec), [freq_hz], [[freq_hz]], physics, hpbw,
+                              focus=focus, progress=NullProgress(), label="plate")
+    g0 = horn_boresight_gain(hpbw)
+    lam = C0 / freq_hz
+    expected = db(g0 ** 2 * (lam / (8 * math.pi * ranges)) ** 2)
+    np.testing.assert_allclose(db(raw.power[:, 0]), expected, atol=0.1)
+    rcs = rcs_dbsm_from_gain(raw.power, ranges, [freq_hz], g0)[:, 0]
+    np.testing.assert_allclose(rcs, db(math.pi * ranges ** 2), atol=0.1)
+
+
+def test_reciprocity_classroom(tmp_path):
+    """Swap Tx and Rx: received power changes by < 0.1 dB (specular + refraction, depth 3).
+
+    Ten random pairs inside the classroom. (A hand-picked pair whose desk reflection point fell
+    exactly on a desk-top edge found that path in one direction only: an edge-grazing specular
+    point is a numerical tie, not a reciprocity failure of the field computation.)
+    """
+    spec = build_scene("classroom")
+    scene = load_radio_scene(spec, tmp_path, 2.4e9)
+    physics = PhysicsEffects(max_depth=3, diffuse=False, refraction=True, samples_per_src=100_000,
+                             combine="coherent")
+    rng = np.random.default_rng(3)
+    a = rng.uniform([0.5, 0.5, 1.0], [8.5, 6.5, 2.6], (10, 3)).round(2)
+    b = rng.uniform([0.5, 0.5, 1.0], [8.5, 6.5, 2.6], (10, 3)).round(2)
+    forward = np.array([solve_links(scene, a[i], b[i:i + 1], 2.4e9, physics).power[0, 0] for i in range(len(a))])
+    backward = np.array([solve_links(scene, b[i], a[i:i + 1], 2.4e9, physics).power[0, 0] for i in range(len(a))])
+    assert np.all(forward > 0)
+    np.testing.assert_allclose(db(forward), db(backward), atol=0.1)
+
+
+def test_focused_sampling_matches_full_sphere(tmp_path):
+    """Diffuse + specular echo of the H target at an oblique aspect: the focused cone with 3e4 rays
+    and Sionna's own full-sphere sampling with 3e6 rays agree (same estimator, denser)."""
+    spec = build_scene("h-target")
+    scene = load_radio_scene(spec, tmp_path, 5.8e9, MaterialEffects(0.5, "lambertian"))
+    grid = RadarGrid(np.deg2rad([30.0]), np.array([3.0]), np.zeros(3), 0.002)
+
+    def echo(focus, samples):
+        physics = PhysicsEffects(max_depth=2, diffuse=True, refraction=False, samples_per_src=samples,
+                                 max_num_paths_per_src=10 ** 6)
+        raw = simulate_monostatic(scene, grid, object_radius(spec), [5.8e9], [[5.8e9]], physics, 40.0,
+                                  focus=focus, progress=NullProgress(), label="h")
+        return db(raw.power[0, 0]), raw.num_diffuse[0, 0]
+
+    focused, n_focused = echo(True, 30_000)
+    full, n_full = echo(False, 3_000_000)
+    assert n_focused > 1000 and n_full > 300
+    assert focused == pytest.approx(full, abs=0.5)
