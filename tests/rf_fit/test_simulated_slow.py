@@ -1,0 +1,34 @@
+"""End to end on a tiny Sionna data set: surfels from the mesh, rf-fit, predict rcs (slow: Sionna)."""
+import numpy as np
+import pytest
+
+from rfir_cli.artifacts import read_artifact
+from rfir_cli.config import resolve_config
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason=(
+    "known gap (docs/rf-model.md): at 15 deg steps the coherent surfel model cannot match Sionna's "
+    "geometric-optics flashes: per-Gaussian materials overfit the 12 training aspects (train 0.0005 dB, "
+    "test 17.2 dB), label-shared ones keep the faces' sinc sidelobes (18.3 dB); nearest aspect: 14.6 dB"))
+def test_fit_on_simulated_lego_beats_nearest_aspect(tmp_path):
+    pytest.importorskip("sionna.rt")
+    from rfir_stages.geom import scene_from_mesh, write_scene_artifact
+    from rfir_stages.predict import run_rcs
+    from rfir_stages.rf_fit import run as rf_fit
+    from rfir_stages.simulate import run as simulate
+
+    cfg = resolve_config(None, [], None)
+    sim = dict(cfg["simulate"], photos=False, tasks=["rcs"])
+    sim["rcs"] = dict(sim["rcs"], freqs_hz=[2.4e9], ranges_m=[3.0], aspect_step_deg=15.0, samples_per_src=10000)
+    simulate("lego", tmp_path / "sim", sim, quick=False)
+    fields, names = scene_from_mesh("lego", 0.03)
+    write_scene_artifact(tmp_path / "scene.h5", fields, label_names=names)
+    fit_cfg = dict(cfg["rf_fit"], iterations=200)
+    rf_fit(tmp_path / "scene.h5", tmp_path / "sim" / "measurements.h5", tmp_path / "rf.h5", fit_cfg)
+    res = run_rcs(tmp_path / "rf.h5", tmp_path / "pred.h5", cfg["predict"],
+                  measurements_path=tmp_path / "sim" / "measurements.h5", results_path=tmp_path / "r.json")
+    m = res.metrics
+    assert m["num_test"] == 12
+    assert m["mae_db"] < m["baseline_nearest_mae_db"], m
+    assert np.isfinite(read_artifact(tmp_path / "pred.h5", "predictions").data["rcs_dbsm"]).all()
