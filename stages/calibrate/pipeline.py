@@ -29,6 +29,8 @@ class CalibrateOptions:
     alignment_use_rotations: bool = True
     alignment_warn_rms_m: float = 0.02
     drop_reference_outliers: bool = True
+    centre_prior_m: float = 0.001
+    refine_loss_scale_px: float = 0.5
     reference_subset: int = 0
     marker_dictionary: str = "DICT_4X4_50"
     keep_model: bool = True
@@ -123,7 +125,7 @@ def _check_reference_names(refs_names: list[str], images: ImageSet, source: str,
 
 
 def _sfm_or_import(inputs: CalibrateInputs, images: ImageSet, options: CalibrateOptions, work: Path, progress,
-                   known_K) -> tuple[object, int]:
+                   known_K, known_centres: dict | None = None) -> tuple[object, int]:
     if inputs.colmap_model is not None:
         rec = sfm_mod.read_colmap_model(inputs.colmap_model)
         names = [rec.image(i).name for i in rec.reg_image_ids()]
@@ -132,7 +134,7 @@ def _sfm_or_import(inputs: CalibrateInputs, images: ImageSet, options: Calibrate
             raise InputFileError(f"the COLMAP model has {len(absent)} image(s) that are not in {images.folder}: "
                                  f"{', '.join(absent[:5])}", path=inputs.colmap_model)
         return rec, 1
-    return sfm_mod.run_sfm(images, work, options.sfm, progress, known_K=known_K)
+    return sfm_mod.run_sfm(images, work, options.sfm, progress, known_K=known_K, known_centres=known_centres)
 
 
 def _registration_error(n_reg: int, n: int, n_models: int, need: float) -> StageError:
@@ -175,13 +177,18 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
         if absent:
             warnings.append(f"{len(absent)} image(s) named in {inputs.points} are not in the folder: "
                             f"{', '.join(absent[:5])}")
+    if options.sfm.matcher == "spatial" and inputs.colmap_model is None and (
+            centre_refs is None or not set(images.names) <= set(centre_refs.names)):
+        raise ConfigError("calibrate.sfm.matcher = 'spatial' needs --poses with the centre of every photo "
+                          "(and no --subset); use auto, exhaustive or sequential")
     known_K = _known_intrinsics(inputs.intrinsics_from, images) if inputs.intrinsics_from is not None else None
     timings["check_inputs"] = time.time() - t0
 
     with tempfile.TemporaryDirectory(prefix="rfir-calibrate-") as tmp:
         work = Path(tmp)
         t = time.time()
-        rec, n_models = _sfm_or_import(inputs, images, options, work, progress, known_K)
+        known_centres = dict(zip(centre_refs.names, centre_refs.centres)) if centre_refs is not None else None
+        rec, n_models = _sfm_or_import(inputs, images, options, work, progress, known_K, known_centres)
         timings["sfm" if inputs.colmap_model is None else "import"] = time.time() - t
         n = len(images.names)
         n_reg = 0 if rec is None else rec.num_reg_images()
@@ -203,6 +210,24 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
             alignment = _align(rec, centre_refs, point_refs, options)
             task.advance(1)
         timings["alignment"] = time.time() - t
+        refined_from = np.eye(4)  # SfM frame -> the frame rec is in (the world frame after refinement)
+        if alignment is not None and centre_refs is not None and options.centre_prior_m > 0:
+            # bundle adjustment with the known centres pinned (in the world frame), then align again
+            t = time.time()
+            with progress.task("refinement", total=1) as task:
+                keep = [lab for lab, ok in zip(alignment.labels, alignment.inliers) if ok]
+                index = {nm: k for k, nm in enumerate(centre_refs.names)}
+                sfm_mod.refine_with_centre_priors(rec, alignment.sim3, keep,
+                                                  centre_refs.centres[[index[nm] for nm in keep]],
+                                                  options.centre_prior_m, refine_intrinsics=known_K is None,
+                                                  num_threads=options.sfm.num_threads,
+                                                  loss_scale_px=options.refine_loss_scale_px)
+                first = alignment
+                refined_from = first.sim3
+                alignment = _align(rec, centre_refs, point_refs, options)
+                alignment.warnings = list(dict.fromkeys(first.warnings + alignment.warnings))
+                task.advance(1)
+            timings["refinement"] = time.time() - t
         if alignment is not None:
             warnings += alignment.warnings
             rms = float(np.sqrt(np.mean(alignment.residuals_m[alignment.inliers] ** 2)))
@@ -247,7 +272,9 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
         final_images = (final_undist / "images") if final_undist is not None else image_folder
         registered = set(str(x) for x in model.names)
         unregistered = [nm for nm in images.names if nm not in registered]
-        data, attrs = _artifact_data(world, final_images, image_folder, out_dir, sim3, alignment, metric)
+        # alignment_sim3 maps the raw SfM model (calib_colmap/) to the world frame
+        data, attrs = _artifact_data(world, final_images, image_folder, out_dir, sim3 @ refined_from, alignment,
+                                     metric)
         from rfir_cli.artifacts import check_data, write_artifact
         from rfir_cli.provenance import Provenance
 

@@ -19,8 +19,10 @@ from .images import ImageSet
 class SfmOptions:
     """Structure-from-motion settings (section [calibrate.sfm] of configs/calibrate.toml).
 
-    matcher: "auto" (exhaustive up to exhaustive_max_images, else sequential), "exhaustive" or
-      "sequential" (each photo against the next `sequential_overlap`, plus quadratic jumps);
+    matcher: "auto" (exhaustive up to exhaustive_max_images; above that spatial when every photo's
+      centre is known, else sequential), "exhaustive", "sequential" (each photo against the next
+      `sequential_overlap`, plus quadratic jumps) or "spatial" (each photo against its
+      `spatial_neighbors` nearest known centres; needs a centre for every photo);
     max_num_features: SIFT features per image; max_image_size: longer side used for features (px);
     camera_model: COLMAP model when intrinsics are unknown ("SIMPLE_RADIAL", "PINHOLE", "OPENCV"...);
     max_ignored_distortion_px: distortion smaller than this at the image corners is dropped (no
@@ -29,8 +31,9 @@ class SfmOptions:
     """
 
     matcher: str = "auto"
-    exhaustive_max_images: int = 200
+    exhaustive_max_images: int = 60
     sequential_overlap: int = 15
+    spatial_neighbors: int = 30
     max_num_features: int = 8192
     max_image_size: int = 3200
     camera_model: str = "SIMPLE_RADIAL"
@@ -41,14 +44,16 @@ class SfmOptions:
 
     def check(self) -> None:
         """Refuse settings that would only fail after minutes of work."""
-        if self.matcher not in ("auto", "exhaustive", "sequential"):
-            raise ConfigError(f"calibrate.sfm.matcher = {self.matcher!r}: expected auto, exhaustive or sequential")
+        if self.matcher not in ("auto", "exhaustive", "sequential", "spatial"):
+            raise ConfigError(f"calibrate.sfm.matcher = {self.matcher!r}: expected auto, exhaustive, sequential "
+                              "or spatial")
         known = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
                  "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE")
         if self.camera_model not in known:
             raise ConfigError(f"calibrate.sfm.camera_model = {self.camera_model!r}: expected one of {', '.join(known)}")
-        if self.max_num_features < 100 or self.sequential_overlap < 1:
-            raise ConfigError("calibrate.sfm: max_num_features must be >= 100 and sequential_overlap >= 1")
+        if self.max_num_features < 100 or self.sequential_overlap < 1 or self.spatial_neighbors < 1:
+            raise ConfigError("calibrate.sfm: max_num_features must be >= 100, sequential_overlap and "
+                              "spatial_neighbors >= 1")
 
 
 def _pycolmap():
@@ -62,10 +67,35 @@ def _pycolmap():
     return pycolmap
 
 
-def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, known_K: np.ndarray | None = None):
+def choose_matcher(options: SfmOptions, n_images: int, all_centres_known: bool) -> str:
+    """The matcher that `options.matcher` resolves to for n_images photos."""
+    if options.matcher != "auto":
+        return options.matcher
+    if n_images <= options.exhaustive_max_images:
+        return "exhaustive"
+    return "spatial" if all_centres_known else "sequential"
+
+
+def _write_position_priors(db_path: Path, centres: dict) -> None:
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        for image in db.read_all_images():
+            prior = pycolmap.PosePrior()
+            prior.corr_data_id = image.data_id
+            prior.position = np.asarray(centres[image.name], float)
+            prior.coordinate_system = pycolmap.PosePriorCoordinateSystem.CARTESIAN
+            db.write_pose_prior(prior)
+    finally:
+        db.close()
+
+
+def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, known_K: np.ndarray | None = None,
+            known_centres: dict | None = None):
     """Run SfM on `images` in `work_dir`; return (largest pycolmap.Reconstruction or None, number of models).
 
     known_K (3,3, OpenCV pixel convention): fixed pinhole intrinsics shared by all photos.
+    known_centres: image name -> world centre (m), used only to pick pairs for spatial matching.
     """
     pycolmap = _pycolmap()
     if hasattr(pycolmap, "set_random_seed"):
@@ -96,9 +126,10 @@ def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, kno
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = options.num_threads
     matching.use_gpu = False
-    matcher = options.matcher
-    if matcher == "auto":
-        matcher = "exhaustive" if len(images.names) <= options.exhaustive_max_images else "sequential"
+    all_known = known_centres is not None and all(nm in known_centres for nm in images.names)
+    matcher = choose_matcher(options, len(images.names), all_known)
+    if matcher == "spatial" and not all_known:
+        raise ConfigError("calibrate.sfm.matcher = 'spatial' needs a known centre (--poses) for every photo")
     with progress.task(f"matching ({matcher})", total=1) as task:
         if matcher == "exhaustive":
             pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
@@ -109,6 +140,15 @@ def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, kno
             pairing.loop_detection = False  # needs a vocabulary tree download
             pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing,
                                       device=pycolmap.Device.cpu)
+        elif matcher == "spatial":
+            _write_position_priors(db, known_centres)
+            pairing = pycolmap.SpatialPairingOptions()
+            pairing.max_num_neighbors = options.spatial_neighbors
+            pairing.ignore_z = False
+            pairing.max_distance = 1e9
+            pairing.num_threads = options.num_threads
+            pycolmap.match_spatial(db, matching_options=matching, pairing_options=pairing,
+                                   device=pycolmap.Device.cpu)
         else:
             raise StageError(f"unknown matcher {options.matcher!r} (expected auto, exhaustive or sequential)")
         task.advance(1)
@@ -199,3 +239,48 @@ def cam_from_world(rec, name: str) -> np.ndarray | None:
     if image is None or not image.has_pose:
         return None
     return np.asarray(image.cam_from_world().matrix())
+
+
+def refine_with_centre_priors(rec, sim3: np.ndarray, names: list[str], centres: np.ndarray, sigma_m: float,
+                              refine_intrinsics: bool, num_threads: int = -1, loss_scale_px: float = 0.5) -> int:
+    """Move `rec` into the world frame (sim3, SfM -> world) and bundle-adjust it with the known centres.
+
+    Each named image whose centre is known gets a position prior (isotropic standard deviation
+    sigma_m, metres). With the centres pinned, a small rotation can no longer trade against a
+    sideways shift of the camera, which is what limits the rotations of views close to an object.
+    refine_intrinsics: refine the focal length and distortion too (not the principal point);
+    loss_scale_px: scale of the Cauchy loss on reprojection errors (a few wrong matches survive
+    mapping and would otherwise pull the poses).
+    Returns the number of priors used; rec is changed in place.
+    """
+    pycolmap = _pycolmap()
+    s = float(np.cbrt(np.linalg.det(sim3[:3, :3])))
+    rec.transform(pycolmap.Sim3d(s, pycolmap.Rotation3d(sim3[:3, :3] / s), sim3[:3, 3]))
+    priors = []
+    for name, centre in zip(names, np.asarray(centres, float)):
+        image = rec.find_image_with_name(str(name))
+        if image is None or not image.has_pose:
+            continue
+        prior = pycolmap.PosePrior()
+        prior.corr_data_id = image.data_id
+        prior.position = centre
+        prior.position_covariance = np.eye(3) * sigma_m ** 2
+        prior.coordinate_system = pycolmap.PosePriorCoordinateSystem.CARTESIAN
+        priors.append(prior)
+    if not priors:
+        return 0
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = refine_intrinsics
+    options.refine_extra_params = refine_intrinsics
+    options.refine_principal_point = False
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = loss_scale_px
+    options.ceres.solver_options.num_threads = num_threads
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    adjuster = pycolmap.create_pose_prior_bundle_adjuster(options, pycolmap.PosePriorBundleAdjustmentOptions(),
+                                                          config, priors, rec)
+    adjuster.solve()
+    return len(priors)

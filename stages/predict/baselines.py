@@ -43,3 +43,23 @@ def aspect_baselines(aspect_rad: np.ndarray, range_m: np.ndarray, values_db: np.
         out["linear"][sel] = (1 - w)[:, None] * v[lo] + w[:, None] * v[hi]
         out["nearest"][sel] = np.where((w <= 0.5)[:, None], v[lo], v[hi])
     return out
+
+
+def range_baselines(aspect_rad: np.ndarray, range_m: np.ndarray, values_db: np.ndarray, train: np.ndarray,
+                    test: np.ndarray) -> dict[str, np.ndarray]:
+    """{'nearest_range': [T, F], 'linear_range': [T, F]}: for each test row, the training rows at the
+    same aspect; copy the nearest range, or interpolate linearly in range (clamped at the ends).
+    RCS should not depend on range in the far field, so these are the natural range baselines."""
+    values_db = np.asarray(values_db, dtype=np.float64)
+    out = {k: np.full((len(test), values_db.shape[1]), np.nan) for k in ("nearest_range", "linear_range")}
+    for i, row in enumerate(test):
+        same = train[np.abs(np.angle(np.exp(1j * (aspect_rad[train] - aspect_rad[row])))) < 1e-6]
+        if same.size == 0:
+            continue
+        r = range_m[same]
+        order = np.argsort(r)
+        r, v = r[order], values_db[same][order]
+        out["nearest_range"][i] = v[np.argmin(np.abs(r - range_m[row]))]
+        for k in range(values_db.shape[1]):
+            out["linear_range"][i, k] = np.interp(range_m[row], r, v[:, k])
+    return out

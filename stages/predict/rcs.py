@@ -29,7 +29,7 @@ from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_f
 from rfir_stages.rf_fit.occlusion import make_provider
 from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
 
-from .baselines import aspect_baselines
+from .baselines import aspect_baselines, range_baselines
 from .plots import attribute_views, rcs_vs_aspect
 
 
@@ -204,8 +204,10 @@ def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
     if train.size:
         out["mae_train_db"] = float(np.mean(np.abs(rcs[train] - meas_rcs[train])))
         base = aspect_baselines(asp, rng, meas_rcs, train, test)
+        base.update(range_baselines(asp, rng, meas_rcs, train, test))
         for k, v in base.items():
-            out[f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(v - meas_rcs[test])))
+            if np.isfinite(v).any():  # aspect baselines need training rows at the test range, range ones at the aspect
+                out[f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(v - meas_rcs[test])))
     return out
 
 

@@ -31,8 +31,8 @@ LOSSES = ("db_mse", "db_huber", "paper")
 class FitConfig:
     """Optimiser settings (the [rf_fit] keys of the same names)."""
 
-    iterations: int = 300
-    lr: float = 0.05
+    iterations: int = 400
+    lr: float = 0.1
     s_tx_lr: float = 0.5
     loss: str = "db_mse"
     huber_db: float = 1.0

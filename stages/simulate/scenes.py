@@ -219,7 +219,7 @@ def classroom() -> SceneSpec:
     b.add("teacher_desk", boxes([((0.9, 2.6, 0.0), (1.6, 4.4, 0.76))]), "wood", "wood", (0.45, 0.30, 0.18), 0.03)
     b.add("teacher_chair", _chair(0.55, 3.5, facing=0.0), "wood", "plastic", (0.15, 0.20, 0.45), 0.02)
     k = 0
-    for row, x in enumerate((3.0, 4.5, 6.0, 7.5)):
+    for x in (3.0, 4.5, 6.0, 7.5):
         for col, y in enumerate((1.4, 3.5, 5.6)):
             b.add(f"desk_{k:02d}", _desk(x, y), "wood", "wood", (0.62, 0.45, 0.28), 0.03)
             b.add(f"chair_{k:02d}", _chair(x + 0.55, y, facing=np.pi), "wood", "plastic",

@@ -58,6 +58,12 @@ class SimulateSettings:
         return dataclasses.replace(self.physics, samples_per_src=self.rcs_samples_per_src,
                                    max_num_paths_per_src=self.rcs_max_paths)
 
+    def material_effects(self):
+        from .radio_scene import MaterialEffects
+
+        return MaterialEffects(self.physics_scattering_coefficient if self.physics.diffuse else 0.0,
+                               self.scattering_pattern, self.alpha_r)
+
     def effects_dict(self) -> dict:
         """Every effect switch, for provenance and the simulator/ group."""
         p = self.physics

@@ -13,7 +13,7 @@ from rfir_cli.progress import NullProgress
 
 from .antennas import horn_boresight_gain, horn_exponent
 from .measurement import MeasurementEffects, apply_measurement_effects
-from .scenes import SCENES, SceneSpec, build_scene, write_meshes
+from .scenes import SceneSpec, build_scene, write_meshes
 from .settings import SimulateSettings, parse_settings
 from .solve import rcs_dbsm_from_gain
 
@@ -82,18 +82,16 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
         _photos(spec, out, settings, result, progress)
 
     if tasks:
-        from .radio_scene import MaterialEffects, load_radio_scene
+        from .radio_scene import load_radio_scene
 
         try:
-            radio = load_radio_scene(spec, out / "radio", 2.4e9, MaterialEffects(
-                settings.physics_scattering_coefficient if settings.physics.diffuse else 0.0,
-                settings.scattering_pattern, settings.alpha_r))
+            radio = load_radio_scene(spec, out / "radio", 2.4e9, settings.material_effects())
         except ImportError as exc:
             raise StageError(f"the radio simulator needs sionna-rt ({exc}); pip install 'rfir[sim]'") from None
         for task in tasks:
             t0 = time.time()
             path = out / artifact_name(task, tasks)
-            n_links, n_f = _radio_task(task, spec, radio, settings, path, config_toml, progress)
+            n_links, n_f = _radio_task(task, spec, radio, settings, path, config_toml, progress, out / "radio")
             result.measurements[task] = path
             result.links[task] = n_links
             result.freqs[task] = n_f
@@ -115,7 +113,7 @@ def _photos(spec, out, settings, result, progress) -> None:
     result.images = len(rendered.image_paths)
 
 
-def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, config_toml: str, progress):
+def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, config_toml: str, progress, folder):
     from rfir_cli.artifacts import write_artifact
     from rfir_cli.provenance import Provenance
 
@@ -124,7 +122,7 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
     if task == "rssi":
         data, sim_attrs = _rssi(spec, radio, settings, progress)
     else:
-        data, sim_attrs = _rcs(task, spec, radio, settings, progress)
+        data, sim_attrs = _rcs(task, spec, radio, settings, progress, folder)
     meas: MeasurementEffects = settings.measurement
     rng = np.random.default_rng(settings.seed + 1)
     gain_db, channel = apply_measurement_effects(data.pop("_power"), data["channel"], data["freq_hz"], meas, rng)
@@ -182,7 +180,7 @@ def _rssi(spec, radio, s: SimulateSettings, progress):
     return data, attrs
 
 
-def _rcs(task, spec, radio, s: SimulateSettings, progress):
+def _rcs(task, spec, radio, s: SimulateSettings, progress, folder):
     from .rcs import RadarGrid, aspect_grid, object_radius, simulate_monostatic, wideband_plan
 
     if task == "rcs":

@@ -59,6 +59,19 @@ def test_bad_settings_are_refused_before_any_work(tmp_path):
         run(CalibrateInputs(tmp_path / "imgs", tmp_path / "c.h5", no_metric=True), options)
 
 
+def test_spatial_matching_needs_every_centre(tmp_path):
+    from rfir_stages.calibrate import CalibrateOptions
+
+    images = _images(tmp_path / "imgs", 4)
+    centres = tmp_path / "centres.csv"
+    centres.write_text("".join(f"img_{i:02d}.png,{i},0,0\n" for i in range(3)))  # img_03 has none
+    options = CalibrateOptions.from_config({"sfm": {"matcher": "spatial"}})
+    for kw in ({"no_metric": True}, {"poses": centres}):
+        with pytest.raises(ConfigError, match="spatial"):
+            run(CalibrateInputs(images, tmp_path / "c.h5", **kw), options)
+        assert not (tmp_path / "c.h5").exists()
+
+
 def test_no_metric_reference_is_refused_before_any_work(tmp_path):
     _fails(tmp_path, ConfigError, "no metric reference.*--no-metric", images=tmp_path / "whatever", no_metric=False)
 

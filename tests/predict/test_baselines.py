@@ -20,3 +20,15 @@ def test_baselines_on_a_known_curve():
     assert np.all((np.abs(out["nearest"] - lo) < 1e-9) | (np.abs(out["nearest"] - hi) < 1e-9))
     near = aspect_baselines(asp, np.ones(36), vals, train, np.array([1]))["nearest"]
     assert near.shape == (1, 1)
+
+
+def test_range_baselines():
+    from rfir_stages.predict.baselines import range_baselines
+
+    asp = np.tile(np.array([0.0, 1.0]), 3)
+    rng = np.repeat([2.0, 3.0, 4.0], 2)
+    vals = (10 * rng + asp)[:, None]
+    train, test = np.array([0, 1, 4, 5]), np.array([2, 3])
+    out = range_baselines(asp, rng, vals, train, test)
+    np.testing.assert_allclose(out["linear_range"][:, 0], [30.0, 31.0])
+    assert set(out["nearest_range"][:, 0]) <= {20.0, 21.0, 40.0, 41.0}

@@ -68,7 +68,9 @@ def predict_rcs(
     if "mae_db" in m:
         table = Table("method", f"MAE on the test split, dB (n = {m['num_test']})", box=None, pad_edge=False)
         table.add_row("rfir (this model)", f"{m['mae_db']:.2f}")
-        for k, text in (("nearest", "nearest training aspect"), ("linear", "linear interpolation of training aspects")):
+        for k, text in (("nearest", "nearest training aspect"), ("linear", "linear interpolation of training aspects"),
+                        ("nearest_range", "nearest training range, same aspect"),
+                        ("linear_range", "linear interpolation in range, same aspect")):
             if f"baseline_{k}_mae_db" in m:
                 table.add_row(f"baseline: {text}", f"{m[f'baseline_{k}_mae_db']:.2f}")
         console.print(table)
