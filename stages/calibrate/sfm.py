@@ -19,8 +19,9 @@ from .images import ImageSet
 class SfmOptions:
     """Structure-from-motion settings (section [calibrate.sfm] of configs/calibrate.toml).
 
-    matcher: "auto" (exhaustive up to exhaustive_max_images; above that spatial when every photo's
-      centre is known, else sequential), "exhaustive", "sequential" (each photo against the next
+    matcher: "auto" (exhaustive up to exhaustive_max_images; then exhaustive with at most
+      reduced_num_features features per photo up to reduced_exhaustive_max_images; above that spatial
+      when every photo's centre is known, else sequential), "exhaustive", "sequential" (each photo against the next
       `sequential_overlap`, plus quadratic jumps) or "spatial" (each photo against its
       `spatial_neighbors` nearest known centres; needs a centre for every photo);
     max_num_features: SIFT features per image; max_image_size: longer side used for features (px);
@@ -32,6 +33,8 @@ class SfmOptions:
 
     matcher: str = "auto"
     exhaustive_max_images: int = 60
+    reduced_exhaustive_max_images: int = 300
+    reduced_num_features: int = 4096
     sequential_overlap: int = 15
     spatial_neighbors: int = 30
     max_num_features: int = 8192
@@ -51,7 +54,7 @@ class SfmOptions:
                  "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE")
         if self.camera_model not in known:
             raise ConfigError(f"calibrate.sfm.camera_model = {self.camera_model!r}: expected one of {', '.join(known)}")
-        if self.max_num_features < 100 or self.sequential_overlap < 1 or self.spatial_neighbors < 1:
+        if min(self.max_num_features, self.reduced_num_features) < 100 or self.sequential_overlap < 1 or self.spatial_neighbors < 1:
             raise ConfigError("calibrate.sfm: max_num_features must be >= 100, sequential_overlap and "
                               "spatial_neighbors >= 1")
 
@@ -67,13 +70,20 @@ def _pycolmap():
     return pycolmap
 
 
-def choose_matcher(options: SfmOptions, n_images: int, all_centres_known: bool) -> str:
-    """The matcher that `options.matcher` resolves to for n_images photos."""
+def choose_matcher(options: SfmOptions, n_images: int, all_centres_known: bool) -> tuple[str, int]:
+    """(matcher, SIFT features per photo) that `options` resolve to for n_images photos.
+
+    Exhaustive matching costs n^2/2 pairs times features^2: above exhaustive_max_images photos
+    "auto" halves the features (a quarter of the cost per pair), above reduced_exhaustive_max_images
+    it matches only neighbours (spatial from the known centres, else sequential).
+    """
     if options.matcher != "auto":
-        return options.matcher
+        return options.matcher, options.max_num_features
     if n_images <= options.exhaustive_max_images:
-        return "exhaustive"
-    return "spatial" if all_centres_known else "sequential"
+        return "exhaustive", options.max_num_features
+    if n_images <= options.reduced_exhaustive_max_images:
+        return "exhaustive", min(options.max_num_features, options.reduced_num_features)
+    return ("spatial" if all_centres_known else "sequential"), options.max_num_features
 
 
 def _write_position_priors(db_path: Path, centres: dict) -> None:
@@ -112,7 +122,11 @@ def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, kno
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = options.num_threads
     extraction.max_image_size = options.max_image_size
-    extraction.sift.max_num_features = options.max_num_features
+    all_known = known_centres is not None and all(nm in known_centres for nm in images.names)
+    matcher, n_features = choose_matcher(options, len(images.names), all_known)
+    if matcher == "spatial" and not all_known:
+        raise ConfigError("calibrate.sfm.matcher = 'spatial' needs a known centre (--poses) for every photo")
+    extraction.sift.max_num_features = n_features
     extraction.use_gpu = False
     chunk = 8
     with progress.task("features", total=len(images.names)) as task:
@@ -126,10 +140,6 @@ def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, kno
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = options.num_threads
     matching.use_gpu = False
-    all_known = known_centres is not None and all(nm in known_centres for nm in images.names)
-    matcher = choose_matcher(options, len(images.names), all_known)
-    if matcher == "spatial" and not all_known:
-        raise ConfigError("calibrate.sfm.matcher = 'spatial' needs a known centre (--poses) for every photo")
     with progress.task(f"matching ({matcher})", total=1) as task:
         if matcher == "exhaustive":
             pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)

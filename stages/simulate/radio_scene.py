@@ -75,14 +75,18 @@ def load_radio_scene(spec: SceneSpec, folder, frequency_hz: float, effects: Mate
     numpy (see `antennas`), so the simulator and the fitter share one pattern function.
     An empty spec gives Sionna's empty scene.
     """
+    if spec.objects:
+        return load_radio_xml(write_radio_xml(spec, folder), frequency_hz, effects)
+    return load_radio_xml(None, frequency_hz, effects)
+
+
+def load_radio_xml(xml_path, frequency_hz: float, effects: MaterialEffects = MaterialEffects()):
+    """Load an XML written by `write_radio_xml` (None: Sionna's empty scene) as `load_radio_scene`
+    does; used by worker processes, which load the parent's exported scene."""
     set_variant()
     import sionna.rt as rt
 
-    if spec.objects:
-        xml = write_radio_xml(spec, folder)
-        scene = rt.load_scene(str(xml), merge_shapes=False)
-    else:
-        scene = rt.load_scene()
+    scene = rt.load_scene(str(xml_path), merge_shapes=False) if xml_path is not None else rt.load_scene()
     scene.frequency = float(frequency_hz)
     scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
     scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")

@@ -51,60 +51,125 @@ class RcsRaw:
 
 
 def simulate_monostatic(scene, grid: RadarGrid, object_radius_m: float, solve_freqs_hz, out_freqs_per_solve,
-                        physics: PhysicsEffects, hpbw_deg: float, focus: bool, progress, label: str) -> RcsRaw:
+                        physics: PhysicsEffects, hpbw_deg: float, focus: bool, progress, label: str,
+                        workers: int = 1, radio_xml=None, material_effects=None,
+                        worker_timeout_s: float = 900.0) -> RcsRaw:
     """Solve every link at every solve frequency.
 
     solve_freqs_hz: (S,) frequencies at which Sionna is re-run (materials re-evaluated).
     out_freqs_per_solve: list of S arrays: the output frequencies computed from each solve
     (for narrowband tasks just [f]); concatenated in order they form the F axis.
+    workers > 1: the (solve frequency, block of links) units go to that many 'spawn' worker
+    processes, each loading `radio_xml` itself (see `parallel.py`); the results are the same
+    arrays as workers = 1 (every solve is seeded and independent of the others).
     """
-    import sionna.rt as rt
-
-    from .radio_scene import set_devices
-
     tx, rx = grid.tx_rx()
     n_links = len(tx)
-    out_sizes = [len(np.atleast_1d(o)) for o in out_freqs_per_solve]
-    n_f = sum(out_sizes)
+    out_freqs_per_solve = [np.atleast_1d(np.asarray(o, float)) for o in out_freqs_per_solve]
+    out_sizes = [len(o) for o in out_freqs_per_solve]
+    cols = np.concatenate([[0], np.cumsum(out_sizes)])
+    n_f = int(cols[-1])
     channel = np.zeros((n_links, n_f), complex)
     power = np.zeros((n_links, n_f))
     n_paths = np.zeros((n_links, len(solve_freqs_hz)), int)
     n_diff = np.zeros_like(n_paths)
-    solver = rt.PathSolver()
-    solver.loop_mode = "evaluated"  # measured 2.5x faster than symbolic for one small solve
-    use_focus = bool(focus and focused_available(solver))
-    set_devices(scene, tx[:1], rx[:1])
-    tx_dev, rx_dev = scene.transmitters["tx0"], scene.receivers["rx0"]
-    kwargs = physics.solver_kwargs(los=False)
     total = n_links * len(solve_freqs_hz)
-    col = 0
+    job = dict(tx=tx, rx=rx, centre=np.asarray(grid.centre, float), object_radius_m=float(object_radius_m),
+               physics=physics, hpbw_deg=float(hpbw_deg), focus=bool(focus))
+    units = [(s, float(f), out_freqs_per_solve[s], idx) for s, f in enumerate(solve_freqs_hz)
+             for idx in _link_blocks(n_links, workers)]
     cap_hits = 0
+    use_focus = None
+
+    def store(unit, res):
+        nonlocal cap_hits, use_focus
+        s, _, _, idx = unit
+        channel[idx, cols[s]:cols[s + 1]] = res["channel"]
+        power[idx, cols[s]:cols[s + 1]] = res["power"]
+        n_paths[idx, s] = res["num_paths"]
+        n_diff[idx, s] = res["num_diffuse"]
+        cap_hits += int(res["cap_hits"])
+        use_focus = res["focused"] if use_focus is None else (use_focus and res["focused"])
+
     with progress.task(label, total=total) as bar:
-        for s, (f_solve, f_out) in enumerate(zip(solve_freqs_hz, out_freqs_per_solve)):
-            scene.frequency = float(f_solve)
-            f_out = np.atleast_1d(np.asarray(f_out, float))
-            for i in range(n_links):
-                tx_dev.position = [float(v) for v in tx[i]]
-                rx_dev.position = [float(v) for v in rx[i]]
-                mid = 0.5 * (tx[i] + rx[i])
-                bore = grid.centre - mid
-                ant = Antenna("horn", tuple(bore / np.linalg.norm(bore)), hpbw_deg)
-                if use_focus:
-                    axis, cos_c = cone_for_sphere(tx[i], grid.centre, object_radius_m)
-                else:
-                    axis, cos_c = None, -2.0
-                with focused_sampling(solver, axis, cos_c):
-                    paths = solver(scene, **kwargs)
-                out = combine_paths(paths, f_out, float(f_solve), ant, [ant], physics.combine,
-                                    max_paths=physics.max_num_paths_per_src)
-                cap_hits += int(out.hit_cap)
-                channel[i, col:col + len(f_out)] = out.channel[0]
-                power[i, col:col + len(f_out)] = out.power[0]
-                n_paths[i, s] = out.num_paths[0]
-                n_diff[i, s] = out.num_diffuse[0]
-                bar.advance(1)
-            col += len(f_out)
-    return RcsRaw(channel, power, n_paths, n_diff, use_focus, total, cap_hits)
+        if workers <= 1:
+            import drjit as dr
+
+            threads = dr.thread_count()
+            dr.set_thread_count(1)  # as the workers: with > 1 thread a solve is not reproducible (parallel.py)
+            try:
+                state = SolverState(scene)
+                for unit in units:
+                    store(unit, solve_unit(state, job, unit, bar.advance))
+            finally:
+                dr.set_thread_count(threads)
+        else:
+            from .parallel import run_units
+
+            if radio_xml is None:
+                raise ValueError("workers > 1 needs the radio scene's XML path")
+            run_units(units, job, str(radio_xml), material_effects, workers, worker_timeout_s,
+                      lambda unit, res: (store(unit, res), bar.advance(len(unit[3]))))
+    return RcsRaw(channel, power, n_paths, n_diff, bool(use_focus), total, cap_hits)
+
+
+def _link_blocks(n_links: int, workers: int) -> list[np.ndarray]:
+    """Link indices in contiguous blocks: one block in-process; with workers, small enough blocks
+    (<= 60 links, >= 2 per worker) that the workers stay balanced and progress moves."""
+    if workers <= 1:
+        return [np.arange(n_links)]
+    size = max(1, min(60, math.ceil(n_links / (2 * workers))))
+    return [np.arange(i, min(n_links, i + size)) for i in range(0, n_links, size)]
+
+
+class SolverState:
+    """A Sionna scene with one Tx and one Rx and a PathSolver, reused across solves."""
+
+    def __init__(self, scene):
+        import sionna.rt as rt
+
+        from .radio_scene import set_devices
+
+        self.scene = scene
+        self.solver = rt.PathSolver()
+        self.solver.loop_mode = "evaluated"  # measured 2.5x faster than symbolic for one small solve
+        set_devices(scene, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+        self.tx_dev, self.rx_dev = scene.transmitters["tx0"], scene.receivers["rx0"]
+
+
+def solve_unit(state: SolverState, job: dict, unit, advance=None) -> dict:
+    """Solve links `unit[3]` at solve frequency unit[1], output frequencies unit[2]."""
+    _, f_solve, f_out, idx = unit
+    tx, rx, centre = job["tx"], job["rx"], job["centre"]
+    physics: PhysicsEffects = job["physics"]
+    use_focus = bool(job["focus"] and focused_available(state.solver))
+    kwargs = physics.solver_kwargs(los=False)
+    state.scene.frequency = float(f_solve)
+    n = len(idx)
+    res = {"channel": np.zeros((n, len(f_out)), complex), "power": np.zeros((n, len(f_out))),
+           "num_paths": np.zeros(n, int), "num_diffuse": np.zeros(n, int), "cap_hits": 0, "focused": use_focus}
+    for j, i in enumerate(idx):
+        state.tx_dev.position = [float(v) for v in tx[i]]
+        state.rx_dev.position = [float(v) for v in rx[i]]
+        mid = 0.5 * (tx[i] + rx[i])
+        bore = centre - mid
+        ant = Antenna("horn", tuple(bore / np.linalg.norm(bore)), job["hpbw_deg"])
+        if use_focus:
+            axis, cos_c = cone_for_sphere(tx[i], centre, job["object_radius_m"])
+        else:
+            axis, cos_c = None, -2.0
+        with focused_sampling(state.solver, axis, cos_c):
+            paths = state.solver(state.scene, **kwargs)
+        out = combine_paths(paths, f_out, float(f_solve), ant, [ant], physics.combine,
+                            max_paths=physics.max_num_paths_per_src)
+        res["cap_hits"] += int(out.hit_cap)
+        res["channel"][j] = out.channel[0]
+        res["power"][j] = out.power[0]
+        res["num_paths"][j] = out.num_paths[0]
+        res["num_diffuse"][j] = out.num_diffuse[0]
+        if advance is not None:
+            advance(1)
+    return res
 
 
 def wideband_plan(centre_hz: float, bandwidth_hz: float, num_freqs: int, num_anchors: int):

@@ -10,6 +10,35 @@ from .measurement import MeasurementEffects
 from .solve import PhysicsEffects
 
 PATTERNS = ("directive", "lambertian", "backscattering")
+BACKENDS = ("sionna", "po")
+
+
+@dataclass(frozen=True)
+class PoSettings:
+    """Settings of the physical-optics backend (`rfir_stages.po.po_scattered_field`), [simulate.po].
+
+    None for the three lengths = the solver's automatic choice (see docs/po.md)."""
+
+    near_field: bool = True
+    second_order: bool = True
+    polarization: str = "V"
+    shadow_samples: int = 4
+    use_thickness: bool = True
+    max_facet_edge_m: float | None = None
+    shadow_refine_m: float | None = None
+    sbr_spacing_m: float | None = None
+
+    def solver_kwargs(self) -> dict:
+        return dict(near_field=bool(self.near_field), second_order=bool(self.second_order),
+                    polarization=str(self.polarization), shadow_samples=int(self.shadow_samples),
+                    max_facet_edge_m=self.max_facet_edge_m, shadow_refine_m=self.shadow_refine_m,
+                    sbr_spacing_m=self.sbr_spacing_m)
+
+
+def _auto_len(v):
+    if v is None or (isinstance(v, str) and v.lower() == "auto"):
+        return None
+    return float(v)
 
 
 @dataclass
@@ -50,6 +79,10 @@ class SimulateSettings:
     test_fraction: float = 0.2
     rssi_samples_per_src: int = 30000
     rssi_max_paths: int = 2000000
+    rcs_backend: str = "sionna"
+    po: PoSettings = field(default_factory=PoSettings)
+    workers: int = 2
+    worker_timeout_s: float = 900.0
 
     def physics_for(self, task: str) -> PhysicsEffects:
         if task == "rssi":
@@ -64,8 +97,14 @@ class SimulateSettings:
         return MaterialEffects(self.physics_scattering_coefficient if self.physics.diffuse else 0.0,
                                self.scattering_pattern, self.alpha_r)
 
-    def effects_dict(self) -> dict:
-        """Every effect switch, for provenance and the simulator/ group."""
+    def effects_dict(self, backend: str = "sionna") -> dict:
+        """Every effect switch, for provenance and the simulator/ group.
+
+        backend "po": the PO solver's settings replace Sionna's physics switches."""
+        if backend == "po":
+            return {"rcs_backend": "po", "po": {k: ("auto" if v is None else v)
+                                                for k, v in dataclasses.asdict(self.po).items()},
+                    "measurement": dataclasses.asdict(self.measurement)}
         p = self.physics
         return {
             "physics": {"max_depth": p.max_depth, "specular": p.specular, "refraction": p.refraction,
@@ -89,6 +128,7 @@ def parse_settings(config: dict | None, quick: bool | None = None) -> SimulateSe
     try:
         ph, me = c.get("physics", {}), c.get("measurement", {})
         rc, wb, rs, qk = c.get("rcs", {}), c.get("wideband", {}), c.get("rssi", {}), c.get("quick_sizes", {})
+        po = c.get("po", {})
         tasks = c.get("tasks", "auto")
         s = SimulateSettings(
             tasks=[tasks] if isinstance(tasks, str) else list(tasks),
@@ -121,6 +161,15 @@ def parse_settings(config: dict | None, quick: bool | None = None) -> SimulateSe
             test_fraction=float(rs.get("test_fraction", 0.2)),
             rssi_samples_per_src=int(rs.get("samples_per_src", 30000)),
             rssi_max_paths=int(rs.get("max_num_paths_per_src", 2000000)),
+            rcs_backend=str(c.get("rcs_backend", "sionna")).lower(),
+            po=PoSettings(near_field=bool(po.get("near_field", True)), second_order=bool(po.get("second_order", True)),
+                          polarization=str(po.get("polarization", "V")).upper(),
+                          shadow_samples=int(po.get("shadow_samples", 4)),
+                          use_thickness=bool(po.get("use_thickness", True)),
+                          max_facet_edge_m=_auto_len(po.get("max_facet_edge_m", "auto")),
+                          shadow_refine_m=_auto_len(po.get("shadow_refine_m", "auto")),
+                          sbr_spacing_m=_auto_len(po.get("sbr_spacing_m", "auto"))),
+            workers=int(c.get("workers", 2)), worker_timeout_s=float(c.get("worker_timeout_s", 900.0)),
         )
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"simulate: bad setting ({exc})") from None
@@ -169,6 +218,16 @@ def _validate(s: SimulateSettings) -> None:
         bad("wideband.num_freqs and num_anchors must be >= 1")
     if s.measurement.noise_db < 0:
         bad("measurement.noise_db must be >= 0")
+    if s.rcs_backend not in BACKENDS:
+        bad(f"rcs_backend must be one of {', '.join(BACKENDS)}, got {s.rcs_backend!r}")
+    if s.po.polarization not in ("V", "H", "VH", "HV"):
+        bad("po.polarization must be V, H, VH or HV")
+    if s.po.shadow_samples not in (1, 4):
+        bad("po.shadow_samples must be 1 or 4")
+    if s.workers < 1:
+        bad("workers must be >= 1 (1 = in-process)")
+    if s.worker_timeout_s <= 0:
+        bad("worker_timeout_s must be > 0")
     for t in s.tasks:
         if t != "auto" and t not in ("rssi", "rcs", "wideband"):
             bad(f"unknown task {t!r} (known: auto, rssi, rcs, wideband)")

@@ -33,6 +33,7 @@ class SimulateResult:
     cameras: Path | None = None
     images: int = 0
     timings_s: dict[str, float] = field(default_factory=dict)
+    backends: dict[str, str] = field(default_factory=dict)  # task -> solver ("sionna", "po")
     warnings: list[str] = field(default_factory=list)
 
 
@@ -82,12 +83,16 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
         _photos(spec, out, settings, result, progress)
 
     if tasks:
-        from .radio_scene import load_radio_scene
+        from .radio_scene import load_radio_scene, write_radio_xml
 
-        try:
-            radio = load_radio_scene(spec, out / "radio", 2.4e9, settings.material_effects())
-        except ImportError as exc:
-            raise StageError(f"the radio simulator needs sionna-rt ({exc}); pip install 'rfir[sim]'") from None
+        radio = None
+        if any(t == "rssi" or settings.rcs_backend == "sionna" for t in tasks):
+            try:
+                radio = load_radio_scene(spec, out / "radio", 2.4e9, settings.material_effects())
+            except ImportError as exc:
+                raise StageError(f"the radio simulator needs sionna-rt ({exc}); pip install 'rfir[sim]'") from None
+        elif spec.objects:
+            write_radio_xml(spec, out / "radio")  # the radio scene is part of the output either way
         for task in tasks:
             t0 = time.time()
             path = out / artifact_name(task, tasks)
@@ -95,6 +100,7 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
             result.measurements[task] = path
             result.links[task] = n_links
             result.freqs[task] = n_f
+            result.backends[task] = "sionna" if task == "rssi" else settings.rcs_backend
             result.timings_s[task] = time.time() - t0
     return result
 
@@ -119,8 +125,11 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
 
     prov = Provenance(stage="simulate", config_toml=config_toml)
     started = time.time()
+    backend = "sionna" if task == "rssi" else settings.rcs_backend
     if task == "rssi":
         data, sim_attrs = _rssi(spec, radio, settings, progress)
+    elif backend == "po":
+        data, sim_attrs = _rcs_po(task, spec, settings, progress)
     else:
         data, sim_attrs = _rcs(task, spec, radio, settings, progress, folder)
     meas: MeasurementEffects = settings.measurement
@@ -133,7 +142,7 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
                                               horn_boresight_gain(settings.horn_hpbw_deg))
     data["scene_bounds"] = np.asarray(spec.bounds, float)
     prov.wall_time_s = time.time() - started
-    effects = settings.effects_dict()
+    effects = settings.effects_dict(backend)
     prov.extra = {"task": task, "effects": effects, "sim": {k: v for k, v in sim_attrs.items()
                                                               if not isinstance(v, np.ndarray)}}
     sim_group = {"@attrs": {**_flat_attrs(effects), **{k: v for k, v in sim_attrs.items()
@@ -180,8 +189,9 @@ def _rssi(spec, radio, s: SimulateSettings, progress):
     return data, attrs
 
 
-def _rcs(task, spec, radio, s: SimulateSettings, progress, folder):
-    from .rcs import RadarGrid, aspect_grid, object_radius, simulate_monostatic, wideband_plan
+def _rcs_plan(task, spec, s: SimulateSettings):
+    """Aspects, ranges, solve frequencies and output frequencies of an rcs / wideband task."""
+    from .rcs import aspect_grid, wideband_plan
 
     if task == "rcs":
         aspects = aspect_grid(s.aspect_step_deg)
@@ -194,30 +204,69 @@ def _rcs(task, spec, radio, s: SimulateSettings, progress, folder):
         ranges = np.array([s.wideband_range_m])
         solve_f, out_f = wideband_plan(s.wideband_centre_hz, s.wideband_bandwidth_hz, s.wideband_num_freqs,
                                        s.wideband_num_anchors)
-        label = f"wideband {spec.name} {len(aspects)} aspects x {sum(map(len, out_f))} freqs ({len(solve_f)} solves)"
-    grid = RadarGrid(aspects, ranges, np.zeros(3), s.separation_m)
-    raw = simulate_monostatic(radio, grid, object_radius(spec), solve_f, out_f, s.physics_for("rcs"),
-                              s.horn_hpbw_deg, s.focused_sampling, progress, label)
+        label = f"wideband {spec.name} {len(aspects)} aspects x {sum(map(len, out_f))} freqs"
+    return aspects, ranges, solve_f, out_f, label
+
+
+def _rcs_data(task, grid, out_f, raw, s: SimulateSettings) -> dict:
     asp, rng_m, _ = grid.links()
     tx, rx = grid.tx_rx()
     freqs = np.concatenate([np.atleast_1d(f) for f in out_f])
     aspect_idx = np.rint(np.rad2deg(asp) / (s.aspect_step_deg if task == "rcs" else s.wideband_aspect_step_deg))
     split = (aspect_idx.astype(np.int64) % 2).astype(np.int64)  # even aspects train, odd test
-    data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "channel": raw.channel, "_power": raw.power,
+    return {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "channel": raw.channel, "_power": raw.power,
             "aspect_rad": asp, "range_m": rng_m, "split": split,
             "tx_id": np.arange(len(tx), dtype=np.int64), "rx_id": np.arange(len(tx), dtype=np.int64)}
-    attrs = {"backend": "sionna-rt", "antenna_tx": "horn", "antenna_rx": "horn",
-             "antenna_pattern": "cos^q over the front hemisphere, G0 = 2 (q + 1) (rfir_stages.simulate.antennas)",
-             "horn_hpbw_deg": float(s.horn_hpbw_deg), "horn_q": float(horn_exponent(s.horn_hpbw_deg)),
-             "horn_boresight_gain_dbi": float(10 * math.log10(horn_boresight_gain(s.horn_hpbw_deg))),
-             "geometry": "object fixed at origin; aspect theta = radar at azimuth -theta",
-             "tx_rx_separation_m": float(s.separation_m), "split_protocol": "even aspect index train, odd test",
+
+
+def _antenna_attrs(s: SimulateSettings) -> dict:
+    return {"antenna_tx": "horn", "antenna_rx": "horn",
+            "antenna_pattern": "cos^q over the front hemisphere, G0 = 2 (q + 1) (rfir_stages.simulate.antennas)",
+            "horn_hpbw_deg": float(s.horn_hpbw_deg), "horn_q": float(horn_exponent(s.horn_hpbw_deg)),
+            "horn_boresight_gain_dbi": float(10 * math.log10(horn_boresight_gain(s.horn_hpbw_deg))),
+            "geometry": "object fixed at origin; aspect theta = radar at azimuth -theta",
+            "tx_rx_separation_m": float(s.separation_m), "split_protocol": "even aspect index train, odd test"}
+
+
+def _rcs(task, spec, radio, s: SimulateSettings, progress, folder):
+    from .rcs import RadarGrid, object_radius, simulate_monostatic
+
+    aspects, ranges, solve_f, out_f, label = _rcs_plan(task, spec, s)
+    if task == "wideband":
+        label += f" ({len(solve_f)} solves)"
+    grid = RadarGrid(aspects, ranges, np.zeros(3), s.separation_m)
+    workers = max(1, min(int(s.workers), len(aspects) * len(ranges) * len(solve_f)))
+    raw = simulate_monostatic(radio, grid, object_radius(spec), solve_f, out_f, s.physics_for("rcs"),
+                              s.horn_hpbw_deg, s.focused_sampling, progress, label, workers=workers,
+                              radio_xml=Path(folder) / f"{spec.name}.xml", material_effects=s.material_effects(),
+                              worker_timeout_s=s.worker_timeout_s)
+    data = _rcs_data(task, grid, out_f, raw, s)
+    attrs = {"backend": "sionna-rt", **_antenna_attrs(s),
              "focused_sampling": bool(raw.focused), "num_solves": int(raw.solves),
-             "paths_cap_hits": int(raw.cap_hits),
+             "paths_cap_hits": int(raw.cap_hits), "workers": int(workers),
              "num_paths": raw.num_paths, "num_diffuse_paths": raw.num_diffuse}
     if task == "wideband":
         attrs["wideband_anchor_freqs_hz"] = np.asarray(solve_f, float)
         attrs["wideband_note"] = ("Sionna re-run at each anchor (materials and paths exact there); other "
                                   "frequencies use the anchor's paths with exact per-path delay phase and "
                                   "lambda-scaled amplitude")
+    return data, attrs
+
+
+def _rcs_po(task, spec, s: SimulateSettings, progress):
+    from .po_backend import simulate_monostatic_po
+    from .rcs import RadarGrid
+
+    aspects, ranges, _, out_f, label = _rcs_plan(task, spec, s)
+    grid = RadarGrid(aspects, ranges, np.zeros(3), s.separation_m)
+    freqs = np.concatenate([np.atleast_1d(f) for f in out_f])
+    raw, po_prov = simulate_monostatic_po(spec, grid, freqs, s.horn_hpbw_deg, s.po, progress, label + " (PO)")
+    data = _rcs_data(task, grid, out_f, raw, s)
+    attrs = {"backend": "po", **_antenna_attrs(s),
+             **{f"po.{k}": ("auto" if v is None else v) for k, v in po_prov.items() if k != "backend"},
+             "num_solves": 1, "num_aspects": int(len(data["tx_pos"])), "num_freqs": int(len(freqs))}
+    attrs = {k: (np.asarray(v) if isinstance(v, list) else v) for k, v in attrs.items()}
+    if task == "wideband":
+        attrs["wideband_note"] = ("PO solved at every frequency (exact k, Fresnel coefficients per frequency); "
+                                  "facet geometry, lit sets and double-bounce tubes shared across frequencies")
     return data, attrs

@@ -106,8 +106,8 @@ def _raw_centres(model_dir, image_paths):
 
 
 def test_spatial_matching(object_views, tmp_path):
-    """Pairs from the known centres (the default above exhaustive_max_images photos when --poses covers
-    every photo) register the reduced set as well as exhaustive matching does."""
+    """Pairs from the known centres (auto's choice above reduced_exhaustive_max_images photos when
+    --poses covers every photo) register the reduced set as well as exhaustive matching does."""
     options = CalibrateOptions.from_config({"sfm": {"matcher": "spatial", "spatial_neighbors": 6}})
     out = tmp_path / "calib.h5"
     run(CalibrateInputs(object_views / "images", out, poses=object_views / "cameras.h5",
@@ -122,10 +122,12 @@ def test_matcher_choice():
     from rfir_stages.calibrate.sfm import SfmOptions, choose_matcher
 
     auto = SfmOptions()
-    assert choose_matcher(auto, auto.exhaustive_max_images, True) == "exhaustive"
-    assert choose_matcher(auto, auto.exhaustive_max_images + 1, True) == "spatial"
-    assert choose_matcher(auto, auto.exhaustive_max_images + 1, False) == "sequential"
-    assert choose_matcher(SfmOptions(matcher="exhaustive"), 1000, True) == "exhaustive"
+    assert choose_matcher(auto, auto.exhaustive_max_images, True) == ("exhaustive", auto.max_num_features)
+    assert choose_matcher(auto, auto.exhaustive_max_images + 1, True) == ("exhaustive", auto.reduced_num_features)
+    assert choose_matcher(auto, auto.reduced_exhaustive_max_images + 1, True) == ("spatial", auto.max_num_features)
+    assert choose_matcher(auto, auto.reduced_exhaustive_max_images + 1, False) == ("sequential",
+                                                                                  auto.max_num_features)
+    assert choose_matcher(SfmOptions(matcher="exhaustive"), 1000, True) == ("exhaustive", auto.max_num_features)
 
 
 def test_csv_centres_and_subset(sfm_run, object_views, tmp_path):

@@ -42,7 +42,8 @@ def _show(summary: dict) -> None:
                   f"producer: {attrs.get('producer', '?')}   created: {attrs.get('created', '?')}")
     extra = {k: v for k, v in attrs.items() if k not in ("kind", "schema_version", "producer", "created")}
     if extra:
-        console.print("  attributes: " + ", ".join(f"{k}={v}" for k, v in sorted(extra.items())), highlight=False)
+        console.print("  attributes: " + ", ".join(f"{k}={_short(v)}" for k, v in sorted(extra.items())),
+                      highlight=False, markup=False)
     prov = summary["provenance"]
     if prov is not None:
         console.print(f"  provenance: stage={prov.stage} device={prov.device} wall_time={prov.wall_time_s or 0:.1f}s "
@@ -53,6 +54,14 @@ def _show(summary: dict) -> None:
     for ds in summary["datasets"]:
         table.add_row(ds["name"], "x".join(str(s) for s in ds["shape"]) or "scalar", ds["dtype"], ds["unit"], ds["frame"])
     console.print(table)
+
+
+def _short(value) -> str:
+    """An attribute value in one short piece (long arrays as a count and the first items)."""
+    if hasattr(value, "__len__") and not isinstance(value, str) and len(value) > 4:
+        head = ", ".join(str(v) for v in list(value)[:3])
+        return f"[{head}, ... ({len(value)} items)]"
+    return str(value)
 
 
 def _show_tracer() -> None:

@@ -22,6 +22,12 @@ def simulate(
     task: Annotated[Optional[list[str]], typer.Option(
         "--task", help="rssi, rcs or wideband (repeatable); default from the scene.")] = None,
     no_photos: Annotated[bool, typer.Option("--no-photos", help="Skip the photo rendering.")] = False,
+    rcs_backend: Annotated[Optional[str], typer.Option(
+        "--rcs-backend", help="Solver of the rcs/wideband tasks: sionna (ray tracing, GO) or po (physical optics); "
+                              "default simulate.rcs_backend.")] = None,
+    workers: Annotated[Optional[int], typer.Option(
+        "--workers", help="Processes for the Sionna rcs/wideband solves (1 = in-process); "
+                          "default simulate.workers.")] = None,
 ) -> None:
     """Simulate SCENE: write meshes/, images/ + cameras.h5, and measurements.h5 into OUT."""
     opts = options(ctx)
@@ -35,6 +41,10 @@ def simulate(
             table["tasks"] = list(task)
         if no_photos:
             table["photos"] = False
+        if rcs_backend is not None:
+            table["rcs_backend"] = rcs_backend
+        if workers is not None:
+            table["workers"] = workers
         with RichReporter(opts.verbosity) as reporter:
             return run(scene, out, table, config_toml=opts.config_toml(), quick=quick or None, progress=reporter)
 
@@ -51,6 +61,8 @@ def _report(result) -> None:
     for task, path in result.measurements.items():
         table.add_row(str(path), f"{task}: {result.links[task]} links x {result.freqs[task]} freqs",
                       f"{result.timings_s.get(task, 0):.1f}s")
+    if result.backends:
+        console.print("rcs backend: " + ", ".join(f"{t} {b}" for t, b in result.backends.items()), highlight=False)
     console.print(f"[green]simulated[/green] {result.scene}", highlight=False)
     console.print(table)
     for w in result.warnings:

@@ -1,0 +1,66 @@
+"""Read a triangle mesh (PLY) with an optional per-face `label`, for `rfir mesh-gaussians`."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.errors import InputFileError
+
+
+@dataclass
+class Mesh:
+    """vertices [V, 3] m, faces [F, 3] int, labels [F] int or None, label_names {label: name}."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    labels: np.ndarray | None
+    label_names: dict[int, str]
+
+
+def read_ply_mesh(path: str | Path) -> Mesh:
+    """Load vertices, triangles and face labels; a clear InputFileError for anything else.
+
+    Label names come from a `labels.json` beside the file (as `rfir simulate` writes) when present.
+    """
+    from plyfile import PlyData
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError("file not found", path=path)
+    try:
+        ply = PlyData.read(str(path))
+    except Exception as exc:  # plyfile raises several types for a bad header
+        raise InputFileError(f"not a readable PLY file ({exc})", path=path) from None
+    if "vertex" not in ply or "face" not in ply or ply["face"].count == 0:
+        raise InputFileError("PLY has no triangles (needs 'vertex' and 'face' elements)", path=path)
+    vertex = ply["vertex"]
+    vertices = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1).astype(np.float64)
+    face = ply["face"]
+    index_name = next((n for n in ("vertex_indices", "vertex_index") if n in face.data.dtype.names), None)
+    if index_name is None:
+        raise InputFileError("face element has no vertex_indices", path=path)
+    polygons = face[index_name]
+    if any(len(p) != 3 for p in polygons):
+        raise InputFileError("only triangle meshes are supported (found a face with != 3 vertices)", path=path)
+    faces = np.asarray(np.stack(polygons), dtype=np.int64)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputFileError("face indices outside the vertex list", path=path)
+    if not np.all(np.isfinite(vertices)):
+        raise InputFileError("vertex coordinates hold NaN or Inf", path=path)
+    labels = np.asarray(face["label"], dtype=np.int64) if "label" in face.data.dtype.names else None
+    return Mesh(vertices, faces, labels, _label_names(path.parent / "labels.json"))
+
+
+def _label_names(path: Path) -> dict[int, str]:
+    import json
+
+    if not path.exists():
+        return {}
+    try:
+        content = json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return {}
+    objects = content.get("objects", []) if isinstance(content, dict) else []
+    return {int(o["label"]): str(o["name"]) for o in objects if isinstance(o, dict) and "label" in o and "name" in o}
