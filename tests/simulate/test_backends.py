@@ -113,7 +113,8 @@ def test_plate_normal_incidence_po_matches_sionna(tmp_path):
 
 def test_broadside_at_same_aspect_in_both_backends(tmp_path):
     """A 0.5 m plate turned to face azimuth -30 deg: with the radar at azimuth -aspect both
-    backends put its echo at aspect 30 deg (and PO's other lobes well below)."""
+    backends put its echo at aspect 30 deg (the plate is two-sided: 210 deg too); PO's side lobes
+    are well below."""
     base = plate(0.5)
     obj = base.objects[0]
     obj.vertices = rotate_z(obj.vertices, math.radians(-30.0))
@@ -121,13 +122,16 @@ def test_broadside_at_same_aspect_in_both_backends(tmp_path):
     grid = RadarGrid(aspect_grid(10.0), np.array([3.0]), np.zeros(3))
     po, _ = _po_rcs(spec, grid, [5.8e9], PoSettings(second_order=False))
     sion = _sionna_rcs(spec, grid, [5.8e9], tmp_path)
-    assert int(np.argmax(po[:, 0])) == 3 and int(np.argmax(sion[:, 0])) == 3
-    assert po[3, 0] - np.delete(po[:, 0], 3).max() > 10
+    assert int(np.argmax(po[:, 0])) in (3, 21) and int(np.argmax(sion[:, 0])) in (3, 21)
+    assert abs(po[3, 0] - po[21, 0]) < 0.1 and sion[3, 0] > 10 and sion[21, 0] > 10
+    assert po[3, 0] - np.delete(po[:, 0], [3, 21]).max() > 10 and np.delete(sion[:, 0], [3, 21]).max() < -50
 
 
 def test_cli_po_backend_h_target(tmp_path):
     """`rfir simulate h-target OUT --rcs-backend po`: rcs and wideband artifacts (all frequencies in
-    one PO call); broadside of the H (faces normal to y) at aspects 90 and 270."""
+    one PO call); echoes from the H's flat faces at multiples of 90 deg (as Sionna's glints), none
+    between (the side faces at 0/180 give the larger PO echo at 3 m: the front face is wider than the
+    Fresnel zone sqrt(lambda r) = 0.39 m, and its two uprights return out of phase)."""
     from rfir_cli.commands import simulate as cmd
 
     app = typer.Typer()
@@ -148,7 +152,8 @@ def test_cli_po_backend_h_target(tmp_path):
     assert wb.attrs["task"] == "wideband" and wb.data["path_gain_db"].shape == (8, 16)
     assert validate_artifact(out / "measurements_wideband.h5", "measurements") == []
     r = rcs.data["rcs_dbsm"][:, 1]  # 5.8 GHz, aspects 0, 45, ..., 315
-    assert set(np.argsort(r)[-2:]) == {2, 6}, r
+    assert r[0::2].min() - r[1::2].max() > 20, r
+    assert r[0] == pytest.approx(r[4], abs=0.05) and r[2] == pytest.approx(r[6], abs=0.05), r
     assert (out / "radio" / "h-target.xml").exists()
 
 

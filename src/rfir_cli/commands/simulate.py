@@ -61,9 +61,9 @@ def _report(result) -> None:
     for task, path in result.measurements.items():
         table.add_row(str(path), f"{task}: {result.links[task]} links x {result.freqs[task]} freqs",
                       f"{result.timings_s.get(task, 0):.1f}s")
-    if result.backends:
-        console.print("rcs backend: " + ", ".join(f"{t} {b}" for t, b in result.backends.items()), highlight=False)
     console.print(f"[green]simulated[/green] {result.scene}", highlight=False)
     console.print(table)
+    if result.backends:
+        console.print("solver: " + ", ".join(f"{t} {b}" for t, b in result.backends.items()), highlight=False)
     for w in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
