@@ -11,7 +11,9 @@ from rfir_stages.calibrate.align import fit_sim3, umeyama
 from rfir_stages.calibrate.evaluate import pose_errors
 
 # The reduced set spans only 150 degrees of azimuth, so the rotation/translation ambiguity of a
-# narrow orbit limits it: the full-size figures (docs/calibrate.md) meet 1 cm and 0.2 degrees.
+# narrow orbit limits plain SfM (ROTATION_TOL_DEG for runs without all centres known); with every
+# centre known, the centre-prior refinement meets the issue's 0.2 degrees here too (measured 0.045).
+ISSUE_ROTATION_TOL_DEG = 0.2
 CENTRE_TOL_M = 0.01
 ROTATION_TOL_DEG = 1.0
 
@@ -25,7 +27,7 @@ def test_reduced_set_registers_and_is_metric(sfm_run, object_views):
     errors = pose_errors(calib, _truth(object_views))
     assert errors["registered_fraction"] >= 0.98
     assert errors["centre_error_max_m"] < CENTRE_TOL_M, errors
-    assert errors["rotation_error_max_deg"] < ROTATION_TOL_DEG, errors
+    assert errors["rotation_error_max_deg"] < ISSUE_ROTATION_TOL_DEG, errors
     assert sfm_run.metric and sfm_run.alignment is not None
     assert sfm_run.alignment.residuals_m.max() < CENTRE_TOL_M
     assert 0.0 < sfm_run.mean_reproj_px < 1.0
