@@ -60,7 +60,7 @@ def test_settings_backend_and_workers():
         parse_settings(_config(workers=0))
 
 
-def test_po_quick_lego_artifact(tmp_path):
+def test_po_quick_lego_artifact(tmp_path, check_quick_rcs_conventions):
     """--rcs-backend po: the same artifact schema and conventions as the Sionna backend."""
     from rfir_stages.simulate import run
 
@@ -71,21 +71,12 @@ def test_po_quick_lego_artifact(tmp_path):
     path = res.measurements["rcs"]
     assert validate_artifact(path, "measurements") == []  # what `rfir check` runs
     art = read_artifact(path, "measurements")
+    check_quick_rcs_conventions(art)
     d = art.data
-    assert art.attrs["task"] == "rcs" and art.attrs["scene"] == "lego"
-    assert d["path_gain_db"].shape == (16, 2) and d["rcs_dbsm"].shape == (16, 2) and d["channel"].dtype.kind == "c"
-    np.testing.assert_allclose(d["freq_hz"], [2.4e9, 5.8e9])
-    mid = 0.5 * (d["tx_pos"] + d["rx_pos"])
-    np.testing.assert_allclose(np.linalg.norm(mid, axis=1), d["range_m"], atol=1e-9)
-    np.testing.assert_allclose(np.arctan2(mid[:, 1], mid[:, 0]) % (2 * math.pi),
-                               (-d["aspect_rad"]) % (2 * math.pi), atol=1e-9)
-    np.testing.assert_allclose(d["tx_pos"][:, 2] - d["rx_pos"][:, 2], 0.002)
-    assert d["split"].tolist() == [0, 1] * 8
-    np.testing.assert_allclose(np.abs(d["channel"]) ** 2, 10 ** (d["path_gain_db"] / 10), rtol=1e-9)
     # rcs from the final path gain with the radar equation, as the Sionna backend does
     np.testing.assert_allclose(d["rcs_dbsm"], rcs_dbsm_from_gain(10 ** (d["path_gain_db"] / 10), d["range_m"],
                                                                  d["freq_hz"], G0), atol=1e-9)
-    assert np.isfinite(d["rcs_dbsm"]).all() and (d["rcs_dbsm"] > -80).all() and (d["rcs_dbsm"] < 30).all()
+    assert (d["rcs_dbsm"] < 30).all()
     sim = art.free["simulator@attrs"]
     assert sim["backend"] == "po" and sim["rcs_backend"] == "po" and sim["antenna_tx"] == "horn"
     assert sim["po.near_field"] and sim["po.second_order"] and sim["po.polarization"] == "V"
