@@ -47,7 +47,7 @@ class SimulateSettings:
     quick: bool = False
     seed: int = 0
     photos: bool = True
-    num_views: int = 120
+    num_views: int = 0
     image_width: int = 640
     image_height: int = 480
     physics: PhysicsEffects = field(default_factory=PhysicsEffects)
@@ -134,7 +134,7 @@ def parse_settings(config: dict | None, quick: bool | None = None) -> SimulateSe
             tasks=[tasks] if isinstance(tasks, str) else list(tasks),
             quick=bool(c.get("quick", False) if quick is None else quick),
             seed=int(c.get("seed", 0)), photos=bool(c.get("photos", True)),
-            num_views=int(c.get("num_views", 120)), image_width=int(c.get("image_width", 640)),
+            num_views=int(c.get("num_views", 0)), image_width=int(c.get("image_width", 640)),
             image_height=int(c.get("image_height", 480)),
             physics=PhysicsEffects(max_depth=int(ph.get("max_depth", 3)), specular=bool(ph.get("specular", True)),
                                    diffuse=bool(ph.get("diffuse", True)), refraction=bool(ph.get("refraction", True)),

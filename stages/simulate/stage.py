@@ -112,8 +112,8 @@ def _photos(spec, out, settings, result, progress) -> None:
         result.warnings.append("photos skipped: rfir_stages.render.render_views is not available")
         return
     t0 = time.time()
-    rendered = render_views(spec, out, settings.num_views, settings.image_width, settings.image_height,
-                            settings.seed, progress)
+    rendered = render_views(spec, out, view_count(spec.kind, settings.num_views), settings.image_width,
+                            settings.image_height, settings.seed, progress)
     result.timings_s["photos"] = time.time() - t0
     result.cameras = Path(rendered.cameras_path)
     result.images = len(rendered.image_paths)
@@ -270,3 +270,13 @@ def _rcs_po(task, spec, s: SimulateSettings, progress):
         attrs["wideband_note"] = ("PO solved at every frequency (exact k, Fresnel coefficients per frequency); "
                                   "facet geometry, lit sets and double-bounce tubes shared across frequencies")
     return data, attrs
+
+
+DEFAULT_VIEWS = {"object": 60, "room": 120}
+
+
+def view_count(scene_kind: str, configured: int) -> int:
+    """Photos to render: the configured count, or the scene kind's default when it is 0."""
+    if configured < 0:
+        raise ValueError(f"simulate.num_views must be >= 0, got {configured}")
+    return configured or DEFAULT_VIEWS.get(scene_kind, 120)

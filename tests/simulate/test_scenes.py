@@ -137,3 +137,12 @@ def test_measurement_effects():
     clipped, _ = apply_measurement_effects(np.zeros((2, 1)), np.zeros((2, 1), complex), freqs[:1],
                                            MeasurementEffects(floor_db=-200.0), rng)
     assert (clipped == -200.0).all()
+
+
+def test_default_photo_counts_follow_the_scene_kind():
+    from rfir_stages.simulate import build_scene
+    from rfir_stages.simulate.stage import view_count
+
+    assert view_count(build_scene("lego").kind, 0) == 60
+    assert view_count(build_scene("classroom").kind, 0) == 120
+    assert view_count("object", 24) == 24
