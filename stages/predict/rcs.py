@@ -28,9 +28,12 @@ from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_f
                                       scene_centre)
 from rfir_stages.rf_fit.occlusion import make_provider
 from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
+from rfir_stages.rf_fit.splits import describe as describe_split
+from rfir_stages.rf_fit.splits import protocol_masks
 
 from .baselines import aspect_baselines, range_baselines
 from .plots import attribute_views, rcs_vs_aspect
+from .wideband import is_wideband_model, predict_wideband_db, spectrum_plots
 
 
 @dataclass
@@ -62,7 +65,7 @@ def load_model(rf) -> tuple[Materials, np.ndarray, np.ndarray, AntennaPattern, R
     for f in RenderSettings.__dataclass_fields__:
         if f"render.{f}" in attrs:
             v = attrs[f"render.{f}"]
-            kw[f] = bool(v) if f in ("visibility", "learn_visibility") else float(v)
+            kw[f] = bool(v) if f in ("visibility", "learn_visibility", "path_loss", "phase") else float(v)
     return mats, freqs, s_tx, ant, RenderSettings(**kw)
 
 
@@ -79,10 +82,14 @@ def system_gain_at(freqs_fit: np.ndarray, s_tx_db: np.ndarray, freqs: np.ndarray
 
 
 def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto", chunk_links: int = 64,
-                         progress=None, render_overrides: dict | None = None) -> np.ndarray:
+                         progress=None, render_overrides: dict | None = None, cull_rel: float = 0.0) -> np.ndarray:
     """Path gain [L, K] dB predicted by an `rf` artifact for links tx/rx [L, 3] at freqs [K].
 
-    render_overrides: RenderSettings fields to change (e.g. {"grid_step_deg": 0.5})."""
+    render_overrides: RenderSettings fields to change (e.g. {"grid_step_deg": 0.5}).
+    cull_rel: drop each link's weakest Gaussians carrying this share of its sum |c_l| (see build_cache)."""
+    if is_wideband_model(rf):  # PHYSICS.md step 7: any frequency inside the fitted band (predict/wideband.py)
+        return predict_wideband_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
+                                   progress=progress, render_overrides=render_overrides)
     progress = progress or NullProgress()
     mats, f_fit, s_tx, ant, settings = load_model(rf)
     for key, value in (render_overrides or {}).items():
@@ -99,7 +106,8 @@ def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto
     with progress.task("predict", total=len(tx)) as bar, torch.no_grad():
         for a in range(0, len(tx), chunk_links):
             links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
-            cache = build_cache(geom, links, ant, ant, provider, settings, frozen_opacity=frozen)
+            cache = build_cache(geom, links, ant, ant, provider, settings, frozen_opacity=frozen,
+                                cull=(mats, cull_rel) if cull_rel > 0 else None)
             s = render(cache, mats)
             out[a:a + chunk_links] = 10 * np.log10(np.abs(s.numpy()) ** 2 + 1e-300) + gain[None]
             bar.advance(links.num)
@@ -143,7 +151,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
                              f"(measured {', '.join(f'{x / 1e9:g}' for x in f_all[:8])} GHz)", path=measurements_path)
         freqs = f_all[cols]
         meas_rcs = np.asarray(meas["rcs_dbsm"], np.float64)[:, cols]
-        split = np.asarray(meas["split"]) if meas.get("split") is not None else np.full(len(tx), -1)
+        split = _protocol_split(rf, meas, str(measurements_path))
         rows = np.arange(len(tx))
         if aspects_deg is not None:  # a subset of the measured rows
             keep = np.any(np.abs(np.mod(asp[:, None] - np.radians(aspects_deg)[None] + math.pi, 2 * math.pi)
@@ -165,7 +173,8 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
 
     t0 = time.time()
     pg_db = predict_path_gain_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
-                                 chunk_links=int(config.get("chunk_links", 64)), progress=progress)
+                                 chunk_links=int(config.get("chunk_links", 64)), progress=progress,
+                                 cull_rel=float(config.get("cull_rel", 0.0)))
     render_s = time.time() - t0
     g0 = ant.boresight_gain
     rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
@@ -188,10 +197,21 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     result = PredictResult(out_path, len(tx), freqs.tolist(), time.time() - t_start, render_s, metrics)
     if plots_dir is not None:
         result.plots = _plots(Path(plots_dir), rf, asp, rng, freqs, rcs, meas_rcs, split)
+        if is_wideband_model(rf):
+            result.plots += spectrum_plots(Path(plots_dir), asp, rng, freqs, rcs, meas_rcs, split)
     if results_path is not None:
         result.results_json = _results(Path(results_path), name or out_path.stem, rf, rf_path, measurements_path,
                                        result, seed, split)
     return result
+
+
+def _protocol_split(rf, meas, where: str) -> np.ndarray:
+    """Per row: 0 train, 1 test, -1 unused, by the split protocol the rf artifact was fitted with."""
+    protocol = str(rf.free.get("training@attrs", {}).get("split", "data"))
+    if protocol == "data" and meas.get("split") is None:
+        return np.full(len(meas["tx_pos"]), -1)
+    train, test = protocol_masks(meas, protocol, where)
+    return np.where(test, 1, np.where(train, 0, -1))
 
 
 def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
@@ -240,7 +260,8 @@ def _results(path: Path, name, rf, rf_path, measurements_path, result: PredictRe
     doc = {
         "name": name, "task": "rcs", "scene": str(rf.attrs.get("scene", "")),
         "freqs_hz": result.freqs_hz, "rf": str(rf_path), "measurements": str(measurements_path),
-        "split": "test = rows with split == 1; model trained on split == 0 (paper: even aspects train, odd test)",
+        "split": describe_split(str(training.get("split", "data"))),
+        "split_protocol": str(training.get("split", "data")),
         "num_test": result.metrics.get("num_test"), "num_train": result.metrics.get("num_train"),
         "num_gaussians": int(len(rf["rf/opacity"])), "seed": seed,
         "metrics": result.metrics,

@@ -53,3 +53,45 @@ def rays_toward_sphere(origin: torch.Tensor, axis: torch.Tensor, centre: torch.T
     half = math.asin(min(1.0, radius_m / dist))
     keep = local_dirs @ (frame.T @ (to_c / dist)) >= math.cos(half)   # test in the antenna frame
     return local_dirs[keep] @ frame.T, local_domega[keep]
+
+
+def frames_from_axes(axes: torch.Tensor) -> torch.Tensor:
+    """`frame_from_axis` for many axes [M, 3] at once: rotations [M, 3, 3]."""
+    z = axes / axes.norm(dim=-1, keepdim=True)
+    use_x = (z[:, :1].abs() < 0.9).to(z.dtype)
+    helper = torch.cat([use_x, 1.0 - use_x, torch.zeros_like(use_x)], -1)
+    x = torch.linalg.cross(helper, z)
+    x = x / x.norm(dim=-1, keepdim=True)
+    y = torch.linalg.cross(z, x)
+    return torch.stack([x, y, z], -1)
+
+
+def rays_toward_sphere_batch(origins: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, radius_m: float,
+                             local_dirs: torch.Tensor, local_domega: torch.Tensor, chunk: int = 64
+                             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`rays_toward_sphere` for M antennas (origins, axes [M, 3]) in one pass.
+
+    Returns world directions [H, 3], dOmega [H] and the antenna index [H] of each ray, grouped by
+    antenna in order (the same rays, in the same order, as M calls of `rays_toward_sphere`).
+    Antennas go in chunks of `chunk` so the [chunk, N] cone test stays small."""
+    parts = [_rays_toward_sphere_chunk(origins[a:a + chunk], axes[a:a + chunk], centre, radius_m, local_dirs,
+                                       local_domega) for a in range(0, origins.shape[0], chunk)]
+    offsets = range(0, origins.shape[0], chunk)
+    if not parts:
+        return local_dirs[:0], local_domega[:0], torch.zeros(0, dtype=torch.int64)
+    return (torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]),
+            torch.cat([p[2] + a for p, a in zip(parts, offsets)]))
+
+
+def _rays_toward_sphere_chunk(origins, axes, centre, radius_m, local_dirs, local_domega):
+    frames = frames_from_axes(axes)                                   # [M, 3, 3]
+    to_c = centre[None] - origins
+    dist = to_c.norm(dim=-1)
+    half = torch.asin((radius_m / dist).clamp(max=1.0))
+    local_c = torch.einsum("mji,mj->mi", frames, to_c / dist[:, None])  # frame^T (to_c / dist)
+    keep = (local_c @ local_dirs.T) >= torch.cos(half)[:, None]        # [M, N]
+    keep |= (dist <= radius_m)[:, None]
+    link, cell = keep.nonzero(as_tuple=True)
+    dirs = torch.einsum("hij,hj->hi", frames[link], local_dirs[cell])
+    return dirs, local_domega[cell], link
+

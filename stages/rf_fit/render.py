@@ -29,7 +29,7 @@ from rfir_cli.physics.closed_forms import C0
 from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2, reflect
 
 from .antennas import AntennaPattern
-from .grid import local_grid, rays_toward_sphere
+from .grid import local_grid, rays_toward_sphere_batch
 from .occlusion import FrozenGeometry, HitTable, OcclusionProvider
 
 ALPHA_MAX = 0.99
@@ -72,6 +72,8 @@ class RenderSettings:
     (exact, costly: O(hits) per step); False: V and Tbar are traced once with the RF opacity
     `visibility_opacity` and frozen (the a_l factor of c_l is still learned), with early ray
     termination below transmittance `t_stop`.
+    path_loss / phase (ablations, PHYSICS.md's "without path-loss/phase terms"): False drops each
+    Gaussian's own 1 / (d r) spreading (link means instead) / its exp(-j k (d + r)) phase (all in phase).
     """
 
     visibility: bool = True
@@ -83,6 +85,8 @@ class RenderSettings:
     learn_visibility: bool = False
     visibility_opacity: float = 0.9
     t_stop: float = 1e-4
+    path_loss: bool = True
+    phase: bool = True
 
 
 @dataclass
@@ -122,8 +126,12 @@ class RenderCache:
     tbar_fixed: torch.Tensor | None = None  # [M, G] frozen Tbar
 
 
-def link_geometry(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern):
-    """(amp_geo, lobe_base, path_m), each [M, G]; same conventions as bistatic_gaussian_response."""
+def link_geometry(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
+                  path_loss: bool = True):
+    """(amp_geo, lobe_base, path_m), each [M, G]; same conventions as bistatic_gaussian_response.
+
+    path_loss=False (ablation): the 1 / (d r) spreading uses each link's mean distances instead of
+    every Gaussian's own, so the amplitude no longer varies with distance across the object."""
     means, normals = geom.means, geom.normals
     to_g = means[None] - links.tx_m[:, None]
     d_in = to_g.norm(dim=-1)
@@ -142,6 +150,8 @@ def link_geometry(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, 
     g_r = rx_ant.gain(-w_o, links.rx_axis[:, None])
     amp = torch.sqrt(g_t * area / (4 * math.pi * d_in**2)) * cos_i * torch.sqrt(cos_o.clamp(min=0.0)) \
         * (cos_o > 0) * torch.sqrt(g_r) / (math.sqrt(4 * math.pi) * r_out)
+    if not path_loss:
+        amp = amp * d_in * r_out / (d_in.mean(1, keepdim=True) * r_out.mean(1, keepdim=True))
     return amp, ((1.0 + cos_psi) / 2.0).clamp(min=0.0), d_in + r_out
 
 
@@ -159,17 +169,11 @@ def _segments(provider: OcclusionProvider, geom: FrozenGeometry, origins: torch.
 def _grid_rays(provider, geom, links: LinkSet, rx_ant: AntennaPattern, settings: RenderSettings,
                opacity: torch.Tensor | None = None):
     """Grid-ray hit tables of every receiver, and the static denominators of Tbar."""
-    local_d, local_w = local_grid(settings.grid_step_deg, rx_ant.front_only)
     centre = 0.5 * (geom.means.min(0).values + geom.means.max(0).values)
     radius = float((geom.means - centre).norm(dim=-1).max() + 4.0 * torch.exp(geom.log_scales).max())
-    origins, dirs, dom, link_of = [], [], [], []
-    for m in range(links.num):
-        d, w = rays_toward_sphere(links.rx_m[m], links.rx_axis[m], centre, radius, local_d, local_w)
-        origins.append(links.rx_m[m].expand(len(d), 3))
-        dirs.append(d)
-        dom.append(w)
-        link_of.append(torch.full((len(d),), m, dtype=torch.int64))
-    origins, dirs, dom, link_of = (torch.cat(x) for x in (origins, dirs, dom, link_of))
+    local_d, local_w = local_grid(settings.grid_step_deg, rx_ant.front_only)
+    dirs, dom, link_of = rays_toward_sphere_batch(links.rx_m, links.rx_axis, centre, radius, local_d, local_w)
+    origins = links.rx_m[link_of]
     hits: HitTable = provider.ray_hits(origins, dirs, opacity, settings.t_stop if opacity is not None else 0.0)
     g = geom.num
     n = hits.query.numel()
@@ -190,13 +194,24 @@ def _grid_rays(provider, geom, links: LinkSet, rx_ant: AntennaPattern, settings:
 
 def build_cache(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
                 provider: OcclusionProvider | None, settings: RenderSettings = RenderSettings(),
-                frozen_opacity: torch.Tensor | None = None) -> RenderCache:
+                frozen_opacity: torch.Tensor | None = None, cull: tuple[Materials, float] | None = None
+                ) -> RenderCache:
     """Trace once and keep what the renderer needs while the geometry stays frozen.
 
     frozen_opacity [G]: RF opacities for the frozen V and Tbar (default: settings.visibility_opacity
-    for every Gaussian); prediction passes the fitted ones."""
+    for every Gaussian); prediction passes the fitted ones.
+    cull (prediction only, known materials, frozen visibility): (materials, rel). Per link, the
+    weakest Gaussians, whose unoccluded magnitudes |c_l| sum to at most `rel` of the link's total,
+    are dropped (c_l = 0) and their visibility is not traced. The error in S is at most
+    rel * sum |c_l|, whatever the occlusion."""
     with torch.no_grad():
-        amp, lobe, path = link_geometry(geom, links, tx_ant, rx_ant)
+        amp, lobe, path = link_geometry(geom, links, tx_ant, rx_ant, settings.path_loss)
+        keep = None
+        if cull is not None and cull[1] > 0 and not settings.learn_visibility:
+            keep = _cull_mask(amp, lobe, cull[0], cull[1])
+            amp = amp * keep
+        if not settings.phase:
+            path = torch.zeros_like(path)
         cache = RenderCache(links.num, geom.num, links.freq_hz.double(), amp, lobe, path)
         if amp.numel() * len(links.freq_hz) <= PHASE_CACHE_MAX:
             k = 2 * math.pi * cache.freq_hz / C0
@@ -214,10 +229,16 @@ def build_cache(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
             a_vis = torch.full((geom.num,), settings.visibility_opacity, dtype=torch.float64) \
                 if frozen_opacity is None else frozen_opacity.detach().double()
             target = torch.arange(geom.num).repeat(links.num)
-            v = provider.segment_transmittance(links.tx_m.repeat_interleave(geom.num, 0), target, margin, a_vis,
-                                               settings.t_stop)
-            t_c = v if colocated else provider.segment_transmittance(links.rx_m.repeat_interleave(geom.num, 0),
-                                                                     target, margin, a_vis, settings.t_stop)
+            pairs = torch.arange(links.num * geom.num) if keep is None else keep.reshape(-1).nonzero()[:, 0]
+
+            def traced(origins: torch.Tensor) -> torch.Tensor:
+                out = torch.zeros(links.num * geom.num, dtype=torch.float64)
+                out[pairs] = provider.segment_transmittance(origins[pairs // geom.num], target[pairs], margin,
+                                                            a_vis, settings.t_stop)
+                return out
+
+            v = traced(links.tx_m)
+            t_c = v if colocated else traced(links.rx_m)
             cache.rays = _grid_rays(provider, geom, links, rx_ant, settings, a_vis)
         den = torch.full((links.num * geom.num,), cache.w_c, dtype=torch.float64)
         if cache.rays is not None:
@@ -229,6 +250,16 @@ def build_cache(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
             cache.tbar_fixed = _tbar(cache, t_c, a_vis).reshape(shape)
             cache.rays = None
     return cache
+
+
+def _cull_mask(amp: torch.Tensor, lobe: torch.Tensor, mats: Materials, rel: float) -> torch.Tensor:
+    """[M, G] bool: the Gaussians that carry all but `rel` of each link's sum of |c_l| (unoccluded)."""
+    mag = amp * lobe ** mats.roughness[None] * mats.opacity[None] * mats.gamma.abs()[None]
+    order = torch.argsort(mag, dim=1)
+    tail = torch.cumsum(torch.gather(mag, 1, order), 1) / mag.sum(1, keepdim=True).clamp(min=1e-300)
+    keep = torch.ones_like(mag, dtype=torch.bool)
+    keep.scatter_(1, order, tail > rel)
+    return keep
 
 
 def _log1m_alpha(opacity: torch.Tensor, occluder: torch.Tensor, response: torch.Tensor) -> torch.Tensor:

@@ -24,14 +24,16 @@ from rfir_cli.provenance import Provenance
 
 from .antennas import resolve_antenna
 from .fit import FitConfig, FitResult, fit
-from .links import (check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, pick_rows,
-                    scene_centre)
+from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
 from .params import RFParams
 from .render import RenderSettings, build_cache
+from .splits import describe as describe_split
+from .splits import split_rows
+from .wideband_stage import is_wideband_request, run_wideband
 
 RENDER_KEYS = ("visibility", "grid_step_deg", "center_ray_cells", "self_shadow_margin_m", "alpha_min",
-               "colocated_tol_m", "learn_visibility", "t_stop")
+               "colocated_tol_m", "learn_visibility", "t_stop", "path_loss", "phase")
 FIT_KEYS = ("iterations", "lr", "s_tx_lr", "loss", "huber_db", "learn", "init_opacity", "init_roughness",
             "init_gamma_abs", "init_gamma_phase_rad", "sharing", "checkpoint_every")
 
@@ -81,9 +83,17 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     scene = read_artifact(scene_path, ("scene", "rf"))
     meas = read_artifact(measurements_path, "measurements")
     task = str(meas.attrs.get("task", ""))
+    if task == "rssi":  # the LoS/NLoS model (PHYSICS.md step 6): stages/rf_fit/rssi_fit.py
+        from .rssi_fit import run_rssi
+        return run_rssi(scene, meas, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg, seed=seed,
+                        config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, str(measurements_path))
-    rows = pick_rows(meas.get("split"), 0, str(measurements_path))
+    protocol = str(config.get("split", "data"))
+    rows, _ = split_rows(meas, protocol, str(measurements_path))
+    if is_wideband_request(task, config):  # PHYSICS.md step 7: stages/rf_fit/wideband_stage.py
+        return run_wideband(scene, meas, geom, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg,
+                            rows=rows, seed=seed, config_toml=config_toml, progress=progress, t_start=t_start)
     cols = pick_freqs(meas["freq_hz"], config.get("freqs_hz"), str(measurements_path))
     tx, rx = meas["tx_pos"][rows], meas["rx_pos"][rows]
     check_positions(geom, np.concatenate([tx, rx]), str(measurements_path), float(config.get("min_clearance_m", 0.02)))
@@ -128,14 +138,14 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     prov.wall_time_s = time.time() - t_start
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s,
                   "occlusion": getattr(provider, "name", "off"), "fit_time_s": result.wall_time_s}
-    _write(out_path, scene, meas, task, freqs, rows, result, ant, render_cfg, fit_cfg, prov, trace_s)
+    _write(out_path, scene, meas, task, freqs, rows, result, ant, render_cfg, fit_cfg, prov, trace_s, protocol)
     return RfFitResult(out_path, geom.num, int(len(rows)), freqs.tolist(), result.train_mae_db,
                        result.initial_mae_db, result.iterations, time.time() - t_start, trace_s,
                        getattr(provider, "name", "off"), {"trace": trace_s, "fit": result.wall_time_s})
 
 
 def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, render_cfg: RenderSettings,
-           fit_cfg: FitConfig, prov, trace_s) -> None:
+           fit_cfg: FitConfig, prov, trace_s, protocol: str = "data") -> None:
     data = {k: v for k, v in scene.data.items() if k.startswith("gaussians/")}
     data.update({
         "rf/opacity": result.opacity, "rf/roughness": result.roughness, "rf/gamma_abs": result.gamma_abs,
@@ -150,7 +160,7 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
                       "train_mae_db": result.train_mae_db, "initial_mae_db": result.initial_mae_db,
                       "wall_time_s": result.wall_time_s, "trace_time_s": trace_s,
                       "resumed_at": result.resumed_at, "measurements": str(meas.path),
-                      "split_protocol": "rows with split == 0 (train)"}
+                      "split": protocol, "split_protocol": describe_split(protocol)}
     attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
     if "label_names" in scene.attrs:
         attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)

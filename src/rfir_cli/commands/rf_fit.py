@@ -16,7 +16,7 @@ def register(app: typer.Typer) -> None:
 def rf_fit(
     ctx: typer.Context,
     scene: Annotated[Path, typer.Argument(help="Scene artifact (Gaussians + normals), or an rf artifact to refit.")],
-    measurements: Annotated[Path, typer.Argument(help="Measurements artifact; rows with split == 0 are fitted.")],
+    measurements: Annotated[Path, typer.Argument(help="Measurements artifact; the training rows of --split are fitted.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="rf artifact to write (.h5).")],
     iterations: Annotated[Optional[int], typer.Option("--iterations", help="Adam steps (rf_fit.iterations).")] = None,
     freq_hz: Annotated[Optional[list[float]], typer.Option(
@@ -24,6 +24,8 @@ def rf_fit(
     checkpoint: Annotated[Optional[Path], typer.Option(
         "--checkpoint", help="Checkpoint file (default: OUT.ckpt.pt).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the checkpoint when it exists.")] = False,
+    split: Annotated[Optional[str], typer.Option(
+        "--split", help="Train/test protocol (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m).")] = None,
 ) -> None:
     """Fit RF opacity, roughness and complex reflection coefficient of every Gaussian (geometry frozen)."""
     opts = options(ctx)
@@ -34,6 +36,8 @@ def rf_fit(
         table = dict(opts.config().get("rf_fit", {}))
         if iterations is not None:
             table["iterations"] = int(iterations)
+        if split is not None:
+            table["split"] = split
         if freq_hz:
             table["freqs_hz"] = [float(f) for f in freq_hz]
         with RichReporter(opts.verbosity) as reporter:
