@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The built-in demo: every stage that exists so far, on the lego at demo size (configs/recipes/demo.toml).
-# Usage: scripts/demo.sh OUT_DIR   (about 5 minutes on a 2-core CPU)
+# Usage: scripts/demo.sh OUT_DIR   (about 8 minutes on a 2-core CPU)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-demo_out}
@@ -16,8 +16,8 @@ echo "== 2/5 calibrate: camera poses from the photos (pycolmap SfM), aligned to 
 $RFIR calibrate "$OUT/lego/images" -o "$OUT/calib.h5" --poses "$OUT/lego/cameras.h5" \
     --intrinsics-from "$OUT/lego/cameras.h5"
 
-echo "== 3/5 geometry: surfel Gaussians on the ground-truth mesh (the photo-based 'rfir geom' is not built yet)"
-$RFIR mesh-gaussians "$OUT/lego/meshes/lego_gt.ply" -o "$OUT/scene.h5" --spacing 0.03
+echo "== 3/5 geom: 3D Gaussians with normals trained from the calibrated photos (compared with the true mesh)"
+$RFIR geom "$OUT/calib.h5" -o "$OUT/scene.h5"
 
 echo "== 4/5 rf-fit: per-Gaussian radio materials from the even aspects"
 $RFIR rf-fit "$OUT/scene.h5" "$OUT/lego/measurements.h5" -o "$OUT/rf.h5" --iterations 200

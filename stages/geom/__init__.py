@@ -1,6 +1,10 @@
-"""Stage `geom`: 3D Gaussians with normals (the photo-based fitter is not here yet).
+"""Stage `geom`: 3D Gaussians with normals.
 
-`from_mesh` tiles a triangle mesh with flat Gaussians (surfels): a geometry oracle for rf-fit.
+- `stage.run` (`rfir geom`): Gaussians with learnable normals trained on calibrated photos through
+  the ext/ tracer (modules data, init, model, render, losses, densify, train, evaluate, tsdf,
+  export_ply; docs/geom.md).
+- `from_mesh` (`rfir mesh-gaussians`): a triangle mesh tiled with flat Gaussians (surfels), a
+  geometry oracle for rf-fit and tests.
 """
 from __future__ import annotations
 

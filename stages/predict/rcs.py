@@ -27,10 +27,11 @@ from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_from_artifact, make_links, radar_links,
                                       scene_centre)
 from rfir_stages.rf_fit.occlusion import make_provider
-from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
+from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render_power
 from rfir_stages.rf_fit.splits import describe as describe_split
 from rfir_stages.rf_fit.splits import protocol_masks
 
+from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, range_baselines
 from .plots import attribute_views, rcs_vs_aspect
 from .wideband import is_wideband_model, predict_wideband_db, spectrum_plots
@@ -58,6 +59,9 @@ def load_model(rf) -> tuple[Materials, np.ndarray, np.ndarray, AntennaPattern, R
                      torch.as_tensor(np.asarray(rf["rf/roughness"], np.float64)), gamma)
     model = rf.free.get("model", {})
     attrs = rf.free.get("model@attrs", {})
+    if "diffuse_abs" in model:
+        mats.diffuse = torch.as_tensor(np.asarray(model["diffuse_abs"], np.float64))
+        mats.diffuse_roughness = torch.as_tensor(np.asarray(model["diffuse_roughness"], np.float64))
     freqs = np.asarray(rf["rf/freq_hz"], np.float64)
     s_tx = np.asarray(model.get("s_tx_db", np.zeros(len(freqs))), np.float64)
     ant = AntennaPattern(str(attrs.get("antenna_kind", "isotropic")), hpbw_deg=float(attrs.get("antenna_hpbw_deg", 40.0)))
@@ -108,8 +112,8 @@ def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto
             links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
             cache = build_cache(geom, links, ant, ant, provider, settings, frozen_opacity=frozen,
                                 cull=(mats, cull_rel) if cull_rel > 0 else None)
-            s = render(cache, mats)
-            out[a:a + chunk_links] = 10 * np.log10(np.abs(s.numpy()) ** 2 + 1e-300) + gain[None]
+            power = render_power(cache, mats)
+            out[a:a + chunk_links] = 10 * np.log10(power.numpy() + 1e-300) + gain[None]
             bar.advance(links.num)
     return out
 
@@ -249,9 +253,18 @@ def _plots(folder: Path, rf, asp, rng, freqs, rcs, meas_rcs, split) -> list:
                                            rcs[sel, k], m, s, title, polar))
     a0 = float(asp[0])
     view = -np.array([math.cos(-a0), math.sin(-a0), 0.0])
-    paths.append(attribute_views(folder / "attributes.png", np.asarray(rf["gaussians/means"]), {
-        "|Gamma|": rf["rf/gamma_abs"], "angle(Gamma) [rad]": rf["rf/gamma_phase_rad"],
-        "roughness R": rf["rf/roughness"], "RF opacity a": rf["rf/opacity"]}, view))
+    attributes = {"|Gamma|": np.asarray(rf["rf/gamma_abs"]), "angle(Gamma) [rad]": np.asarray(rf["rf/gamma_phase_rad"]),
+                  "roughness R": np.asarray(rf["rf/roughness"]), "RF opacity a": np.asarray(rf["rf/opacity"])}
+    paths.append(attribute_views(folder / "attributes.png", np.asarray(rf["gaussians/means"]), attributes, view))
+    # the paper's attribute maps: rendered through the tracer from the radar at the first aspect
+    means = np.asarray(rf["gaussians/means"])
+    centre = 0.5 * (means.min(0) + means.max(0))
+    eye = centre - view * float(rng[0])
+    maps = render_attribute_maps(means, rf["gaussians/log_scales"], rf["gaussians/rotations"], rf["rf/opacity"],
+                                 {k: v for k, v in attributes.items() if k != "RF opacity a"}, eye, centre)
+    paths.append(plot_attribute_maps(folder / "attribute_maps.png", maps,
+                                     f"RF attributes seen from the radar at aspect {math.degrees(a0):.0f} deg, "
+                                     f"{float(rng[0]):g} m"))
     return paths
 
 
@@ -268,6 +281,8 @@ def _results(path: Path, name, rf, rf_path, measurements_path, result: PredictRe
         "fit": {k: (v.item() if hasattr(v, "item") else v) for k, v in training.items()},
         "predict_wall_time_s": result.wall_time_s, "predict_render_time_s": result.render_time_s,
         "num_links": result.num_links,
+        "model_terms": {**{k: bool(rf.free.get("model@attrs", {}).get(f"render.{k}", True)) for k in ("path_loss", "phase")},
+                        "diffuse": "diffuse_abs" in rf.free.get("model", {})},
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")

@@ -22,7 +22,7 @@ from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 
 from .params import RFParams
-from .render import RenderCache, render
+from .render import RenderCache, render_power
 
 LOSSES = ("db_mse", "db_huber", "paper")
 
@@ -36,12 +36,15 @@ class FitConfig:
     s_tx_lr: float = 0.5
     loss: str = "db_mse"
     huber_db: float = 1.0
-    learn: tuple = ("opacity", "roughness", "gamma_abs", "gamma_phase", "s_tx")
+    learn: tuple = ("opacity", "roughness", "gamma_abs", "gamma_phase", "s_tx", "diffuse", "diffuse_roughness")
     init_opacity: float = 0.9
     init_roughness: float = 4.0
     init_gamma_abs: float = 0.5
     init_gamma_phase_rad: float = 0.0
     sharing: str = "gaussian"
+    diffuse: bool = True
+    init_diffuse: float = 0.12
+    init_diffuse_roughness: float = 2.0
     checkpoint_every: int = 50
     seed: int = 0
 
@@ -61,6 +64,8 @@ class FitResult:
     gamma_abs: np.ndarray        # [G]
     gamma_phase_rad: np.ndarray  # [G] wrapped to (-pi, pi]
     s_tx_db: np.ndarray          # [K]
+    diffuse: np.ndarray | None   # [G] or None (no diffuse term)
+    diffuse_roughness: np.ndarray | None
     loss_curve: np.ndarray       # [iterations]
     train_mae_db: float
     initial_mae_db: float
@@ -72,8 +77,8 @@ class FitResult:
 
 def predict_db(cache: RenderCache, params: RFParams) -> torch.Tensor:
     """Predicted path gain [M, K] in dB."""
-    s = render(cache, params.materials())
-    return 10 * torch.log10(s.abs() ** 2 + 1e-300) + params.s_tx_db[None]
+    power = render_power(cache, params.materials())
+    return 10 * torch.log10(power + 1e-300) + params.s_tx_db[None]
 
 
 def loss_fn(pred_db: torch.Tensor, meas_db: torch.Tensor, kind: str, huber_db: float = 1.0) -> torch.Tensor:
@@ -151,7 +156,10 @@ def fit(cache: RenderCache, meas_db: np.ndarray, params: RFParams, cfg: FitConfi
     return FitResult(
         opacity=mats.opacity.numpy().copy(), roughness=mats.roughness.numpy().copy(),
         gamma_abs=mats.gamma.abs().numpy().copy(), gamma_phase_rad=np.angle(mats.gamma.numpy()),
-        s_tx_db=params.s_tx_db.detach().numpy().copy(), loss_curve=np.asarray(curve, dtype=np.float64),
+        s_tx_db=params.s_tx_db.detach().numpy().copy(),
+        diffuse=None if mats.diffuse is None else mats.diffuse.numpy().copy(),
+        diffuse_roughness=None if mats.diffuse_roughness is None else mats.diffuse_roughness.numpy().copy(),
+        loss_curve=np.asarray(curve, dtype=np.float64),
         train_mae_db=train_mae, initial_mae_db=initial, iterations=cfg.iterations,
         wall_time_s=time.time() - t0, resumed_at=start)
 

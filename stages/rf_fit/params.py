@@ -6,6 +6,8 @@ s_tx_db[k] [dB] scales the received power: it is |S_tx(f)|^2 of PHYSICS.md step 
 transmitted signal, learned because the model's absolute level depends on the Gaussian density
 (docs/rf-model.md).
 
+Optional incoherent term (docs/rf-model.md): D = sigmoid(theta_d) in (0, 1), R_d = 1 + exp(theta_rd).
+
 Sharing: "gaussian" (one set per Gaussian), "label" (one per object label), "global" (one).
 """
 from __future__ import annotations
@@ -31,7 +33,8 @@ class RFParams(nn.Module):
     """Raw parameters [P] gathered to Gaussians by `index` [G] (P groups)."""
 
     def __init__(self, index: torch.Tensor, num_freqs: int, *, opacity: float = 0.9, roughness: float = 4.0,
-                 gamma_abs: float = 0.5, gamma_phase_rad: float = 0.0):
+                 gamma_abs: float = 0.5, gamma_phase_rad: float = 0.0, diffuse: float | None = None,
+                 diffuse_roughness: float = 2.0):
         super().__init__()
         if roughness < 1.0:
             raise ValueError(f"initial roughness must be >= 1, got {roughness}")
@@ -43,6 +46,11 @@ class RFParams(nn.Module):
         self.theta_g = full(_logit(gamma_abs))
         self.theta_phi = full(gamma_phase_rad)
         self.s_tx_db = nn.Parameter(torch.zeros(num_freqs, dtype=torch.float64))
+        # Optional incoherent term: D = sigmoid(theta_d), R_d = 1 + exp(theta_rd) (log scale: lobes
+        # from broad to narrow within a few steps).
+        self.has_diffuse = diffuse is not None
+        self.theta_d = full(_logit(diffuse if diffuse is not None else 0.1))
+        self.theta_rd = full(math.log(max(diffuse_roughness - 1.0, 1e-6)))
 
     @staticmethod
     def sharing_index(kind: str, num_gaussians: int, labels: torch.Tensor | None) -> torch.Tensor:
@@ -61,15 +69,22 @@ class RFParams(nn.Module):
         i = self.index
         gamma_abs = torch.sigmoid(self.theta_g)[i]
         gamma = torch.polar(gamma_abs, self.theta_phi[i])
-        return Materials(torch.sigmoid(self.theta_a)[i], 1.0 + nn.functional.softplus(self.theta_r)[i], gamma)
+        diffuse = torch.sigmoid(self.theta_d)[i] if self.has_diffuse else None
+        diffuse_r = 1.0 + torch.exp(self.theta_rd)[i] if self.has_diffuse else None
+        return Materials(torch.sigmoid(self.theta_a)[i], 1.0 + nn.functional.softplus(self.theta_r)[i], gamma,
+                         diffuse, diffuse_r)
 
     def groups(self, names: list[str]) -> list[dict]:
-        """Optimiser groups for the named attributes (opacity, roughness, gamma_abs, gamma_phase, s_tx)."""
+        """Optimiser groups for the named attributes (opacity, roughness, gamma_abs, gamma_phase, s_tx,
+        diffuse, diffuse_roughness; the last two only count when the model has the diffuse term)."""
         table = {"opacity": self.theta_a, "roughness": self.theta_r, "gamma_abs": self.theta_g,
-                 "gamma_phase": self.theta_phi, "s_tx": self.s_tx_db}
+                 "gamma_phase": self.theta_phi, "s_tx": self.s_tx_db, "diffuse": self.theta_d,
+                 "diffuse_roughness": self.theta_rd}
         unknown = set(names) - set(table)
         if unknown:
             raise ValueError(f"unknown learnable attribute(s) {sorted(unknown)} (known: {sorted(table)})")
+        if not self.has_diffuse:
+            names = [n for n in names if n not in ("diffuse", "diffuse_roughness")]
         for key, param in table.items():
             param.requires_grad_(key in names)
         return [{"params": [table[n]], "name": n} for n in names]

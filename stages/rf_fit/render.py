@@ -53,11 +53,16 @@ class LinkSet:
 
 @dataclass
 class Materials:
-    """RF attributes per Gaussian: opacity a [G] in [0, 1], roughness R [G] >= 1, gamma [G] complex."""
+    """RF attributes per Gaussian: opacity a [G] in [0, 1], roughness R [G] >= 1, gamma [G] complex.
+
+    Optional incoherent term (docs/rf-model.md "Diffuse term"): diffuse [G] in [0, 1] and
+    diffuse_roughness [G] >= 1, or None (the coherent model of PHYSICS.md alone)."""
 
     opacity: torch.Tensor
     roughness: torch.Tensor
     gamma: torch.Tensor
+    diffuse: torch.Tensor | None = None
+    diffuse_roughness: torch.Tensor | None = None
 
 
 @dataclass
@@ -255,6 +260,8 @@ def build_cache(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
 def _cull_mask(amp: torch.Tensor, lobe: torch.Tensor, mats: Materials, rel: float) -> torch.Tensor:
     """[M, G] bool: the Gaussians that carry all but `rel` of each link's sum of |c_l| (unoccluded)."""
     mag = amp * lobe ** mats.roughness[None] * mats.opacity[None] * mats.gamma.abs()[None]
+    if mats.diffuse is not None:
+        mag = mag + amp * lobe ** mats.diffuse_roughness[None] * mats.opacity[None] * mats.diffuse[None]
     order = torch.argsort(mag, dim=1)
     tail = torch.cumsum(torch.gather(mag, 1, order), 1) / mag.sum(1, keepdim=True).clamp(min=1e-300)
     keep = torch.ones_like(mag, dtype=torch.bool)
@@ -296,6 +303,21 @@ def _tbar(cache: RenderCache, t_c: torch.Tensor, opacity: torch.Tensor) -> torch
         t_before = torch.exp(excl[r.occluder_j] - excl[r.ray_first])
         num = num.index_add(0, r.pair, r.weight * t_before)
     return torch.where(cache.den > 0, num / cache.den.clamp(min=1e-300), t_c)
+
+
+def render_power(cache: RenderCache, mats: Materials, freq_chunk: int = 64) -> torch.Tensor:
+    """Received power [M, K] with P_T = 1 W: |S|^2 plus, when mats.diffuse is set, the incoherent term
+
+    P_d = sum_l (amp_l a_l V_l Tbar_l D_l lobe_l^(R_d,l))^2, the power of each Gaussian's diffuse
+    share D_l summed without phase (rough-surface scattering whose phase is random across the
+    surface, as Sionna's diffuse paths combined as power); independent of frequency."""
+    power = render(cache, mats, freq_chunk).abs() ** 2
+    if mats.diffuse is None:
+        return power
+    v, tbar = transmittances(cache, mats.opacity)
+    amp = cache.amp_geo * v * tbar * mats.opacity[None] * mats.diffuse[None] \
+        * cache.lobe_base ** mats.diffuse_roughness[None]
+    return power + (amp**2).sum(1, keepdim=True)
 
 
 def render(cache: RenderCache, mats: Materials, freq_chunk: int = 64) -> torch.Tensor:

@@ -35,7 +35,8 @@ from .wideband_stage import is_wideband_request, run_wideband
 RENDER_KEYS = ("visibility", "grid_step_deg", "center_ray_cells", "self_shadow_margin_m", "alpha_min",
                "colocated_tol_m", "learn_visibility", "t_stop", "path_loss", "phase")
 FIT_KEYS = ("iterations", "lr", "s_tx_lr", "loss", "huber_db", "learn", "init_opacity", "init_roughness",
-            "init_gamma_abs", "init_gamma_phase_rad", "sharing", "checkpoint_every")
+            "init_gamma_abs", "init_gamma_phase_rad", "sharing", "checkpoint_every", "diffuse", "init_diffuse",
+            "init_diffuse_roughness")
 
 
 @dataclass
@@ -85,6 +86,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     task = str(meas.attrs.get("task", ""))
     if task == "rssi":  # the LoS/NLoS model (PHYSICS.md step 6): stages/rf_fit/rssi_fit.py
         from .rssi_fit import run_rssi
+        if resume:
+            raise ConfigError("--resume: RSSI fits write no checkpoints yet")
         return run_rssi(scene, meas, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg, seed=seed,
                         config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)
@@ -125,7 +128,9 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     index = RFParams.sharing_index(fit_cfg.sharing, geom.num,
                                    None if labels is None else torch.as_tensor(np.asarray(labels)))
     params = RFParams(index, len(freqs), opacity=fit_cfg.init_opacity, roughness=fit_cfg.init_roughness,
-                      gamma_abs=fit_cfg.init_gamma_abs, gamma_phase_rad=fit_cfg.init_gamma_phase_rad)
+                      gamma_abs=fit_cfg.init_gamma_abs, gamma_phase_rad=fit_cfg.init_gamma_phase_rad,
+                      diffuse=fit_cfg.init_diffuse if fit_cfg.diffuse else None,
+                      diffuse_roughness=fit_cfg.init_diffuse_roughness)
     # A checkpoint fits any run with the same inputs and settings; more iterations may follow it.
     key = _key(str(scene_path.resolve()), str(measurements_path.resolve()),
                {k: v for k, v in config.items() if k not in ("iterations", "checkpoint_every")}, seed)
@@ -164,7 +169,10 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
     attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
     if "label_names" in scene.attrs:
         attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)
-    free = {"model": {"s_tx_db": result.s_tx_db, "@attrs": model_attrs},
+    model = {"s_tx_db": result.s_tx_db, "@attrs": model_attrs}
+    if result.diffuse is not None:  # the incoherent term (docs/rf-model.md "Diffuse term")
+        model.update(diffuse_abs=result.diffuse, diffuse_roughness=result.diffuse_roughness)
+    free = {"model": model,
             "training": {"loss_curve": result.loss_curve, "train_rows": np.asarray(rows, dtype=np.int64),
                          "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)

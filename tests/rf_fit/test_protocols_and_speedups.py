@@ -1,4 +1,4 @@
-"""Split protocols, the ablation switches, and the prediction speed-ups (batched grid, culling)."""
+"""Split protocols, the ablation switches, the diffuse term, and the prediction speed-ups (batched grid, culling)."""
 import math
 
 import numpy as np
@@ -9,10 +9,11 @@ from rfir_cli.errors import ConfigError, StageError
 from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.grid import local_grid, rays_toward_sphere, rays_toward_sphere_batch
 from rfir_stages.rf_fit.occlusion import TracerOcclusion
-from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, link_geometry, render
+from rfir_stages.geom import gaussians_from_mesh
+from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, link_geometry, render, render_power
 from rfir_stages.rf_fit.splits import split_rows, protocol_masks
 
-from .helpers import DEG, box_fields, geometry, radar
+from .helpers import DEG, box_fields, geometry, radar, square
 
 ISO = AntennaPattern("isotropic")
 
@@ -106,3 +107,21 @@ def test_ablation_switches_drop_the_distance_and_phase_terms():
     assert torch.all(no_phase.imag.abs() < 1e-15)
     with_phase = render(build_cache(geom, links, ISO, ISO, None, RenderSettings(visibility=False)), m)
     assert torch.all(with_phase.abs() < no_phase.abs()) and math.isfinite(float(with_phase.abs().sum()))
+
+
+def test_diffuse_term_adds_power_without_phase():
+    # two plates a quarter wavelength apart in depth: their coherent echoes cancel (round trip lambda/2)
+    lam = 299_792_458.0 / 2.4e9
+    fields = [gaussians_from_mesh(*square(0.1, x), 0.05) for x in (0.0, -lam / 4)]
+    geom = geometry({k: np.concatenate([f[k] for f in fields]) for k in fields[0]})
+    links = radar([0.0], 3.0, [2.4e9], separation_m=0.0)
+    g = geom.num
+    cache = build_cache(geom, links, ISO, ISO, None, RenderSettings(visibility=False))
+    one = torch.ones(g, dtype=torch.float64)
+    coherent = Materials(one, one, one.to(torch.complex128))
+    assert float(render_power(cache, coherent)[0, 0]) < 1e-3 * float(((cache.amp_geo * cache.lobe_base) .sum()) ** 2)
+    diffuse = Materials(one, one, 0 * one.to(torch.complex128), diffuse=0.5 * one, diffuse_roughness=3 * one)
+    expect = ((cache.amp_geo * 0.5 * cache.lobe_base**3) ** 2).sum()
+    torch.testing.assert_close(render_power(cache, diffuse)[0, 0], expect)
+    both = Materials(one, one, one.to(torch.complex128), diffuse=0.5 * one, diffuse_roughness=3 * one)
+    torch.testing.assert_close(render_power(cache, both)[0, 0], render_power(cache, coherent)[0, 0] + expect)

@@ -1,0 +1,91 @@
+"""A reduced room for the RSSI tests: 4 x 3 x 2.5 m, a partition wall with a doorway, one table.
+
+Synthetic measurements come from an independent closed form (no rfir code): free-space Friis,
+minus `wall_loss_db` when the Tx-Rx segment crosses the partition (outside the doorway), plus a
+floor reflection (image source, coefficient `floor_gamma`) summed coherently.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rfir_cli.artifacts import write_artifact
+from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
+from rfir_stages.simulate.scenes import _merge, box, rect_xy, wall
+
+ROOM = (4.0, 3.0, 2.5)
+PART_X = 2.0
+DOOR = (1.8, 2.6, 0.0, 2.0)  # along y from 0: (u0, u1, z0, z1)
+C0 = 299_792_458.0
+
+
+def room_mesh():
+    """(vertices, faces, face labels, label names)."""
+    lx, ly, lz = ROOM
+    parts = [
+        ("floor", rect_xy(0, lx, 0, ly, 0.0, up=True)),
+        ("ceiling", rect_xy(0, lx, 0, ly, lz, up=False)),
+        ("wall_a", wall((0, 0, 0), (0, 1, 0), (1, 0, 0), ly, lz)),
+        ("wall_b", wall((lx, 0, 0), (0, 1, 0), (-1, 0, 0), ly, lz)),
+        ("wall_c", wall((0, 0, 0), (1, 0, 0), (0, 1, 0), lx, lz)),
+        ("wall_d", wall((0, ly, 0), (1, 0, 0), (0, -1, 0), lx, lz)),
+        ("partition", wall((PART_X, 0, 0), (0, 1, 0), (-1, 0, 0), ly, lz, [DOOR])),
+        ("table_00", box((0.6, 0.6, 0.0), (1.4, 1.2, 0.7))),
+    ]
+    v, f = _merge([p for _, p in parts])
+    labels = np.concatenate([np.full(len(p[1]), i) for i, (_, p) in enumerate(parts)])
+    return v, f, labels, [n for n, _ in parts]
+
+
+def scene_fields(spacing_m: float = 0.6) -> tuple[dict, list]:
+    v, f, lab, names = room_mesh()
+    return gaussians_from_mesh(v, f, spacing_m, labels=lab), names
+
+
+def write_scene(path, spacing_m: float = 0.6):
+    fields, names = scene_fields(spacing_m)
+    return write_scene_artifact(path, fields, label_names=names, spacing_m=spacing_m)
+
+
+def crosses_partition(tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
+    """[M] bool: the segment crosses the plane x = PART_X outside the doorway."""
+    t = (PART_X - tx[:, 0]) / np.where(rx[:, 0] != tx[:, 0], rx[:, 0] - tx[:, 0], 1e-12)
+    p = tx + t[:, None] * (rx - tx)
+    through = (t > 0) & (t < 1)
+    in_door = (p[:, 1] > DOOR[0]) & (p[:, 1] < DOOR[1]) & (p[:, 2] < DOOR[3])
+    return through & ~in_door
+
+
+def reference_gain_db(tx, rx, freq_hz, wall_loss_db=8.0, floor_gamma=-0.4):
+    """Independent closed form: Friis x wall loss + floor image reflection (coherent)."""
+    lam = C0 / freq_hz
+    k = 2 * math.pi / lam
+    d = np.linalg.norm(rx - tx, axis=1)
+    img = tx * np.array([1, 1, -1])
+    d2 = np.linalg.norm(rx - img, axis=1)
+    s = lam / (4 * math.pi * d) * np.exp(-1j * k * d) + floor_gamma * lam / (4 * math.pi * d2) * np.exp(-1j * k * d2)
+    block = crosses_partition(tx, rx) | crosses_partition(img, rx)
+    s = s * np.where(block, 10 ** (-wall_loss_db / 20), 1.0)
+    return 20 * np.log10(np.abs(s))
+
+
+def links(n_tx=(2, 2), n_rx=(6, 5), tx_z=2.0, rx_z=1.0):
+    lx, ly, _ = ROOM
+    tx = np.array([[x, y, tx_z] for x in np.linspace(0.7, lx - 0.7, n_tx[0]) for y in np.linspace(0.6, ly - 0.6, n_tx[1])])
+    rx = np.array([[x, y, rx_z] for x in np.linspace(0.3, lx - 0.3, n_rx[0]) for y in np.linspace(0.3, ly - 0.3, n_rx[1])])
+    tx_id = np.repeat(np.arange(len(tx)), len(rx))
+    rx_id = np.tile(np.arange(len(rx)), len(tx))
+    return tx, rx, tx_id, rx_id
+
+
+def write_measurements(path, freq_hz=2.4e9, seed=0, **kw):
+    tx, rx, tx_id, rx_id = links(**kw)
+    t, r = tx[tx_id], rx[rx_id]
+    gain = reference_gain_db(t, r, freq_hz)
+    split = np.zeros(len(t), np.int64)
+    split[np.random.default_rng(seed).permutation(len(t))[: len(t) // 5]] = 1
+    data = {"tx_pos": t, "rx_pos": r, "freq_hz": np.array([freq_hz]), "path_gain_db": gain[:, None],
+            "tx_id": tx_id, "rx_id": rx_id, "split": split,
+            "scene_bounds": np.array([[0.0, 0.0, 0.0], list(ROOM)])}
+    return write_artifact(path, "measurements", data, attrs={"task": "rssi", "scene": "testroom"})

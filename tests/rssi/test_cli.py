@@ -1,0 +1,92 @@
+"""`rfir rf-fit` on RSSI data and `rfir predict rssi` end to end on the reduced room (seconds)."""
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rfir_cli.artifacts import read_artifact
+from rfir_cli.main import app
+
+from .helpers import write_measurements, write_scene
+
+FAST = ["--set", "rf_fit.rssi.batch_links=64", "--set", "rf_fit.rssi.probe_step_m=0.75"]
+
+
+def _invoke(args, sets=()):
+    return CliRunner().invoke(app, [*FAST, *sets, *map(str, args)])
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rssi")
+    write_scene(d / "scene.h5")
+    write_measurements(d / "meas.h5")
+    r = _invoke(["rf-fit", d / "scene.h5", d / "meas.h5", "-o", d / "rf.h5", "--iterations", "60"])
+    assert r.exit_code == 0, r.output
+    return d
+
+
+def test_fit_writes_an_rssi_model_that_learned(fitted):
+    rf = read_artifact(fitted / "rf.h5", "rf")
+    assert rf.free["model@attrs"]["model_kind"] == "rssi_los_nlos"
+    t = rf.free["training@attrs"]
+    assert t["train_mae_db"] < t["initial_mae_db"]
+    assert rf.free["model"]["probe_values"].shape[1] == len(rf["rf/opacity"])
+
+
+def test_scoring_writes_results_beside_baselines(fitted, tmp_path):
+    res = tmp_path / "res.json"
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "--measurements", fitted / "meas.h5", "-o", tmp_path / "p.h5",
+                 "--results", res, "--plots", tmp_path / "plots"])
+    assert r.exit_code == 0, r.output
+    m = json.loads(res.read_text())["metrics"]
+    meas = read_artifact(fitted / "meas.h5")
+    assert m["num_test"] == int((meas["split"] == 1).sum())
+    for k in ("mae_db", "baseline_log_distance_mae_db", "baseline_multiwall_mae_db"):
+        assert np.isfinite(m[k])
+    # the data has a wall loss the log-distance model cannot see: the multi-wall fit must do better
+    assert m["baseline_multiwall_mae_db"] < m["baseline_log_distance_mae_db"]
+    names = {p.name for p in (tmp_path / "plots").iterdir()}
+    assert {"rssi_predicted.png", "rssi_measured.png", "rssi_error.png", "fov_attributes.png"} <= names
+    pred = read_artifact(tmp_path / "p.h5", "predictions")
+    assert pred["path_gain_db"].shape == (len(meas["tx_pos"]), 1)
+
+
+def test_map_for_a_new_transmitter_and_outside_warning(fitted, tmp_path):
+    out = tmp_path / "map.h5"
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "--tx", "1.2,2.0,1.8", "--grid", "1.0,0.5", "-o", out])
+    assert r.exit_code == 0, r.output
+    pred = read_artifact(out, "predictions")
+    assert len(pred["rx_pos"]) == 8 * 6 and np.isfinite(pred["path_gain_db"]).all()
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "--tx", "9,1,1", "--grid", "1.0,0.5", "-o", tmp_path / "o.h5"])
+    assert r.exit_code == 0 and "outside the scene's bounds" in r.output and "(9.00, 1.00, 1.00)" in r.output
+
+
+def test_holdout_transmitters_are_scored(fitted, tmp_path):
+    sets = ["--set", "rf_fit.rssi.split=holdout_tx", "--set", "rf_fit.rssi.holdout_tx=1"]
+    r = _invoke(["rf-fit", fitted / "scene.h5", fitted / "meas.h5", "-o", tmp_path / "rf.h5", "--iterations", "5"], sets)
+    assert r.exit_code == 0, r.output
+    res = tmp_path / "r.json"
+    r = _invoke(["predict", "rssi", tmp_path / "rf.h5", "--measurements", fitted / "meas.h5", "-o", tmp_path / "p.h5",
+                 "--results", res])
+    assert r.exit_code == 0, r.output
+    m = json.loads(res.read_text())["metrics"]
+    assert m["num_test"] == 30 and m["num_train"] == 90 and "held out" in m["split"]
+
+
+def test_bad_input_is_one_line_and_writes_nothing(fitted, tmp_path):
+    out = tmp_path / "x.h5"
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "--tx", "1,1,1", "--grid", "1.0,0.0005", "-o", out])
+    assert r.exit_code == 5 and "GiB" in r.output and not out.exists()
+    bad = tmp_path / "rx.csv"
+    bad.write_text("x,y,z\n1,2\n")
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "--tx", "1,1,1", "--rx", bad, "-o", out])
+    assert r.exit_code == 2 and "rx.csv" in r.output and not out.exists()
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "--tx", "1,1", "-o", out])
+    assert r.exit_code == 4 and "--tx" in r.output
+    r = _invoke(["predict", "rssi", fitted / "rf.h5", "-o", out])
+    assert r.exit_code == 4 and not out.exists()
+    r = _invoke(["predict", "rssi", fitted / "meas.h5", "--tx", "1,1,1", "-o", out])
+    assert r.exit_code == 3 and not out.exists()
+    assert "Traceback" not in r.output
