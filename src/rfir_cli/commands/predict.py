@@ -41,7 +41,8 @@ def predict_rcs(
         "--measurements", help="Measurements to predict and compare with (their rows and split).")] = None,
     aspects: Annotated[Optional[str], typer.Option("--aspects", help="Degrees: '0:360:1' or '0,90,180'.")] = None,
     ranges: Annotated[Optional[str], typer.Option("--ranges", help="Metres: '3' or '2,3,5'.")] = None,
-    freqs: Annotated[Optional[str], typer.Option("--freqs", help="Hz: '2.4e9' (must be fitted ones).")] = None,
+    freqs: Annotated[Optional[str], typer.Option(
+        "--freqs", help="Hz: '2.4e9' (fitted ones; any inside the band of a wideband model).")] = None,
     plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for PNG plots.")] = None,
     results: Annotated[Optional[Path], typer.Option(
         "--results", help="JSON with metrics (default results/<OUT stem>.json when --measurements).")] = None,
