@@ -40,7 +40,7 @@ def render_attribute_maps(means, log_scales, rotations, rf_opacity, attributes: 
                           min_weight: float = 0.05) -> dict[str, np.ndarray]:
     """Maps [height, width] (NaN where nothing is seen) of each attribute [G], composited with the RF
     opacities [G]. Names containing "angle" are angles in radians, composited as unit phasors.
-    fov_deg defaults to the angle the Gaussians subtend from the eye plus 10 %."""
+    fov_deg defaults to the angle the Gaussians subtend from the eye plus 10 %, in both image directions."""
     import rfir_tracer
 
     t = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64).contiguous()  # noqa: E731
@@ -50,7 +50,10 @@ def render_attribute_maps(means, log_scales, rotations, rf_opacity, attributes: 
         fwd = np.asarray(target_m, float) - np.asarray(eye_m, float)
         fwd /= np.linalg.norm(fwd)
         cosang = (rel @ fwd) / np.linalg.norm(rel, axis=1)
-        fov_deg = min(120.0, 2.2 * math.degrees(math.acos(float(np.clip(cosang.min(), -1, 1)))))
+        theta = math.acos(float(np.clip(cosang.min(), -1, 1)))
+        # the vertical half-extent is tan(fov / 2) * height / width: cover theta both ways, + 10 %
+        half = 1.1 * math.tan(min(theta, math.radians(55))) * max(1.0, width / height)
+        fov_deg = min(150.0, 2 * math.degrees(math.atan(half)))
     origin, dirs = pinhole_rays(eye_m, target_m, fov_deg, width, height)
     names = list(attributes)
     columns = []
