@@ -10,7 +10,8 @@ from . import __version__
 from .context import GlobalOptions, run_guarded
 
 # A command is listed here only once it works end to end.
-COMMANDS = ("info", "check", "import_", "simulate", "calibrate", "geom", "mesh_gaussians", "rf_fit", "predict", "predict_rssi")
+COMMANDS = ("info", "check", "import_", "simulate", "calibrate", "geom", "mesh_gaussians", "rf_fit", "predict", "predict_rssi",
+            "edit")
 
 app = typer.Typer(
     name="rfir",

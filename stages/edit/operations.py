@@ -1,0 +1,182 @@
+"""Operations on a selection of Gaussians, applied to every per-Gaussian array of an `rf` artifact.
+
+Syntax (metres, degrees):
+  translate:DX,DY,DZ                 move centres
+  rotate:AX,AY,AZ,DEG[,PX,PY,PZ]     rotate by DEG about axis (AX,AY,AZ) through pivot P (default: the
+                                     selection's centroid); means, quaternions and normals turn together
+  delete                             remove the Gaussians
+  duplicate:DX,DY,DZ                 append copies moved by (DX,DY,DZ)
+  set:KEY=V[,KEY=V...]               set material; KEY in a, R, gamma_abs, gamma_phase (rad)
+  scale:KEY=V[,KEY=V...]             multiply material by V
+  label:NAME                         give the selection the object label NAME (for later label:NAME selections)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rfir_cli.errors import ConfigError
+
+from .selection import parse_numbers
+
+MATERIAL_KEYS = {"a": "rf/opacity", "R": "rf/roughness", "gamma_abs": "rf/gamma_abs", "gamma_phase": "rf/gamma_phase_rad"}
+_LIMITS = {"rf/opacity": (0.0, 1.0), "rf/roughness": (1.0, math.inf), "rf/gamma_abs": (0.0, 1.0)}
+
+
+@dataclass(frozen=True)
+class Operation:
+    """A parsed operation. kind: translate|rotate|delete|duplicate|set|scale|label."""
+
+    kind: str
+    numbers: tuple = ()
+    values: tuple = ()  # (material key, value) pairs for set/scale
+    name: str = ""
+    text: str = ""
+
+
+@dataclass
+class EditScene:
+    """The per-Gaussian state being edited.
+
+    arrays: "group/name" -> array with first dimension G (gaussians/*, rf/* and free-group datasets).
+    label_names: names of the label ids. origin [G]: index of each Gaussian in the input (copies keep
+    their source's); touched [G]: changed by some edit.
+    """
+
+    arrays: dict
+    label_names: list = field(default_factory=list)
+    origin: np.ndarray = None
+    touched: np.ndarray = None
+
+    def __post_init__(self):
+        g = self.count
+        self.origin = np.arange(g) if self.origin is None else self.origin
+        self.touched = np.zeros(g, bool) if self.touched is None else self.touched
+
+    @property
+    def count(self) -> int:
+        return len(self.arrays["gaussians/means"])
+
+    def take(self, index: np.ndarray) -> None:
+        """Keep (and reorder / repeat) Gaussians by integer index [G'] in every per-Gaussian array."""
+        self.arrays = {k: v[index] for k, v in self.arrays.items()}
+        self.origin, self.touched = self.origin[index], self.touched[index]
+
+
+def parse_operation(text: str) -> Operation:
+    """Parse one operation string (module docstring); ConfigError naming --op on any mistake."""
+    text = text.strip()
+    kind, _, rest = text.partition(":")
+    kind, where = kind.strip().lower(), f"--op {text!r}"
+    if kind == "delete":
+        if rest.strip():
+            raise ConfigError(f"{where}: delete takes no arguments")
+        return Operation("delete", text=text)
+    if kind == "label":
+        if not rest.strip():
+            raise ConfigError(f"{where}: expected label:NAME")
+        return Operation("label", name=rest.strip(), text=text)
+    if kind in ("set", "scale"):
+        pairs = []
+        for item in filter(None, (s.strip() for s in rest.split(","))):
+            key, eq, value = item.partition("=")
+            if not eq or key.strip() not in MATERIAL_KEYS:
+                raise ConfigError(f"{where}: unknown material key {key.strip()!r} (expected {', '.join(MATERIAL_KEYS)})")
+            pairs.append((key.strip(), parse_numbers(value, where)[0] if value.strip() else math.nan))
+        if not pairs or any(not math.isfinite(v) for _, v in pairs):
+            raise ConfigError(f"{where}: expected {kind}:KEY=VALUE[,KEY=VALUE...]")
+        return Operation(kind, values=tuple(pairs), text=text)
+    arity = {"translate": (3,), "duplicate": (3,), "rotate": (4, 7)}
+    if kind not in arity:
+        raise ConfigError(f"{where}: unknown operation {kind!r} (expected translate, rotate, delete, duplicate, set, "
+                          "scale or label)")
+    numbers = parse_numbers(rest, where)
+    if len(numbers) not in arity[kind]:
+        raise ConfigError(f"{where}: {kind} takes {' or '.join(map(str, arity[kind]))} numbers, got {len(numbers)}")
+    if kind == "rotate" and np.linalg.norm(numbers[:3]) == 0:
+        raise ConfigError(f"{where}: the rotation axis is zero")
+    return Operation(kind, numbers, text=text)
+
+
+def axis_angle_quaternion(axis, angle_deg: float) -> np.ndarray:
+    """[4] unit quaternion (w, x, y, z) of a rotation by angle_deg about axis [3]."""
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    half = math.radians(angle_deg) / 2
+    return np.concatenate([[math.cos(half)], math.sin(half) * axis])
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p * q of (w, x, y, z) quaternions, broadcast over leading dims."""
+    pw, px, py, pz = np.moveaxis(np.asarray(p, np.float64), -1, 0)
+    qw, qx, qy, qz = np.moveaxis(np.asarray(q, np.float64), -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw], -1)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """[..., 3, 3] rotation matrices of (w, x, y, z) quaternions [..., 4] (normalised first)."""
+    q = np.asarray(q, np.float64)
+    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def covariances(log_scales: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """[G, 3, 3] covariances R diag(exp(2 log_scales)) R^T in m^2 from log_scales [G, 3] and quaternions [G, 4]."""
+    r = quat_to_matrix(rotations)
+    return r @ (np.exp(2 * np.asarray(log_scales))[:, :, None] * np.swapaxes(r, -1, -2))
+
+
+def _fmt(values) -> str:
+    return ",".join(repr(float(v)) for v in values)  # shortest text that reads back exactly
+
+
+def apply(scene: EditScene, mask: np.ndarray, op: Operation) -> dict:
+    """Apply op to the Gaussians where mask [G] is true, in place. Returns the history record:
+    {"op": resolved text, "inverse": text or None, "count": n, "warnings": [...]}."""
+    idx = np.flatnonzero(mask)
+    rec = {"op": op.text, "inverse": None, "count": int(idx.size), "warnings": []}
+    a = scene.arrays
+    if op.kind == "translate":
+        a["gaussians/means"][idx] += np.asarray(op.numbers)
+        rec["inverse"] = "translate:" + _fmt(-np.asarray(op.numbers))
+    elif op.kind == "rotate":
+        pivot = np.asarray(op.numbers[4:] if len(op.numbers) == 7 else
+                           (a["gaussians/means"][idx].mean(0) if idx.size else np.zeros(3)))
+        q = axis_angle_quaternion(op.numbers[:3], op.numbers[3])
+        rot = quat_to_matrix(q)
+        a["gaussians/means"][idx] = (a["gaussians/means"][idx] - pivot) @ rot.T + pivot
+        a["gaussians/normals"][idx] = a["gaussians/normals"][idx] @ rot.T
+        composed = quat_multiply(q, a["gaussians/rotations"][idx])
+        a["gaussians/rotations"][idx] = composed / np.linalg.norm(composed, axis=-1, keepdims=True)
+        rec["op"] = f"rotate:{_fmt(op.numbers[:3])},{_fmt([op.numbers[3]])},{_fmt(pivot)}"
+        rec["inverse"] = f"rotate:{_fmt(op.numbers[:3])},{_fmt([-op.numbers[3]])},{_fmt(pivot)}"
+    elif op.kind == "delete":
+        scene.take(np.flatnonzero(~mask))
+        return rec
+    elif op.kind == "duplicate":
+        g = scene.count
+        scene.take(np.concatenate([np.arange(g), idx]))
+        scene.arrays["gaussians/means"][g:] += np.asarray(op.numbers)
+        scene.touched[g:] = True
+        return rec
+    elif op.kind in ("set", "scale"):
+        for key, value in op.values:
+            name = MATERIAL_KEYS[key]
+            new = np.full(idx.size, value) if op.kind == "set" else a[name][idx] * value
+            lo, hi = _LIMITS.get(name, (-math.inf, math.inf))
+            if np.any((new < lo) | (new > hi)):
+                rec["warnings"].append(f"{op.text}: {key} clipped to [{lo:g}, {hi:g}]")
+            a[name][idx] = np.clip(new, lo, hi)
+    elif op.kind == "label":
+        if "gaussians/labels" not in a:
+            a["gaussians/labels"] = np.full(scene.count, -1, np.int64)
+        if op.name not in scene.label_names:
+            scene.label_names.append(op.name)
+        a["gaussians/labels"][idx] = scene.label_names.index(op.name)
+        return rec
+    scene.touched[idx] = True
+    return rec

@@ -1,0 +1,149 @@
+"""`rfir edit`: apply a list of edits (selection + operation) to an `rf` artifact and write a new one.
+
+Every per-Gaussian array travels with delete/duplicate: gaussians/*, rf/* (not rf/freq_hz) and any
+free-group dataset (model/, training/, effects/) whose first dimension is G. The edit history is
+appended to provenance extra "edits" (earlier edits of the input are kept), each with its inverse.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.errors import ConfigError, InputFileError, StageError
+from rfir_cli.progress import NullProgress
+from rfir_cli.provenance import Provenance
+
+from .operations import EditScene, apply
+from .script import Edit
+
+# Datasets known not to be per-Gaussian even when their first dimension happens to equal G (tiny scenes).
+NOT_PER_GAUSSIAN = {"rf/freq_hz", "model/s_tx_db", "model/nlos_gain_db", "model/probe_values", "model/probe_origin_m",
+                    "model/probe_shape", "training/loss_curve", "training/train_rows", "training/holdout_tx_ids"}
+NOT_PER_GAUSSIAN_PREFIXES = ("model/los.",)  # the RSSI LoS network's weights
+_MOVES = ("translate", "rotate", "duplicate")
+
+
+@dataclass
+class EditResult:
+    """Summary of one edit run. records: one history dict per edit; path is None on a dry run."""
+
+    path: Path | None
+    num_before: int
+    num_after: int
+    records: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    plot: Path | None = None
+
+
+def per_gaussian_keys(art) -> tuple[list[str], list[tuple[str, str]]]:
+    """Names of the per-Gaussian datasets: (schema fields, (free group, dataset) pairs); first dimension G."""
+    g = len(art["gaussians/means"])
+    per_g = lambda name, v: (name not in NOT_PER_GAUSSIAN and not name.startswith(NOT_PER_GAUSSIAN_PREFIXES)  # noqa: E731
+                             and np.ndim(v) >= 1 and len(v) == g)
+    fields = [k for k, v in art.data.items() if per_g(k, v)]
+    free = [(grp, k) for grp, content in art.free.items() if not grp.endswith("@attrs")
+            for k, v in content.items() if per_g(f"{grp}/{k}", v)]
+    return fields, free
+
+
+def _check_paths(rf_path: Path, out_path: Path | None, dry_run: bool) -> None:
+    if not rf_path.is_file():
+        raise InputFileError("rf artifact not found", path=rf_path)
+    if out_path is None:
+        if not dry_run:
+            raise ConfigError("-o/--out is required unless --dry-run")
+        return
+    if out_path.resolve() == rf_path.resolve() or (out_path.exists() and out_path.samefile(rf_path)):
+        raise ConfigError(f"-o {out_path}: refusing to overwrite the input artifact; write the edited scene elsewhere")
+
+
+def _outside(means_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int:
+    """How many centres lie outside the box [lo, hi] (a 1e-9 m tolerance)."""
+    return int(np.sum(np.any((means_m < lo - 1e-9) | (means_m > hi + 1e-9), axis=1)))
+
+
+def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_empty: bool = False, plot_path=None,
+        config_toml: str = "", progress=None) -> EditResult:
+    """Apply `edits` in order to the rf artifact at rf_path; write out_path unless dry_run.
+
+    A selection is evaluated on the scene as the earlier edits left it. An empty selection is an error
+    unless allow_empty (or the edit's own allow_empty). Moving Gaussians outside the input's bounding
+    box of centres gives a warning. plot_path: optional before/after top-view PNG."""
+    progress = progress or NullProgress()
+    t0 = time.time()
+    rf_path = Path(rf_path)
+    out_path = Path(out_path) if out_path is not None else None
+    _check_paths(rf_path, out_path, dry_run)
+    if not edits:
+        raise ConfigError("no edits: give --select and --op, or --script FILE")
+    art = read_artifact(rf_path, "rf")
+    fields, free_keys = per_gaussian_keys(art)
+    arrays = {k: np.array(art[k], copy=True) for k in fields}
+    arrays.update({f"{g}/{k}": np.array(art.free[g][k], copy=True) for g, k in free_keys})
+    names = [str(n) for n in art.attrs.get("label_names", [])]
+    if "gaussians/labels" in arrays and arrays["gaussians/labels"].size:  # unnamed ids keep their numbers
+        names += [f"label_{i}" for i in range(len(names), int(arrays["gaussians/labels"].max()) + 1)]
+    scene = EditScene(arrays, label_names=names)
+    before = np.array(arrays["gaussians/means"], copy=True)
+    lo, hi = before.min(0), before.max(0)
+    selected = np.zeros(len(before), bool)
+    records, warnings = [], []
+    with progress.task("edit", total=len(edits)) as bar:
+        for i, edit in enumerate(edits, 1):
+            mask = edit.select.mask(scene.arrays["gaussians/means"], scene.arrays.get("gaussians/labels"), scene.label_names)
+            n = int(mask.sum())
+            if n == 0 and edit.op is not None and not (allow_empty or edit.allow_empty):
+                raise ConfigError(f"--select {edit.select.text}: selects none of {scene.count} Gaussians (edit {i}); "
+                                  "pass --allow-empty to skip it")
+            selected[scene.origin[mask]] = True
+            rec = {"select": edit.select.text, "selected": n, "op": None, "inverse": None, "note": edit.note}
+            if edit.op is not None:
+                out_before = _outside(scene.arrays["gaussians/means"], lo, hi)
+                rec.update(apply(scene, mask, edit.op))
+                out_after = _outside(scene.arrays["gaussians/means"], lo, hi)
+                if edit.op.kind in _MOVES and out_after > out_before:
+                    rec["warnings"].append(f"{edit.op.text}: {out_after - out_before} Gaussians moved outside the scene "
+                                           f"bounds {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} m")
+                warnings += rec["warnings"]
+                if scene.count == 0:
+                    raise StageError(f"edit {i} ({edit.op.text}) deletes every Gaussian; nothing would be left to predict")
+            records.append(rec)
+            bar.advance(1)
+    result = EditResult(None, len(before), scene.count, records, warnings)
+    if plot_path is not None:
+        from .plot import top_view
+
+        result.plot = top_view(Path(plot_path), before, selected, scene.arrays["gaussians/means"], scene.touched,
+                               title=f"{rf_path.name}: " + "; ".join(f"{e.select.text} -> {e.op.text if e.op else 'list'}"
+                                                                     for e in edits)[:160])
+    if not dry_run:
+        result.path = _write(out_path, rf_path, art, scene, records, config_toml, t0)
+    return result
+
+
+def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, config_toml: str, t0: float) -> Path:
+    data = dict(art.data)
+    data.update({k: v for k, v in scene.arrays.items() if k in data or k == "gaussians/labels"})
+    attrs = dict(art.attrs)
+    if scene.label_names:
+        attrs["label_names"] = np.asarray(scene.label_names, dtype=object)
+    free = {}
+    for group, content in art.free.items():
+        if group.endswith("@attrs"):
+            continue
+        free[group] = {k: scene.arrays.get(f"{group}/{k}", v) for k, v in content.items()}
+        if art.free.get(group + "@attrs"):
+            free[group]["@attrs"] = art.free[group + "@attrs"]
+    up = art.provenance
+    stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    history = list(up.extra.get("edits", [])) + [dict(r, input=str(rf_path), time=stamp) for r in records]
+    prov = Provenance(stage="edit", config_toml=config_toml, extra={
+        "edits": history, "upstream": {"stage": up.stage, "command": up.command, "inputs": up.inputs,
+                                       "extra": {k: v for k, v in up.extra.items() if k not in ("edits", "upstream")}}})
+    prov.add_input(rf_path)
+    prov.wall_time_s = time.time() - t0
+    return write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)

@@ -1,0 +1,165 @@
+"""`rfir edit` end to end on a two-box scene: inverses, delete vs a scene without, history, bad input."""
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rfir_cli.artifacts import read_artifact
+from rfir_cli.main import app
+from rfir_stages.edit import run
+from rfir_stages.edit.script import edits_from_options
+from rfir_stages.predict.rcs import predict_path_gain_db
+
+runner = CliRunner()
+CHAIR = "box:0.1,-1,-1,1,1,1"  # the box at x = +0.2 m
+
+
+def _gains(path) -> np.ndarray:
+    """Monostatic path gain [12, 1] dB of an rf artifact, radar at 3 m around the z axis."""
+    a = np.radians(np.arange(0, 360, 30))
+    tx = np.stack([3 * np.cos(-a), 3 * np.sin(-a), np.full_like(a, 0.001)], 1)
+    return predict_path_gain_db(read_artifact(path, "rf"), tx, tx - [0, 0, 0.002], [10e9], "rcs")
+
+
+def _edit(*args):
+    return runner.invoke(app, ["edit", *map(str, args)])
+
+
+def _all_arrays(path) -> dict:
+    art = read_artifact(path, "rf")
+    out = dict(art.data)
+    out.update({f"model/{k}": v for k, v in art.free["model"].items()})
+    return out
+
+
+def test_translate_then_inverse_gives_back_arrays_and_predictions(rf_path, tmp_path):
+    moved, back = tmp_path / "moved.h5", tmp_path / "back.h5"
+    r = _edit(rf_path, "-o", moved, "--select", CHAIR, "--op", "translate:0.3,0.1,0")
+    assert r.exit_code == 0, r.output
+    hist = read_artifact(moved, "rf").provenance.extra["edits"]
+    assert len(hist) == 1 and hist[0]["selected"] == 300 and hist[0]["inverse"].startswith("translate:-0.3")
+    assert not np.allclose(_gains(moved), _gains(rf_path), atol=1e-3)
+    r = _edit(moved, "-o", back, "--select", "box:0.4,-1,-1,1,1,1", "--op", hist[0]["inverse"])
+    assert r.exit_code == 0, r.output
+    a, b = _all_arrays(rf_path), _all_arrays(back)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.allclose(a[k], b[k], rtol=0, atol=1e-12), k
+    assert np.max(np.abs(_gains(back) - _gains(rf_path))) < 1e-9
+    assert len(read_artifact(back, "rf").provenance.extra["edits"]) == 2  # history appended
+
+
+def test_rotate_then_inverse_gives_back_predictions(rf_path, tmp_path):
+    res = run(rf_path, tmp_path / "r.h5", edits_from_options([CHAIR], ["rotate:0,1,1,37"]))
+    inv = res.records[0]["inverse"]
+    run(tmp_path / "r.h5", tmp_path / "b.h5", edits_from_options(["label:chair"], [inv]))
+    assert np.max(np.abs(_gains(tmp_path / "b.h5") - _gains(rf_path))) < 1e-9
+
+
+def test_delete_then_predict_equals_scene_without(rf_path, tmp_path, write_rf):
+    r = _edit(rf_path, "-o", tmp_path / "del.h5", "--select", "label:chair", "--op", "delete")
+    assert r.exit_code == 0, r.output
+    labels = read_artifact(rf_path, "rf")["gaussians/labels"]
+    without = write_rf(tmp_path / "without.h5", keep=labels == 0)
+    a, b = _all_arrays(tmp_path / "del.h5"), _all_arrays(without)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    assert np.array_equal(_gains(tmp_path / "del.h5"), _gains(without))
+
+
+def test_script_duplicate_material_label_and_plot(rf_path, tmp_path):
+    script = tmp_path / "edits.toml"
+    script.write_text('[[edit]]\nselect = "label:crate"\nop = "duplicate:0,0.5,0"\n'
+                      '[[edit]]\nselect = "box:-1,0.3,-1,1,1,1"\nop = "label:crate_copy"\nnote = "name the copy"\n'
+                      '[[edit]]\nselect = "label:crate_copy"\nop = "set:gamma_abs=0.5"\n')
+    out, png = tmp_path / "dup.h5", tmp_path / "dup.png"
+    r = _edit(rf_path, "-o", out, "--script", script, "--plot", png)
+    assert r.exit_code == 0, r.output
+    art, src = read_artifact(out, "rf"), read_artifact(rf_path, "rf")
+    assert len(art["gaussians/means"]) == 900 and list(art.attrs["label_names"]) == ["crate", "chair", "crate_copy"]
+    copy = art["gaussians/labels"] == 2
+    assert copy.sum() == 300 and np.all(art["rf/gamma_abs"][copy] == 0.5)
+    assert np.array_equal(art.free["model"]["diffuse_abs"][copy], src.free["model"]["diffuse_abs"][:300])
+    assert np.array_equal(art["gaussians/means"][copy], src["gaussians/means"][:300] + [0, 0.5, 0])
+    assert [e["note"] for e in art.provenance.extra["edits"]][1] == "name the copy"
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert "moved outside the scene bounds" in r.output
+
+
+def test_dry_run_lists_and_writes_nothing(rf_path, tmp_path):
+    r = _edit(rf_path, "--dry-run", "--select", "label:chair", "--select", "sphere:-0.2,0,0,0.03")
+    assert r.exit_code == 0, r.output
+    assert "label:chair selects 300" in r.output and "nothing written" in r.output
+    assert list(tmp_path.iterdir()) == [rf_path]
+
+
+@pytest.mark.parametrize("args, code, message", [
+    (["--select", "sphere:5,5,5,0.1", "--op", "delete"], 4, "selects none of 600"),
+    (["--select", "all", "--op", "delete"], 5, "deletes every Gaussian"),
+    (["--select", "all"], 4, "is required unless --dry-run"),
+    (["--select", "all", "--select", "all", "--op", "delete"], 4, "one --select per --op"),
+    (["--select", "label:sofa", "--op", "delete"], 4, "no label named 'sofa'"),
+    (["--select", "all", "--op", "explode"], 4, "unknown operation 'explode'"),
+])
+def test_bad_input_one_line_and_exit_code(rf_path, tmp_path, args, code, message):
+    out = tmp_path / "out.h5"
+    r = _edit(rf_path, *(["-o", out] if "required" not in message else []), *args)
+    assert r.exit_code == code, r.output
+    assert message in r.output.replace("\n", " ") and "Traceback" not in r.output
+    assert not out.exists()
+
+
+def test_allow_empty_skips_the_edit(rf_path, tmp_path):
+    r = _edit(rf_path, "-o", tmp_path / "o.h5", "--allow-empty", "--select", "sphere:5,5,5,0.1", "--op", "delete")
+    assert r.exit_code == 0, r.output
+    assert np.array_equal(_all_arrays(tmp_path / "o.h5")["gaussians/means"], _all_arrays(rf_path)["gaussians/means"])
+
+
+def test_refuses_output_equal_to_input(rf_path):
+    before = rf_path.read_bytes()
+    r = _edit(rf_path, "-o", rf_path, "--select", "all", "--op", "translate:1,0,0")
+    assert r.exit_code == 4 and "refusing to overwrite the input" in r.output
+    assert rf_path.read_bytes() == before
+
+
+def test_script_unknown_key_is_named(rf_path, tmp_path):
+    script = tmp_path / "bad.toml"
+    script.write_text('[[edit]]\nselect = "all"\nop = "delete"\nslect = "typo"\n')
+    r = _edit(rf_path, "-o", tmp_path / "o.h5", "--script", script)
+    assert r.exit_code == 4 and "unknown key 'slect'" in r.output
+    script.write_text('version = 2\n[[edit]]\nselect = "all"\nop = "delete"\n')
+    r = _edit(rf_path, "-o", tmp_path / "o.h5", "--script", script)
+    assert r.exit_code == 4 and "unknown key 'version'" in r.output
+
+
+def test_output_passes_rfir_check_and_new_labels_do_not_reuse_ids(tmp_path, write_rf):
+    from rfir_cli.artifacts import validate_artifact, write_artifact
+
+    art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
+    attrs = {"task": "rcs"}  # labels without label_names: ids 0 and 1 must stay unnamed-but-distinct
+    free = {"model": {k: v for k, v in art.free["model"].items()}}
+    write_artifact(tmp_path / "nolabels.h5", "rf", art.data, attrs=attrs, free=free)
+    out = tmp_path / "o.h5"
+    run(tmp_path / "nolabels.h5", out, edits_from_options(["sphere:0.2,0,0,0.06"], ["label:lid"]))
+    assert validate_artifact(out, "rf") == []
+    edited = read_artifact(out, "rf")
+    assert list(edited.attrs["label_names"]) == ["label_0", "label_1", "lid"]
+    assert set(np.unique(edited["gaussians/labels"])) == {0, 1, 2}
+
+
+def test_free_group_arrays_of_length_g_travel_known_others_stay(tmp_path, write_rf):
+    from rfir_cli.artifacts import write_artifact
+
+    art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
+    g = len(art["gaussians/means"])
+    extra = np.arange(2 * g, dtype=float).reshape(g, 2)
+    free = {"model": {**art.free["model"], "wideband.base.x": extra, "los.w": np.zeros(g), "@attrs": art.free["model@attrs"]},
+            "training": {"loss_curve": np.zeros(g)}}
+    write_artifact(tmp_path / "b.h5", "rf", art.data, attrs=dict(art.attrs), free=free)
+    run(tmp_path / "b.h5", tmp_path / "o.h5", edits_from_options(["label:chair"], ["delete"]))
+    out = read_artifact(tmp_path / "o.h5", "rf")
+    keep = art["gaussians/labels"] == 0
+    assert np.array_equal(out.free["model"]["wideband.base.x"], extra[keep])
+    assert out.free["model"]["los.w"].shape == (g,) and out.free["training"]["loss_curve"].shape == (g,)
+    assert out.free["model@attrs"]["antenna_kind"] == "isotropic"
