@@ -18,6 +18,7 @@ from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 
 from .operations import EditScene, apply
+from .rssi_refresh import is_rssi_model, refreshed_probe_field
 from .script import Edit
 
 # Datasets known not to be per-Gaussian even when their first dimension happens to equal G (tiny scenes).
@@ -37,6 +38,8 @@ class EditResult:
     records: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     plot: Path | None = None
+    radio_plot: Path | None = None
+    radio_change: dict = field(default_factory=dict)
 
 
 def per_gaussian_keys(art) -> tuple[list[str], list[tuple[str, str]]]:
@@ -67,12 +70,14 @@ def _outside(means_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int:
 
 
 def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_empty: bool = False, plot_path=None,
-        config_toml: str = "", progress=None) -> EditResult:
+        map_tx=None, config_toml: str = "", progress=None) -> EditResult:
     """Apply `edits` in order to the rf artifact at rf_path; write out_path unless dry_run.
 
     A selection is evaluated on the scene as the earlier edits left it. An empty selection is an error
     unless allow_empty (or the edit's own allow_empty). Moving Gaussians outside the input's bounding
-    box of centres gives a warning. plot_path: optional before/after top-view PNG."""
+    box of centres gives a warning. plot_path: optional before/after top-view PNG; with it (and an
+    artifact written) also the radio change beside it, PLOT_radio.png: the map of the Tx at map_tx
+    [3] m before/after/difference for an RSSI model, RCS versus aspect before/after otherwise."""
     progress = progress or NullProgress()
     t0 = time.time()
     rf_path = Path(rf_path)
@@ -122,7 +127,24 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
                                                                      for e in edits)[:160])
     if not dry_run:
         result.path = _write(out_path, rf_path, art, scene, records, config_toml, t0)
+        if plot_path is not None:
+            result.radio_plot, result.radio_change = _radio_change(Path(plot_path), art, result.path, map_tx)
     return result
+
+
+def _radio_change(plot_path: Path, art, edited_path: Path, map_tx):
+    """(PNG, summary) of the radio change, or (None, {}) for an RSSI model without map_tx."""
+    from .map_change import rcs_change, rssi_map_change
+
+    target = plot_path.with_name(plot_path.stem + "_radio.png")
+    after = read_artifact(edited_path, "rf")
+    if is_rssi_model(art.free.get("model@attrs", {})):
+        if map_tx is None:
+            return None, {}
+        return target, rssi_map_change(target, art, after, np.asarray(map_tx, np.float64))
+    if str(art.attrs.get("task", "")) in ("rcs", "wideband") and not art.free.get("model@attrs", {}).get("wideband"):
+        return target, rcs_change(target, art, after)
+    return None, {}
 
 
 def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, config_toml: str, t0: float) -> Path:
@@ -138,6 +160,8 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
         free[group] = {k: scene.arrays.get(f"{group}/{k}", v) for k, v in content.items()}
         if art.free.get(group + "@attrs"):
             free[group]["@attrs"] = art.free[group + "@attrs"]
+    if is_rssi_model(art.free.get("model@attrs", {})) and "model" in free:  # receivers' transmittances follow
+        free["model"].update(refreshed_probe_field(scene.arrays, art.free["model@attrs"]))
     up = art.provenance
     stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     history = list(up.extra.get("edits", [])) + [dict(r, input=str(rf_path), time=stamp) for r in records]

@@ -163,3 +163,16 @@ def test_free_group_arrays_of_length_g_travel_known_others_stay(tmp_path, write_
     assert np.array_equal(out.free["model"]["wideband.base.x"], extra[keep])
     assert out.free["model"]["los.w"].shape == (g,) and out.free["training"]["loss_curve"].shape == (g,)
     assert out.free["model@attrs"]["antenna_kind"] == "isotropic"
+
+
+def test_plot_adds_the_rcs_change_of_an_rcs_model(rf_path, tmp_path):
+    from rfir_stages.edit import run
+    from rfir_stages.edit.script import edits_from_options
+
+    plot = tmp_path / "edit.png"
+    res = run(rf_path, tmp_path / "out.h5", edits_from_options(["label:chair"], ["delete"], False), plot_path=plot)
+    assert res.radio_plot == tmp_path / "edit_radio.png" and res.radio_plot.stat().st_size > 1000
+    assert res.radio_change["mean_abs_change_db"] > 0.1 and res.radio_change["points"] == 360
+    same = run(rf_path, tmp_path / "same.h5", edits_from_options(["label:chair"], ["translate:0,0,0"], False),
+               plot_path=tmp_path / "same.png")
+    assert same.radio_change["max_abs_change_db"] < 1e-9

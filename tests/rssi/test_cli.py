@@ -90,3 +90,24 @@ def test_bad_input_is_one_line_and_writes_nothing(fitted, tmp_path):
     r = _invoke(["predict", "rssi", fitted / "meas.h5", "--tx", "1,1,1", "-o", out])
     assert r.exit_code == 3 and not out.exists()
     assert "Traceback" not in r.output
+
+
+def test_edit_of_an_rssi_model_refreshes_the_probe_field_and_maps_the_change(fitted, tmp_path):
+    rf = read_artifact(fitted / "rf.h5", "rf")
+    names = [str(n) for n in rf.attrs["label_names"]]
+    part = int(np.sum(np.asarray(rf["gaussians/labels"]) == names.index("partition")))
+    out, plot = tmp_path / "no_partition.h5", tmp_path / "edit.png"
+    r = _invoke(["edit", fitted / "rf.h5", "-o", out, "--select", "label:partition", "--op", "delete",
+                 "--plot", plot, "--map-tx", "1.0,2.0,2.0"])
+    assert r.exit_code == 0, r.output
+    edited = read_artifact(out, "rf")
+    g = len(edited["gaussians/means"])
+    assert g == len(rf["gaussians/means"]) - part
+    assert edited.free["model"]["probe_values"].shape[1] == g            # traced again on the edited scene
+    assert (tmp_path / "edit_radio.png").stat().st_size > 1000 and "mean |change|" in r.output
+    # the map now differs behind the removed partition (Tx at x = 1 m, receivers on both sides)
+    before = _invoke(["predict", "rssi", fitted / "rf.h5", "--tx", "1.0,2.0,2.0", "--grid", "1.0,0.5", "-o", tmp_path / "a.h5"])
+    after = _invoke(["predict", "rssi", out, "--tx", "1.0,2.0,2.0", "--grid", "1.0,0.5", "-o", tmp_path / "b.h5"])
+    assert before.exit_code == 0 and after.exit_code == 0, before.output + after.output
+    a, b = (np.asarray(read_artifact(tmp_path / n, "predictions")["path_gain_db"]) for n in ("a.h5", "b.h5"))
+    assert np.max(np.abs(a - b)) > 0.5

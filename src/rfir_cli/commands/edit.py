@@ -31,7 +31,10 @@ def edit(
         "--script", help="TOML edit script: a list of edit tables with select and op keys (docs/edit.md).")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List what each edit selects; write nothing.")] = False,
     allow_empty: Annotated[bool, typer.Option("--allow-empty", help="Skip edits whose selection is empty.")] = False,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Before/after top-view PNG of the Gaussians.")] = None,
+    plot: Annotated[Optional[Path], typer.Option(
+        "--plot", help="Before/after top-view PNG of the Gaussians, and PLOT_radio.png: the radio change.")] = None,
+    map_tx: Annotated[Optional[str], typer.Option(
+        "--map-tx", help="X,Y,Z (m): the transmitter of the radio-map change of an RSSI model (with --plot).")] = None,
 ) -> None:
     """Edit the Gaussians of an rf artifact; predict the edited scene with `rfir predict` (no new measurements)."""
     opts = options(ctx)
@@ -45,7 +48,7 @@ def edit(
             edits += read_script(script, allow_empty)
         with RichReporter(opts.verbosity) as reporter:
             return run(rf, out, edits, dry_run=dry_run, allow_empty=allow_empty, plot_path=plot,
-                       config_toml=opts.config_toml(), progress=reporter)
+                       map_tx=_xyz(map_tx), config_toml=opts.config_toml(), progress=reporter)
 
     r = run_guarded(ctx, work)
     for i, rec in enumerate(r.records, 1):
@@ -59,3 +62,22 @@ def edit(
         console.print(f"dry run: {r.num_before} -> {r.num_after} Gaussians, nothing written", highlight=False)
     if r.plot is not None:
         console.print(f"plot: {r.plot}", highlight=False)
+    if r.radio_plot is not None:
+        console.print(f"radio change: {r.radio_plot} (mean |change| {r.radio_change['mean_abs_change_db']:.2f} dB, "
+                      f"max {r.radio_change['max_abs_change_db']:.2f} dB over {r.radio_change['points']} points)",
+                      highlight=False)
+
+
+def _xyz(text: Optional[str]):
+    """--map-tx X,Y,Z -> [3] floats (a ConfigError naming the option otherwise)."""
+    if text is None:
+        return None
+    from rfir_cli.errors import ConfigError
+
+    try:
+        xyz = [float(v) for v in text.split(",")]
+    except ValueError:
+        xyz = []
+    if len(xyz) != 3:
+        raise ConfigError(f"--map-tx {text!r}: expected X,Y,Z in metres")
+    return xyz
