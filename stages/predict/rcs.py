@@ -180,6 +180,9 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
                                  chunk_links=int(config.get("chunk_links", 64)), progress=progress,
                                  cull_rel=float(config.get("cull_rel", 0.0)))
     render_s = time.time() - t0
+    from rfir_stages.diagnose.apply import apply_recorded_effects   # effects named by `rfir diagnose`
+
+    pg_db = apply_recorded_effects(rf, pg_db, tx, rx, freqs, aspect_rad=asp, range_m=rng)
     g0 = ant.boresight_gain
     rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
 

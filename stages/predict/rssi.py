@@ -165,6 +165,9 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     t0 = time.time()
     with progress.task("predict rssi", total=len(rx)) as bar:
         pg = pred.path_gain_db(txs, rx, int(cfg["chunk_links"]), bar)
+    from rfir_stages.diagnose.apply import apply_recorded_effects   # effects named by `rfir diagnose`
+
+    pg = apply_recorded_effects(rf, pg[:, None], txs, rx, np.asarray([pred.freq_hz]))[:, 0]
     predict_s = time.time() - t0
 
     metrics, test = {}, None

@@ -137,6 +137,9 @@ def fit(cache: RenderCache, meas_db: np.ndarray, params: RFParams, cfg: FitConfi
         init_system_gain(cache, params, target)
     with torch.no_grad():
         initial = float((predict_db(cache, params) - target).abs().mean())
+    # Gradient mass per parameter group: groups that never receive any were never seen by a
+    # training link (hidden faces); stage.py gives them their neighbours' materials (unseen.py).
+    exposure = torch.zeros_like(params.theta_g)
     with progress.task("rf-fit", total=cfg.iterations) as bar:
         bar.advance(start)
         for it in range(start, cfg.iterations):
@@ -145,6 +148,9 @@ def fit(cache: RenderCache, meas_db: np.ndarray, params: RFParams, cfg: FitConfi
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"loss became {float(loss)} at iteration {it}")
             loss.backward()
+            for theta in (params.theta_a, params.theta_g, params.theta_d):
+                if theta.grad is not None:
+                    exposure += theta.grad.abs()
             opt.step()
             curve.append(float(loss.detach()))
             bar.advance(1)
@@ -161,7 +167,8 @@ def fit(cache: RenderCache, meas_db: np.ndarray, params: RFParams, cfg: FitConfi
         diffuse_roughness=None if mats.diffuse_roughness is None else mats.diffuse_roughness.numpy().copy(),
         loss_curve=np.asarray(curve, dtype=np.float64),
         train_mae_db=train_mae, initial_mae_db=initial, iterations=cfg.iterations,
-        wall_time_s=time.time() - t0, resumed_at=start)
+        wall_time_s=time.time() - t0, resumed_at=start,
+        extra={"exposure": exposure[params.index].numpy().copy()} if cfg.iterations > start else {})
 
 
 def mae_db(pred_db: np.ndarray, meas_db: np.ndarray) -> float:

@@ -24,6 +24,7 @@ from rfir_cli.provenance import Provenance
 
 from .antennas import resolve_antenna
 from .fit import FitConfig, FitResult, fit
+from .unseen import fill_unseen, unseen_mask
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
 from .params import RFParams
@@ -136,6 +137,12 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                {k: v for k, v in config.items() if k not in ("iterations", "checkpoint_every")}, seed)
     ckpt = Path(checkpoint) if checkpoint is not None else out_path.with_name(out_path.name + ".ckpt.pt")
     result = fit(cache, target, params, fit_cfg, progress=progress, checkpoint=ckpt, resume=resume, key=key)
+    if bool(config.get("fill_unseen", True)) and fit_cfg.sharing == "gaussian" and "exposure" in result.extra:
+        unseen = unseen_mask(result.extra["exposure"])
+        result.extra["unseen_filled"] = fill_unseen(result, unseen, geom.means.numpy(),
+                                                    None if labels is None else np.asarray(labels))
+        progress.log(f"rf-fit: {result.extra['unseen_filled']} Gaussians no training link sees took their "
+                     "neighbours' materials")
 
     prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
     prov.add_input(scene_path)
@@ -165,7 +172,8 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
                       "train_mae_db": result.train_mae_db, "initial_mae_db": result.initial_mae_db,
                       "wall_time_s": result.wall_time_s, "trace_time_s": trace_s,
                       "resumed_at": result.resumed_at, "measurements": str(meas.path),
-                      "split": protocol, "split_protocol": describe_split(protocol)}
+                      "split": protocol, "split_protocol": describe_split(protocol),
+                      "unseen_filled": int(result.extra.get("unseen_filled", 0))}
     attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
     if "label_names" in scene.attrs:
         attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)

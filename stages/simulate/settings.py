@@ -46,6 +46,7 @@ class SimulateSettings:
     tasks: list[str] = field(default_factory=lambda: ["auto"])
     quick: bool = False
     seed: int = 0
+    scene_edits: list[str] = field(default_factory=list)  # stages/simulate/scene_edits.py
     photos: bool = True
     num_views: int = 0
     image_width: int = 640
@@ -133,7 +134,8 @@ def parse_settings(config: dict | None, quick: bool | None = None) -> SimulateSe
         s = SimulateSettings(
             tasks=[tasks] if isinstance(tasks, str) else list(tasks),
             quick=bool(c.get("quick", False) if quick is None else quick),
-            seed=int(c.get("seed", 0)), photos=bool(c.get("photos", True)),
+            seed=int(c.get("seed", 0)), scene_edits=[str(e) for e in c.get("scene_edits", [])],
+            photos=bool(c.get("photos", True)),
             num_views=int(c.get("num_views", 0)), image_width=int(c.get("image_width", 640)),
             image_height=int(c.get("image_height", 480)),
             physics=PhysicsEffects(max_depth=int(ph.get("max_depth", 3)), specular=bool(ph.get("specular", True)),

@@ -65,6 +65,11 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
         raise ConfigError(str(exc)) from None
     except ImportError as exc:
         raise StageError(str(exc)) from None
+    if settings.scene_edits:
+        from .scene_edits import apply_scene_edits
+
+        apply_scene_edits(spec, settings.scene_edits)
+        spec.info["scene_edits"] = list(settings.scene_edits)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = SimulateResult(scene=spec.name, out_dir=out)
@@ -137,6 +142,8 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
     gain_db, channel = apply_measurement_effects(data.pop("_power"), data["channel"], data["freq_hz"], meas, rng)
     data["channel"] = channel
     data["path_gain_db"] = gain_db
+    if task != "rssi" and meas.aspect_offset_deg != 0.0:
+        _misrecord_aspects(data, spec, meas.aspect_offset_deg)
     if task != "rssi":
         data["rcs_dbsm"] = rcs_dbsm_from_gain(10 ** (gain_db / 10), data["range_m"], data["freq_hz"],
                                               horn_boresight_gain(settings.horn_hpbw_deg))
@@ -145,6 +152,8 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
     effects = settings.effects_dict(backend)
     prov.extra = {"task": task, "effects": effects, "sim": {k: v for k, v in sim_attrs.items()
                                                               if not isinstance(v, np.ndarray)}}
+    if settings.scene_edits:
+        sim_attrs = dict(sim_attrs, scene_edits="; ".join(settings.scene_edits))
     sim_group = {"@attrs": {**_flat_attrs(effects), **{k: v for k, v in sim_attrs.items()
                                                         if not isinstance(v, np.ndarray)}}}
     sim_group.update({k: v for k, v in sim_attrs.items() if isinstance(v, np.ndarray)})
@@ -152,6 +161,22 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
                                                       "scene": spec.name},
                    provenance=prov, free={"simulator": sim_group})
     return len(data["tx_pos"]), len(data["freq_hz"])
+
+
+def _misrecord_aspects(data: dict, spec, offset_deg: float) -> None:
+    """A turntable offset: the recorded aspects, and the radar positions computed from them, are off
+    by offset_deg from the ones simulated (in place)."""
+    centre = 0.5 * (np.asarray(spec.bounds[0]) + np.asarray(spec.bounds[1]))
+    asp = np.asarray(data["aspect_rad"], np.float64)
+    ang = np.arctan2(data["tx_pos"][:, 1] - centre[1], data["tx_pos"][:, 0] - centre[0])
+    # the radar turns with the aspect or against it, depending on the convention: keep whichever holds
+    same = np.abs(np.angle(np.exp(1j * (ang - asp))) - np.angle(np.exp(1j * (ang[0] - asp[0])))).max() < 1e-6
+    turn = math.radians(offset_deg) * (1.0 if same else -1.0)
+    c, s_ = math.cos(turn), math.sin(turn)
+    rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    for key in ("tx_pos", "rx_pos"):
+        data[key] = (np.asarray(data[key]) - centre) @ rot.T + centre
+    data["aspect_rad"] = np.mod(asp + math.radians(offset_deg), 2 * math.pi)
 
 
 def _flat_attrs(d: dict, prefix: str = "") -> dict:

@@ -28,6 +28,9 @@ def simulate(
     workers: Annotated[Optional[int], typer.Option(
         "--workers", help="Processes for the Sionna rcs/wideband solves (1 = in-process); "
                           "default simulate.workers.")] = None,
+    scene_edit: Annotated[Optional[list[str]], typer.Option(
+        "--scene-edit", help="Edit the scene before simulating (repeatable, in order): NAMES:OP, e.g. "
+                             "'whiteboard:delete', 'wall_back:material:metal', 'desk_0[0369]:translate:0,1,0'.")] = None,
 ) -> None:
     """Simulate SCENE: write meshes/, images/ + cameras.h5, and measurements.h5 into OUT."""
     opts = options(ctx)
@@ -45,6 +48,8 @@ def simulate(
             table["rcs_backend"] = rcs_backend
         if workers is not None:
             table["workers"] = workers
+        if scene_edit:
+            table["scene_edits"] = list(table.get("scene_edits", [])) + list(scene_edit)
         with RichReporter(opts.verbosity) as reporter:
             return run(scene, out, table, config_toml=opts.config_toml(), quick=quick or None, progress=reporter)
 

@@ -1,0 +1,135 @@
+"""Rows for diagnose from a model and a measurement file.
+
+MODEL is an `rf` artifact (predicted here with `predict rcs` / `predict rssi` on the measured links),
+or a `predictions` artifact (any method's prediction of the same links), or a `measurements`
+artifact used as a prediction (a plain ray tracer's output, e.g. Sionna without the effect).
+Train/test: the rf fit's split as predict scores it; otherwise the measurement file's split column
+(1 = test); otherwise a seeded 70/30 split of the links.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.artifacts import read_artifact
+from rfir_cli.errors import InputFileError, StageError
+
+from .rows import Rows
+
+
+def _match_links(model_links: np.ndarray, meas_links: np.ndarray, tol_m: float = 1e-4) -> np.ndarray | None:
+    """Row of the model for each measured link [L] (Tx and Rx positions [L, 6] within tol_m), or None."""
+    if model_links.shape != meas_links.shape:
+        return None
+    if np.allclose(model_links, meas_links, atol=tol_m):
+        return np.arange(len(meas_links))
+    from scipy.spatial import cKDTree
+
+    dist, idx = cKDTree(model_links).query(meas_links)
+    if np.any(dist > tol_m) or len(np.unique(idx)) != len(idx):
+        return None
+    return idx
+
+
+def _columns(model_freqs: np.ndarray, meas_freqs: np.ndarray, where) -> np.ndarray:
+    cols = [int(np.flatnonzero(np.abs(meas_freqs - f) <= 1e-6 * f)[0]) for f in model_freqs
+            if np.any(np.abs(meas_freqs - f) <= 1e-6 * f)]
+    if not cols:
+        raise StageError("the model predicts none of the measured frequencies", path=where)
+    return np.asarray(cols)
+
+
+def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=None, seed: int = 0,
+              progress=None) -> tuple[Rows, dict]:
+    """(Rows, info) for the model at model_path against measurements_path (module docstring)."""
+    model_path, measurements_path = Path(model_path), Path(measurements_path)
+    for p in (model_path, measurements_path):
+        if not p.exists():
+            raise InputFileError("no such file", path=p)
+    meas = read_artifact(measurements_path, "measurements")
+    task = "rssi" if str(meas.attrs.get("task", "")) == "rssi" else "rcs"
+    model = read_artifact(model_path, ("rf", "predictions", "measurements"))
+    kind = model.kind
+    info = {"model": str(model_path), "model_kind": kind, "measurements": str(measurements_path), "task": task}
+    split = None
+    if kind == "rf":
+        pred_path = work_dir / "model_predictions.h5"
+        if task == "rssi":
+            from rfir_stages.predict.rssi import run_rssi
+
+            run_rssi(model_path, pred_path, {}, measurements_path=measurements_path, progress=progress)
+        else:
+            from rfir_stages.predict.rcs import run_rcs
+
+            run_rcs(model_path, pred_path, {"cull_rel": 1e-3}, measurements_path=measurements_path, progress=progress)
+        pred = read_artifact(pred_path, "predictions")
+        split = np.asarray(pred["split"]) if pred.get("split") is not None else None   # rf: same row order
+        info["predictions"] = str(pred_path)
+        if geometry_path is None:
+            geometry_path = model_path
+    else:
+        pred = model
+    tx, rx = np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)
+    ptx, prx = np.asarray(pred["tx_pos"], np.float64), np.asarray(pred["rx_pos"], np.float64)
+    order = _match_links(np.concatenate([ptx, prx], 1), np.concatenate([tx, rx], 1))
+    if order is None:
+        raise StageError(f"the model's links differ from the measured ones ({len(ptx)} vs {len(tx)} links, "
+                         "or other positions); predict the measured links", path=model_path)
+    f_meas = np.asarray(meas["freq_hz"], np.float64)
+    f_model = np.asarray(pred["freq_hz"], np.float64)
+    cols = _columns(f_model, f_meas, model_path)
+    mcols = _columns(f_meas[cols], f_model, model_path)
+    pred_db = np.asarray(pred["path_gain_db"], np.float64)[order][:, mcols]
+    meas_db = np.asarray(meas["path_gain_db"], np.float64)[:, cols]
+    if split is None and meas.get("split") is not None:
+        split = np.asarray(meas["split"])
+        info["split"] = "the measurement file's split column"
+    elif split is not None:
+        info["split"] = "the rf fit's split (as predict scores it)"
+    if split is None or not (np.any(split == 1) and np.any(split == 0)):
+        split = (np.random.default_rng(seed).random(len(tx)) < 0.3).astype(int)
+        info["split"] = f"random 70/30 of the links, seed {seed}"
+    n_l, n_f = meas_db.shape
+    rep = lambda a: np.repeat(a, n_f, axis=0)   # noqa: E731  rows are link-major
+    test = rep(split == 1)
+    train = rep(split == 0)
+    aspect = rep(np.asarray(meas["aspect_rad"], np.float64)) if meas.get("aspect_rad") is not None else None
+    rng_m = rep(np.asarray(meas["range_m"], np.float64)) if meas.get("range_m") is not None else None
+    channel = meas.get("channel")
+    channel = np.asarray(channel)[:, cols].reshape(-1) if channel is not None else None
+    pchannel = pred.get("channel") if kind == "measurements" else None
+    pchannel = np.asarray(pchannel)[order][:, mcols].reshape(-1) if pchannel is not None else None
+    good = np.isfinite(pred_db.reshape(-1)) & np.isfinite(meas_db.reshape(-1))
+    crossings = None
+    if geometry_path is not None and task == "rssi":
+        crossings = rep(_crossings(Path(geometry_path), tx, rx))
+        info["geometry"] = str(geometry_path)
+    rows = Rows(pred_db.reshape(-1)[good], meas_db.reshape(-1)[good], train[good], test[good], rep(tx)[good],
+                rep(rx)[good], np.tile(f_meas[cols], n_l)[good], task,
+                None if aspect is None else aspect[good], None if rng_m is None else rng_m[good],
+                None if crossings is None else crossings[good], None if channel is None else channel[good],
+                None if pchannel is None else pchannel[good])
+    info.update(num_rows=rows.num, num_train=int(rows.train.sum()), num_test=int(rows.test.sum()),
+                num_links=int(n_l), num_freqs=int(n_f))
+    if rows.test.sum() < 10 or rows.train.sum() < 10:
+        raise StageError(f"too few rows to diagnose ({int(rows.train.sum())} train, {int(rows.test.sum())} test)",
+                         path=measurements_path)
+    return rows, info
+
+
+def _crossings(geometry_path: Path, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
+    return crossings_from_artifact(read_artifact(geometry_path, ("scene", "rf")), tx, rx)
+
+
+def crossings_from_artifact(art, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
+    """Objects crossed by each Tx-Rx segment [L] (Gaussians of a scene or rf artifact, labels if any)."""
+    from rfir_stages.predict.rssi_baselines import crossing_counts
+    from rfir_stages.rf_fit.links import geometry_from_artifact
+    from rfir_stages.rf_fit.occlusion import make_provider
+
+    geom = geometry_from_artifact(art)
+    provider = make_provider("auto", geom)
+    names = art.attrs.get("label_names")
+    counts, _ = crossing_counts(provider, art.get("gaussians/labels"), None if names is None else list(names), tx, rx)
+    return counts.sum(1)

@@ -1,0 +1,177 @@
+"""`rfir diagnose MODEL measurements.h5 -o report/`: where the model and the data disagree, which
+missing effect explains it, the effect added and refitted, the gap before and after (docs/diagnose.md).
+
+Steps: (1) where: breakdowns of the residual with held-out structure tests (breakdown.py);
+(2)-(3) what and which: every candidate of the catalogue (effects.py) fitted on the training rows
+and scored on the held-out rows (select.py); (4) the named effect is added to the model, all named
+effects are refitted together, and the search repeats until no candidate is significant;
+(5) report.md, results.json, effects.json and the plots; for an rf MODEL also model_with_effects.h5,
+the rf artifact with the effects recorded (free group `effects`), which `rfir predict` applies.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.errors import ConfigError
+from rfir_cli.progress import NullProgress
+
+from .breakdown import analyse, plot
+from .data import load_rows
+from .effects import BY_NAME
+from .select import chain_to_json, choose, compose, evaluate, refit_chain
+
+
+@dataclass
+class DiagnoseResult:
+    out_dir: Path
+    steps: list = field(default_factory=list)     # one dict per step (gap before/after, named effect)
+    named: list = field(default_factory=list)     # [{"effect", "params", "confidence"}]
+    mae_before_db: float = float("nan")
+    mae_after_db: float = float("nan")
+    files: list = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+def _mae(rows, pred, mask) -> float:
+    return float(np.mean(np.abs(rows.meas_db[mask] - pred[mask])))
+
+
+def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effects: int = 4, seed: int = 0,
+        config_toml: str = "", progress=None) -> DiagnoseResult:
+    """Diagnose MODEL against the measurements into out_dir (module docstring)."""
+    progress = progress or NullProgress()
+    t0 = time.time()
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"-o {out}: exists and is not a folder")
+    for p in (model_path, measurements_path):
+        if Path(p).resolve() == out.resolve():
+            raise ConfigError(f"-o {out}: would overwrite an input")
+    out.mkdir(parents=True, exist_ok=True)
+    rows, info = load_rows(model_path, measurements_path, out, geometry_path=geometry_path, seed=seed,
+                           progress=progress)
+    res = DiagnoseResult(out)
+    chain = []
+    current = rows.pred_db.copy()
+    where0 = analyse(rows, current, seed)
+    res.files.append(plot(out / "residual_before.png", rows, rows.meas_db - current, where0,
+                          f"residual measured - predicted, before: held-out MAE {_mae(rows, current, rows.test):.2f} dB"))
+    res.mae_before_db = _mae(rows, current, rows.test)
+    with progress.task("diagnose", total=max_effects) as bar:
+        for step in range(max_effects):
+            cands = evaluate(rows, current, exclude={e.name for e, _ in chain})
+            best, conf = choose(cands, seed)
+            record = {"step": step + 1, "test_mae_before_db": _mae(rows, current, rows.test),
+                      "train_mae_before_db": _mae(rows, current, rows.train),
+                      "candidates": [_cand_json(c) for c in cands], "named": None}
+            if best is None:
+                res.steps.append(record)
+                break
+            chain = refit_chain(chain + [(BY_NAME[best.name], best.x)], rows)
+            current = compose(chain, rows)
+            record.update(named=best.name, confidence=conf, params=dict(zip(best.params, chain[-1][1].tolist())),
+                          test_mae_after_db=_mae(rows, current, rows.test),
+                          train_mae_after_db=_mae(rows, current, rows.train))
+            res.steps.append(record)
+            res.named.append({"effect": best.name, "title": best.title, "confidence": conf})
+            bar.advance(1)
+    for item, (eff, x) in zip(res.named, chain):
+        item["params"] = eff.describe(x)
+    res.mae_after_db = _mae(rows, current, rows.test)
+    where1 = analyse(rows, current, seed)
+    if chain:
+        res.files.append(plot(out / "residual_after.png", rows, rows.meas_db - current, where1,
+                              f"residual after adding {', '.join(n['effect'] for n in res.named)}: "
+                              f"held-out MAE {res.mae_after_db:.2f} dB"))
+    effects_json = chain_to_json(chain)
+    (out / "effects.json").write_text(json.dumps(effects_json, indent=2) + "\n")
+    res.files.append(out / "effects.json")
+    if info["model_kind"] == "rf" and chain:
+        res.files.append(_write_model(Path(model_path), out / "model_with_effects.h5", effects_json, config_toml))
+    res.wall_s = time.time() - t0
+    results = {"info": info, "mae_before_db": res.mae_before_db, "mae_after_db": res.mae_after_db,
+               "gap_shrink": 1 - res.mae_after_db / res.mae_before_db if res.mae_before_db > 0 else 0.0,
+               "named": res.named, "steps": res.steps,
+               "where_before": [_where_json(b) for b in where0], "where_after": [_where_json(b) for b in where1],
+               "wall_s": res.wall_s}
+    (out / "results.json").write_text(json.dumps(results, indent=2, default=float) + "\n")
+    (out / "report.md").write_text(_report_md(results))
+    res.files += [out / "results.json", out / "report.md"]
+    return res
+
+
+def _cand_json(c) -> dict:
+    d = {"effect": c.name, "applies": c.applies}
+    if not c.applies:
+        d["reason"] = c.reason
+        return d
+    d.update(params=c.params, num_params=c.num_params, note=c.reason, test_mae_db=c.test_mae_db, gain_db=c.gain_db,
+             t_stat=c.t_stat, score=c.score, significant=c.significant)
+    return d
+
+
+def _where_json(b) -> dict:
+    return {"feature": b.feature, "r2_heldout": b.r2_heldout, "p_value": b.p_value, "structure": b.structure,
+            "worst_bin": b.worst_bin, "worst_mae_db": b.worst_mae_db}
+
+
+def _write_model(rf_path: Path, out_path: Path, effects_json: list, config_toml: str) -> Path:
+    """The rf artifact with the effects chain in free group `effects` (predict applies it)."""
+    from rfir_cli.artifacts import read_artifact, write_artifact
+    from rfir_cli.provenance import Provenance
+
+    rf = read_artifact(rf_path, "rf")
+    free = {}
+    for key, val in rf.free.items():
+        if key.endswith("@attrs"):
+            continue
+        free[key] = dict(val)
+        if rf.free.get(key + "@attrs"):
+            free[key]["@attrs"] = rf.free[key + "@attrs"]
+    free["effects"] = {"@attrs": {"chain_json": json.dumps(effects_json),
+                                  "doc": "stages/diagnose/effects.py; applied in order to predicted path gain"}}
+    prov = Provenance(stage="diagnose", config_toml=config_toml)
+    prov.add_input(rf_path)
+    prov.extra = {"upstream": rf.provenance.stage, "effects": effects_json}
+    write_artifact(out_path, "rf", dict(rf.data), attrs=dict(rf.attrs), provenance=prov, free=free)
+    return out_path
+
+
+def _report_md(r: dict) -> str:
+    info = r["info"]
+    lines = [f"# Diagnosis of {info['model']}", "",
+             f"Measurements: `{info['measurements']}` ({info['task']}, {info['num_links']} links x {info['num_freqs']} "
+             f"frequencies; {info['num_train']} train / {info['num_test']} held-out rows, {info['split']}).", "",
+             "## Gap", "", "| step | named effect | confidence | held-out MAE before | after | parameters |",
+             "|---|---|---|---|---|---|"]
+    for s in r["steps"]:
+        if s["named"] is None:
+            lines.append(f"| {s['step']} | no significant missing effect | | {s['test_mae_before_db']:.2f} dB | | |")
+        else:
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in s["params"].items())
+            lines.append(f"| {s['step']} | **{s['named']}** | {s['confidence']:.0%} | {s['test_mae_before_db']:.2f} dB | "
+                         f"{s['test_mae_after_db']:.2f} dB | {params} |")
+    lines += ["", f"Held-out MAE {r['mae_before_db']:.2f} -> {r['mae_after_db']:.2f} dB "
+              f"(gap shrunk by {100 * r['gap_shrink']:.0f} %).", "", "## Where (before)", "",
+              "| breakdown | held-out R2 | permutation p | structure | worst bin (MAE) |", "|---|---|---|---|---|"]
+    for w in r["where_before"]:
+        lines.append(f"| {w['feature']} | {w['r2_heldout']:.3f} | {w['p_value']:.3f} | {'yes' if w['structure'] else 'no'} "
+                     f"| {w['worst_bin']} ({w['worst_mae_db']:.2f} dB) |")
+    lines += ["", "![before](residual_before.png)", ""]
+    if r["named"]:
+        lines += ["![after](residual_after.png)", ""]
+    lines += ["## Candidates at step 1", "", "| effect | applies | held-out gain | t | significant | parameters |",
+              "|---|---|---|---|---|---|"]
+    for c in r["steps"][0]["candidates"]:
+        if not c["applies"]:
+            lines.append(f"| {c['effect']} | no: {c['reason']} | | | | |")
+        else:
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in c["params"].items())
+            lines.append(f"| {c['effect']} | yes | {c['gain_db']:.3f} dB | {c['t_stat']:.1f} | "
+                         f"{'yes' if c['significant'] else 'no'} | {params} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,166 @@
+"""Validate an edit against the independent simulator (issue 9).
+
+Given a fit of the unedited scene (rf.h5), the measurements of the unedited scene and the
+measurements the simulator made of the edited scene (`rfir simulate ... --scene-edit ...`, same links),
+apply the same edit with `rfir edit` and compare:
+
+- unedited MAE: the fit against the unedited scene, on the fit's test rows;
+- edited MAE: the edited fit against the edited scene, on the same rows (target: <= 1.5x unedited);
+- "not edited" MAE: the unedited fit against the edited scene (what ignoring the edit would cost);
+- the correlation (Pearson) over all links between the change rfir predicts (edited fit - fit) and
+  the change the simulator shows (edited scene - scene), in dB.
+
+    python -m rfir_stages.edit.validate RF BEFORE.h5 AFTER.h5 --select S --op O [...] --name NAME
+        [--results results/NAME.json] [--plots DIR] [--work DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rfir_cli.artifacts import read_artifact
+
+
+def _predict_rcs(rf_path: Path, meas_path: Path, out: Path):
+    """(predicted [L], measured [L], test mask [L]): RCS in dBsm at the first fitted frequency."""
+    from rfir_stages.predict.rcs import run_rcs
+
+    run_rcs(rf_path, out, {"cull_rel": 1e-3}, measurements_path=meas_path)
+    p = read_artifact(out, "predictions")
+    return (np.asarray(p["rcs_dbsm"], np.float64)[:, 0], np.asarray(p["measured_db"], np.float64)[:, 0],
+            np.asarray(p["split"]) == 1)
+
+
+def _predict_rssi(rf_path: Path, meas_path: Path, out: Path):
+    """(predicted [L], measured [L], test mask [L]): path gain in dB."""
+    from rfir_stages.predict.rssi import run_rssi
+
+    run_rssi(rf_path, out, {}, measurements_path=meas_path)
+    p = read_artifact(out, "predictions")
+    return (np.asarray(p["path_gain_db"], np.float64)[:, 0], np.asarray(p["measured_db"], np.float64)[:, 0],
+            np.asarray(p["split"]) == 1)
+
+
+def change_metrics(pred_before, pred_after, meas_before, meas_after, test) -> dict:
+    """The validation figures (module docstring) from per-link dB arrays [L] and a test mask [L]."""
+    d_pred, d_meas = pred_after - pred_before, meas_after - meas_before
+    big = np.abs(d_meas) > 1.0
+    out = {
+        "unedited_mae_db": float(np.mean(np.abs(pred_before - meas_before)[test])),
+        "edited_mae_db": float(np.mean(np.abs(pred_after - meas_after)[test])),
+        "not_edited_mae_db": float(np.mean(np.abs(pred_before - meas_after)[test])),
+        "unedited_mae_all_db": float(np.mean(np.abs(pred_before - meas_before))),
+        "edited_mae_all_db": float(np.mean(np.abs(pred_after - meas_after))),
+        "num_test": int(test.sum()), "num_links": int(len(test)),
+        "simulated_change_mean_abs_db": float(np.mean(np.abs(d_meas))),
+        "predicted_change_mean_abs_db": float(np.mean(np.abs(d_pred))),
+        "links_changed_over_1db": int(big.sum()),
+    }
+    out["mae_ratio"] = out["edited_mae_db"] / out["unedited_mae_db"]
+    out["change_correlation"] = _pearson(d_pred, d_meas)
+    out["change_correlation_over_1db"] = _pearson(d_pred[big], d_meas[big]) if big.sum() > 2 else float("nan")
+    return out
+
+
+def _pearson(a: np.ndarray, b: np.ndarray) -> float:
+    if a.std() == 0 or b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(a, b)[0, 1])
+
+
+def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.2, 5))
+    ax.scatter(d_meas, d_pred, s=4, alpha=0.4, lw=0)
+    lim = float(max(1.0, np.abs(d_meas).max(), np.abs(d_pred).max()))
+    ax.plot([-lim, lim], [-lim, lim], color="0.5", lw=0.8)
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_aspect("equal")
+    ax.set_xlabel("simulated change [dB] (Sionna, edited - unedited scene)")
+    ax.set_ylabel("predicted change [dB] (rfir, edited - unedited fit)")
+    ax.grid(alpha=0.3)
+    ax.set_title(f"{name}: r = {m['change_correlation']:.2f}; MAE {m['unedited_mae_db']:.2f} -> "
+                 f"{m['edited_mae_db']:.2f} dB", fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def validate(rf_path, before_path, after_path, selects: list[str], ops: list[str], name: str, work_dir,
+             results_path=None, plots_dir=None) -> dict:
+    """Run the validation; return the metrics dict (also written to results_path as JSON)."""
+    from rfir_stages.edit import run as run_edit
+    from rfir_stages.edit.script import edits_from_options
+
+    t0 = time.time()
+    work = Path(work_dir)
+    work.mkdir(parents=True, exist_ok=True)
+    rf = read_artifact(rf_path, "rf")
+    task = "rssi" if str(rf.attrs.get("task", "")) == "rssi" else "rcs"
+    edited = work / f"{name}_rf.h5"
+    plot = Path(plots_dir) / f"{name}_edit.png" if plots_dir is not None else None
+    map_tx = None
+    if task == "rssi":
+        tx = np.asarray(read_artifact(after_path, "measurements")["tx_pos"])
+        map_tx = np.unique(tx, axis=0)[0]
+    res = run_edit(rf_path, edited, edits_from_options(selects, ops, False), plot_path=plot, map_tx=map_tx)
+    _check_same_links(before_path, after_path)
+    predict = _predict_rssi if task == "rssi" else _predict_rcs
+    pb, mb, test = predict(Path(rf_path), Path(before_path), work / f"{name}_pred_before.h5")
+    pa, ma, test_a = predict(edited, Path(after_path), work / f"{name}_pred_after.h5")
+    if not np.array_equal(test, test_a):
+        raise ValueError("the test rows of the two predictions differ")
+    metrics = change_metrics(pb, pa, mb, ma, test)
+    out = {"name": name, "task": task, "rf": str(rf_path), "measurements_unedited": str(before_path),
+           "measurements_edited": str(after_path),
+           "scene_edits": str(read_artifact(after_path, "measurements").free.get("simulator@attrs", {})
+                              .get("scene_edits", "")),
+           "rfir_edits": [f"--select {s} --op {o}" for s, o in zip(selects, ops)],
+           "gaussians_selected": [int(r["selected"]) for r in res.records],
+           "target": "edited MAE <= 1.5 x unedited MAE; report the change correlation",
+           "meets_target": bool(metrics["mae_ratio"] <= 1.5), **metrics, "wall_s": time.time() - t0}
+    if plots_dir is not None:
+        out["plots"] = [str(_plot(Path(plots_dir) / f"{name}_change.png", name, pa - pb, ma - mb, metrics))]
+        out["plots"] += [str(p) for p in (res.plot, res.radio_plot) if p is not None]
+    if results_path is not None:
+        Path(results_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(results_path).write_text(json.dumps(out, indent=2) + "\n")
+    return out
+
+
+def _check_same_links(before_path, after_path) -> None:
+    b, a = read_artifact(before_path, "measurements"), read_artifact(after_path, "measurements")
+    for key in ("tx_pos", "rx_pos"):
+        if np.asarray(b[key]).shape != np.asarray(a[key]).shape or not np.allclose(b[key], a[key]):
+            raise ValueError(f"{after_path}: its {key} differ from {before_path}; simulate both with the same settings")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("rf")
+    ap.add_argument("before")
+    ap.add_argument("after")
+    ap.add_argument("--select", action="append", required=True)
+    ap.add_argument("--op", action="append", required=True)
+    ap.add_argument("--name", required=True)
+    ap.add_argument("--results")
+    ap.add_argument("--plots")
+    ap.add_argument("--work", default="runs/edit_validation")
+    a = ap.parse_args(argv)
+    out = validate(a.rf, a.before, a.after, a.select, a.op, a.name, a.work, a.results, a.plots)
+    print(json.dumps({k: v for k, v in out.items() if not isinstance(v, list)}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
