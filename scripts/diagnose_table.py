@@ -7,18 +7,26 @@ from pathlib import Path
 
 from rfir_stages.diagnose import run
 
-CASES = [  # (model, measurements, truth)
+CASES = [  # (model, measurements, truth); the first block is the quick (physical-optics) set
+    ("lego_po_clean", "lego_po_gain", "gain_offset"),
+    ("lego_po_clean", "lego_po_turntable", "turntable_offset"),
+    ("lego_po_clean", "lego_po_leakage", "leakage"),
+    ("htarget_clean", "htarget_ripple", "ripple"),
+    ("lego_po_clean", "lego_po_noisy", None),
     ("room_clean", "room_gain", "gain_offset"),
     ("room_clean", "room_noise_floor", "noise_floor"),
+    ("room_clean", "room_saturation", "saturation"),
     ("room_out_no_transmission", "room_out_clean", "wall_transmission"),
     ("room_specular_only", "room_clean", "diffuse_lobe"),
+    ("room_depth1", "room_clean", "double_bounce"),
     ("lego_clean", "lego_turntable", "turntable_offset"),
     ("lego_clean", "lego_leakage", "leakage"),
     ("lego_specular_only", "lego_clean", "diffuse_lobe"),
     ("lego_clean", "lego_gain", "gain_offset"),
-    ("htarget_clean", "htarget_ripple", "ripple"),
     ("room_clean", "room_other_seed", None),
+    ("room_clean", "room_noisy", None),
     ("lego_clean", "lego_other_seed", None),
+    ("lego_clean", "lego_noisy", None),
 ]
 
 

@@ -249,9 +249,18 @@ class Ripple(Effect):
 
 
 def coherent_mean_db(rows: Rows, mask: np.ndarray) -> float:
-    """Power of the coherent mean of the measured channel over the rows in mask, per frequency,
-    averaged [dB]. An echo whose phase turns with the aspect averages out; a constant coupling does not."""
-    levels = [abs(np.mean(rows.meas_channel[mask & (rows.freq_hz == f)])) ** 2 for f in np.unique(rows.freq_hz[mask])]
+    """Power of the coherent centre of the measured channel over the rows in mask, per frequency,
+    averaged [dB]. An echo whose phase turns with the aspect averages out; a constant coupling does not.
+    The centre is the median of the real and of the imaginary parts: a few strong glints move a mean
+    as much as a weak coupling does, but not a median. When the model gives phase, the centre of the
+    measured minus the predicted channel (the echo need not average out then)."""
+    levels = []
+    meas = rows.meas_channel
+    if rows.pred_channel is not None:   # the model gives phase: what it does not explain
+        meas = meas - rows.pred_channel
+    for f in np.unique(rows.freq_hz[mask]):
+        h = meas[mask & (rows.freq_hz == f)]
+        levels.append(np.median(h.real) ** 2 + np.median(h.imag) ** 2)
     return float(_db(np.mean(levels)))
 
 

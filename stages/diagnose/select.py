@@ -4,7 +4,8 @@ held-out rows with a penalty for its parameters, name the best or none; add it a
 Held-out gain of a candidate: per test row u_i = |r_i| - |r_i - c_i| (r: residual of the current
 model, c: the candidate's correction); gain = mean u. A candidate is significant when
 - its t statistic mean(u) / (std(u) / sqrt(n)) exceeds T_MIN (noise would not give it), and
-- it removes at least MIN_REL of the current held-out MAE (a real, not a cosmetic, improvement).
+- it removes at least MIN_REL of the current held-out MAE, and at least MIN_GAIN_DB (a real, not a
+  cosmetic, improvement).
 Among the significant ones the best score = gain - PARAM_PENALTY * MAE * (number of parameters)
 is named. Confidence: the share of bootstrap resamples of the test rows in which the named effect
 still has the best score and a positive gain.
@@ -22,6 +23,8 @@ T_MIN = 3.0
 MIN_REL = 0.05
 PARAM_PENALTY = 0.01
 BOOTSTRAP = 300
+MIN_CONFIDENCE = 0.5
+MIN_GAIN_DB = 0.05   # below any real measurement's noise: a gain this small is no effect
 
 
 @dataclass
@@ -86,7 +89,7 @@ def evaluate(rows: Rows, base_db: np.ndarray, exclude=()) -> list[Candidate]:
         cand.gain_db = float(np.mean(u))
         cand.t_stat = cand.gain_db / se if se > 0 else (float("inf") if cand.gain_db > 0 else 0.0)
         cand.score = cand.gain_db - PARAM_PENALTY * mae0 * cand.num_params
-        cand.significant = bool(cand.t_stat > T_MIN and cand.gain_db >= MIN_REL * mae0)
+        cand.significant = bool(cand.t_stat > T_MIN and cand.gain_db >= max(MIN_REL * mae0, MIN_GAIN_DB))
         ok, why = eff.consistent(x, rows, train)
         if not ok:
             cand.significant, cand.reason = False, why
@@ -95,7 +98,8 @@ def evaluate(rows: Rows, base_db: np.ndarray, exclude=()) -> list[Candidate]:
 
 
 def choose(cands: list[Candidate], seed: int = 0) -> tuple[Candidate | None, float]:
-    """The named candidate (None: no significant missing effect) and its bootstrap confidence."""
+    """The best significant candidate (None: no significant missing effect) and its bootstrap confidence;
+    the caller names it only when the confidence reaches MIN_CONFIDENCE."""
     sig = [c for c in cands if c.applies and c.significant]
     if not sig:
         return None, 0.0
@@ -110,6 +114,12 @@ def choose(cands: list[Candidate], seed: int = 0) -> tuple[Candidate | None, flo
         top = max(gains, key=gains.get)
         wins += top == best.name and gains[best.name] > 0
     return best, wins / BOOTSTRAP
+
+
+def rivals(cands: list[Candidate], best: Candidate, share: float = 0.8) -> list[str]:
+    """Consistent candidates whose held-out gain reaches `share` of the best one's (the ambiguity)."""
+    return [c.name for c in cands if c.applies and c.u is not None and not c.reason and c.name != best.name
+            and c.gain_db >= share * best.gain_db]
 
 
 def chain_to_json(chain) -> list[dict]:

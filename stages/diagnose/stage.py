@@ -23,7 +23,7 @@ from rfir_cli.progress import NullProgress
 from .breakdown import analyse, plot
 from .data import load_rows
 from .effects import BY_NAME
-from .select import chain_to_json, choose, compose, evaluate, refit_chain
+from .select import MIN_CONFIDENCE, chain_to_json, choose, compose, evaluate, refit_chain, rivals
 
 
 @dataclass
@@ -31,6 +31,7 @@ class DiagnoseResult:
     out_dir: Path
     steps: list = field(default_factory=list)     # one dict per step (gap before/after, named effect)
     named: list = field(default_factory=list)     # [{"effect", "params", "confidence"}]
+    ambiguous: list = field(default_factory=list)  # significant but no clear winner: the candidates
     mae_before_db: float = float("nan")
     mae_after_db: float = float("nan")
     files: list = field(default_factory=list)
@@ -69,6 +70,11 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
             record = {"step": step + 1, "test_mae_before_db": _mae(rows, current, rows.test),
                       "train_mae_before_db": _mae(rows, current, rows.train),
                       "candidates": [_cand_json(c) for c in cands], "named": None}
+            if best is not None and conf < MIN_CONFIDENCE:
+                record["ambiguous"] = [best.name] + rivals(cands, best)
+                record["confidence"] = conf
+                res.ambiguous = record["ambiguous"]
+                best = None
             if best is None:
                 res.steps.append(record)
                 break
@@ -96,7 +102,7 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     res.wall_s = time.time() - t0
     results = {"info": info, "mae_before_db": res.mae_before_db, "mae_after_db": res.mae_after_db,
                "gap_shrink": 1 - res.mae_after_db / res.mae_before_db if res.mae_before_db > 0 else 0.0,
-               "named": res.named, "steps": res.steps,
+               "named": res.named, "ambiguous": res.ambiguous, "steps": res.steps,
                "where_before": [_where_json(b) for b in where0], "where_after": [_where_json(b) for b in where1],
                "wall_s": res.wall_s}
     (out / "results.json").write_text(json.dumps(results, indent=2, default=float) + "\n")
@@ -150,7 +156,10 @@ def _report_md(r: dict) -> str:
              "## Gap", "", "| step | named effect | confidence | held-out MAE before | after | parameters |",
              "|---|---|---|---|---|---|"]
     for s in r["steps"]:
-        if s["named"] is None:
+        if s["named"] is None and s.get("ambiguous"):
+            lines.append(f"| {s['step']} | ambiguous: {' / '.join(s['ambiguous'])} (best {s['confidence']:.0%}) | | "
+                         f"{s['test_mae_before_db']:.2f} dB | | |")
+        elif s["named"] is None:
             lines.append(f"| {s['step']} | no significant missing effect | | {s['test_mae_before_db']:.2f} dB | | |")
         else:
             params = ", ".join(f"{k} = {v:.4g}" for k, v in s["params"].items())

@@ -118,10 +118,10 @@ def test_an_rf_model_gets_the_effect_and_predict_applies_it(tmp_path):
     res = json.loads((tmp_path / "rep" / "results.json").read_text())
     assert res["named"][0]["effect"] == "gain_offset"
     fixed = tmp_path / "rep" / "model_with_effects.h5"
-    assert _invoke(["predict", "rcs", fixed, "--measurements", tmp_path / "hot.h5", "-o", tmp_path / "p1.h5"],
-                   fast).exit_code == 0
-    assert _invoke(["predict", "rcs", tmp_path / "rf.h5", "--measurements", tmp_path / "hot.h5", "-o",
-                    tmp_path / "p0.h5"], fast).exit_code == 0
+    for rf, name in ((fixed, "p1"), (tmp_path / "rf.h5", "p0")):
+        r = _invoke(["predict", "rcs", rf, "--measurements", tmp_path / "hot.h5", "-o", tmp_path / f"{name}.h5",
+                     "--results", tmp_path / f"{name}.json"], fast)
+        assert r.exit_code == 0, r.output
     err = lambda p: np.mean(np.abs(np.asarray(read_artifact(p, "predictions")["path_gain_db"])  # noqa: E731
                                    - np.asarray(data["path_gain_db"])))
     assert err(tmp_path / "p1.h5") < err(tmp_path / "p0.h5") - 4.0
