@@ -64,6 +64,10 @@ def features(rows: Rows) -> dict[str, tuple[np.ndarray, list]]:
         cid = np.unique(cell, axis=0, return_inverse=True)[1].reshape(-1)
         if cid.max() + 1 >= 2:
             out["receiver cell (1 m)"] = (cid, [f"cell {i}" for i in range(cid.max() + 1)])
+    if rows.incidence_deg is not None and np.isfinite(rows.incidence_deg).sum() > 0.5 * rows.num:
+        inc = np.nan_to_num(rows.incidence_deg, nan=90.0)   # rays that hit nothing: grazing bin
+        idx = np.minimum((inc // 10).astype(int), 8)
+        out["incidence angle"] = (idx, [f"{10 * i}-{10 * i + 10} deg" for i in range(9)])
     if rows.crossings is not None:
         out["LoS / NLoS"] = ((rows.crossings > 0).astype(int), ["LoS", "NLoS"])
     return out

@@ -102,14 +102,20 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     pchannel = np.asarray(pchannel)[order][:, mcols].reshape(-1) if pchannel is not None else None
     good = np.isfinite(pred_db.reshape(-1)) & np.isfinite(meas_db.reshape(-1))
     crossings = None
+    incidence = None
     if geometry_path is not None and task == "rssi":
         crossings = rep(_crossings(Path(geometry_path), tx, rx))
+        info["geometry"] = str(geometry_path)
+    elif geometry_path is not None:
+        incidence = rep(incidence_deg(read_artifact(geometry_path, ("scene", "rf")), tx))
         info["geometry"] = str(geometry_path)
     rows = Rows(pred_db.reshape(-1)[good], meas_db.reshape(-1)[good], train[good], test[good], rep(tx)[good],
                 rep(rx)[good], np.tile(f_meas[cols], n_l)[good], task,
                 None if aspect is None else aspect[good], None if rng_m is None else rng_m[good],
                 None if crossings is None else crossings[good], None if channel is None else channel[good],
                 None if pchannel is None else pchannel[good])
+    if incidence is not None:
+        rows.incidence_deg = incidence[good]
     info.update(num_rows=rows.num, num_train=int(rows.train.sum()), num_test=int(rows.test.sum()),
                 num_links=int(n_l), num_freqs=int(n_f))
     if rows.test.sum() < 10 or rows.train.sum() < 10:
@@ -120,6 +126,31 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
 
 def _crossings(geometry_path: Path, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
     return crossings_from_artifact(read_artifact(geometry_path, ("scene", "rf")), tx, rx)
+
+
+def incidence_deg(art, radar_m: np.ndarray, min_response: float = 0.3) -> np.ndarray:
+    """Incidence angle [deg, L] on the dominant surface of a monostatic radar: the first Gaussian
+    (response >= min_response) on the ray from each radar position toward the centre of the
+    Gaussians, angle between its normal and the ray back to the radar; nan where the ray hits nothing."""
+    import torch
+
+    from rfir_stages.rf_fit.links import geometry_from_artifact
+    from rfir_stages.rf_fit.occlusion import make_provider
+
+    geom = geometry_from_artifact(art)
+    centre = geom.means.mean(0)
+    origins = torch.as_tensor(radar_m, dtype=torch.float64)
+    dirs = centre[None] - origins
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    hits = make_provider("auto", geom).ray_hits(origins.contiguous(), dirs.contiguous())
+    strong = hits.select(hits.response >= min_response)
+    out = np.full(len(radar_m), np.nan)
+    q = strong.query.numpy()
+    first = np.unique(q, return_index=True)[1]          # hits are sorted front to back per query
+    for i in first:
+        n = geom.normals[strong.gaussian[i]]
+        out[q[i]] = float(np.degrees(np.arccos(min(1.0, abs(float((n * dirs[q[i]]).sum()))))))
+    return out
 
 
 def crossings_from_artifact(art, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:

@@ -40,6 +40,7 @@ class Rows:
         if self.monostatic and self.range_m is not None:
             self.dist_m = np.asarray(self.range_m, np.float64)
         self.wavelength_m = C0 / self.freq_hz
+        self.incidence_deg = None   # [N] on the dominant surface (monostatic rows with geometry), set by data.py
         if self.aspect_rad is not None:
             key = np.stack([np.round(self.range_m if self.range_m is not None else 0 * self.freq_hz, 4),
                             np.round(self.freq_hz)], 1)

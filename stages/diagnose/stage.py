@@ -63,6 +63,7 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     res.files.append(plot(out / "residual_before.png", rows, rows.meas_db - current, where0,
                           f"residual measured - predicted, before: held-out MAE {_mae(rows, current, rows.test):.2f} dB"))
     res.mae_before_db = _mae(rows, current, rows.test)
+    ratio = _complex_ratio(rows)
     with progress.task("diagnose", total=max_effects) as bar:
         for step in range(max_effects):
             cands = evaluate(rows, current, exclude={e.name for e, _ in chain})
@@ -102,13 +103,31 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     res.wall_s = time.time() - t0
     results = {"info": info, "mae_before_db": res.mae_before_db, "mae_after_db": res.mae_after_db,
                "gap_shrink": 1 - res.mae_after_db / res.mae_before_db if res.mae_before_db > 0 else 0.0,
-               "named": res.named, "ambiguous": res.ambiguous, "steps": res.steps,
+               "named": res.named, "ambiguous": res.ambiguous, "steps": res.steps, "complex_ratio": ratio,
                "where_before": [_where_json(b) for b in where0], "where_after": [_where_json(b) for b in where1],
                "wall_s": res.wall_s}
     (out / "results.json").write_text(json.dumps(results, indent=2, default=float) + "\n")
     (out / "report.md").write_text(_report_md(results))
     res.files += [out / "results.json", out / "report.md"]
     return res
+
+
+def _complex_ratio(rows) -> dict | None:
+    """Measured / predicted complex channel where both give phase: magnitude [dB] and phase [deg]
+    (median, and the circular spread of the phase), per aspect bin of 10 deg for turntable data."""
+    if rows.meas_channel is None or rows.pred_channel is None:
+        return None
+    ok = np.abs(rows.pred_channel) > 0
+    ratio = rows.meas_channel[ok] / rows.pred_channel[ok]
+    phase = np.angle(ratio)
+    out = {"median_magnitude_db": float(np.median(20 * np.log10(np.maximum(np.abs(ratio), 1e-30)))),
+           "median_phase_deg": float(np.degrees(np.angle(np.mean(np.exp(1j * phase))))),
+           "phase_spread_deg": float(np.degrees(np.sqrt(-2 * np.log(max(abs(np.mean(np.exp(1j * phase))), 1e-12)))))}
+    if rows.aspect_rad is not None:
+        b = (np.degrees(np.mod(rows.aspect_rad[ok], 2 * np.pi)) // 10).astype(int)
+        out["phase_deg_per_10deg_aspect"] = [float(np.degrees(np.angle(np.mean(np.exp(1j * phase[b == i])))))
+                                            if np.any(b == i) else None for i in range(36)]
+    return out
 
 
 def _cand_json(c) -> dict:
@@ -171,6 +190,10 @@ def _report_md(r: dict) -> str:
     for w in r["where_before"]:
         lines.append(f"| {w['feature']} | {w['r2_heldout']:.3f} | {w['p_value']:.3f} | {'yes' if w['structure'] else 'no'} "
                      f"| {w['worst_bin']} ({w['worst_mae_db']:.2f} dB) |")
+    if r.get("complex_ratio"):
+        c = r["complex_ratio"]
+        lines += ["", f"Complex ratio measured / predicted (both give phase): median {c['median_magnitude_db']:.2f} dB, "
+                  f"phase {c['median_phase_deg']:.1f} deg (circular spread {c['phase_spread_deg']:.1f} deg)."]
     lines += ["", "![before](residual_before.png)", ""]
     if r["named"]:
         lines += ["![after](residual_after.png)", ""]

@@ -112,3 +112,16 @@ def test_effects_that_cannot_show_say_why():
     assert "noise_floor" in why and "antenna_pattern" in why and "ripple" in why
     assert all(why.values())
     assert len(CATALOGUE) >= 12 and math.isfinite(len(why))
+
+
+def test_incidence_on_the_dominant_surface_of_a_plate():
+    from rfir_stages.diagnose.data import incidence_deg
+    from rfir_stages.geom import gaussians_from_mesh
+    from rfir_stages.simulate.scenes import box
+
+    v, f = box((-0.01, -0.3, -0.3), (0.01, 0.3, 0.3))       # a thin plate facing +-x
+    fields = gaussians_from_mesh(v, f, 0.03)
+    ang = np.radians([0.0, 30.0, 60.0, 180.0])
+    radar = np.stack([3 * np.cos(ang), 3 * np.sin(ang), np.zeros_like(ang)], 1)
+    got = incidence_deg(fields, radar)
+    assert np.allclose(got, [0.0, 30.0, 60.0, 0.0], atol=2.0), got
