@@ -8,7 +8,9 @@ Metrics (PHYSICS.md "Metrics"):
   resolution a pixel next to an edge mixes two faces even for a perfect reconstruction;
 - depth error (m): median |rendered - true| distance along the pixel rays, same pixels;
 - Chamfer distance (m) between the fused surface mesh and the ground-truth mesh:
-  0.5 (mean_a min_b |a - b| + mean_b min_a |a - b|) over points sampled by area on both;
+  0.5 (mean_a min_b |a - b| + mean_b min_a |a - b|) over points sampled by area on both; also
+  against the visible part of the truth only (points some view sees), since faces no camera sees
+  (undersides, faces between stacked parts) cannot come from photos;
 - per-Gaussian normal error: angle between each opaque Gaussian's normal and the normal of the
   nearest ground-truth triangle, ignoring the sign (Gaussians are two-sided surfels); and the
   fraction whose normal points to the same side as that triangle's (winding) normal.
@@ -160,7 +162,42 @@ def gt_mesh_metrics(gt_mesh_path: Path, views: list[View], maps: list[ViewMaps],
         b = sample_surface(gt.vertices, gt.faces, num_points, rng)
         acc, comp = chamfer_parts(a, b)
         out.update({"chamfer_m": 0.5 * (acc + comp), "mesh_accuracy_m": acc, "mesh_completeness_m": comp})
+        seen = visible_points(scene, b, views)
+        if seen.sum() > 100:   # the part of the truth a camera sees: what photos can reconstruct
+            acc_v, comp_v = chamfer_parts(a, b[seen])
+            out.update({"chamfer_visible_m": 0.5 * (acc_v + comp_v), "mesh_completeness_visible_m": comp_v,
+                        "gt_visible_fraction": float(seen.mean())})
+        lo, hi = gt.vertices.min(0), gt.vertices.max(0)
+        out["gt_extent_m"] = float(np.linalg.norm(hi - lo))
     return out
+
+
+def visible_points(scene, points: np.ndarray, views: list[View], tol_rel: float = 1e-3) -> np.ndarray:
+    """[N] bool: points on the mesh of the Open3D RaycastingScene that some view sees (inside its image,
+    in front of it, and the first surface along the ray from its centre)."""
+    import open3d as o3d
+
+    seen = np.zeros(len(points), bool)
+    for v in views:
+        todo = np.flatnonzero(~seen)
+        if todo.size == 0:
+            break
+        c2w = np.asarray(v.world_from_camera, np.float64)
+        p_cam = (points[todo] - c2w[:3, 3]) @ c2w[:3, :3]            # camera frame (OpenCV: +z forward)
+        z = p_cam[:, 2]
+        uv = p_cam @ np.asarray(v.K, np.float64).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, w = uv[:, 0] / z, uv[:, 1] / z
+        inside = (z > 1e-6) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
+        idx = todo[inside]
+        if idx.size == 0:
+            continue
+        d = points[idx] - c2w[:3, 3]
+        dist = np.linalg.norm(d, axis=1)
+        rays = np.concatenate([np.broadcast_to(c2w[:3, 3], d.shape), d / dist[:, None]], axis=1).astype(np.float32)
+        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        seen[idx[t_hit >= dist * (1 - tol_rel) - 1e-4]] = True
+    return seen
 
 
 def _flat_pixels(n_gt: np.ndarray, hit: np.ndarray, cos_min: float = 0.999) -> np.ndarray:

@@ -77,6 +77,12 @@ def _summary(r, verbosity: int) -> None:
     if "chamfer_m" in m:
         table.add_row("Chamfer (fused mesh)", f"{m['chamfer_m'] * 1000:.2f} mm (accuracy {m['mesh_accuracy_m'] * 1000:.2f}"
                                               f", completeness {m['mesh_completeness_m'] * 1000:.2f} mm)")
+    if "chamfer_visible_m" in m:
+        table.add_row("Chamfer (visible truth)", f"{m['chamfer_visible_m'] * 1000:.2f} mm = "
+                                                 f"{100 * m['chamfer_visible_m'] / m['gt_extent_m']:.2f} % of the "
+                                                 f"{m['gt_extent_m']:.2f} m extent (completeness "
+                                                 f"{m['mesh_completeness_visible_m'] * 1000:.2f} mm; "
+                                                 f"{m['gt_visible_fraction']:.0%} of the truth is seen)")
     if r.gt_mesh is not None:
         table.add_row("ground truth", str(r.gt_mesh))
     table.add_row("time", " + ".join(f"{k} {v:.1f}s" for k, v in r.timings_s.items() if k != "total")
