@@ -234,7 +234,7 @@ def train_nerf2(tx, rx, y_db, train_idx, settings: Nerf2Settings | None = None,
             loss.backward()
             opt.step()
             step += 1
-            losses.append(float(loss))
+            losses.append(loss.item())
             abs_err.append(err.detach().abs())
         if not losses:
             hist["stopped_by"] = "time"
@@ -242,7 +242,7 @@ def train_nerf2(tx, rx, y_db, train_idx, settings: Nerf2Settings | None = None,
         info = {"epoch": epoch + 1, "loss": float(np.mean(losses)),
                 "mae_train_db": float(torch.cat(abs_err).mean()),  # running, stratified, during the epoch
                 "lr": opt.param_groups[0]["lr"], "elapsed_s": time.perf_counter() - t0,
-                "offset_db": float(field.offset_db), "steps": step, "partial": stop}
+                "offset_db": field.offset_db.item(), "steps": step, "partial": stop}
         if eval_idx is not None and len(eval_idx):
             ev = np.asarray(eval_idx)
             p = predict_nerf2(field, tx_t[ev].numpy(), rx_t[ev].numpy(), s.eval_batch)
