@@ -134,3 +134,18 @@ def fail(message: str, code: int = 2) -> None:
     """Print one error line and exit (for option problems detected in a command module)."""
     err_console.print(f"[red]error:[/red] {message}", soft_wrap=True, highlight=False)
     sys.exit(code)
+
+
+def comma_numbers(text: str | None, what: str, n: int) -> list[float] | None:
+    """Option text "A,B,C" -> [n] floats, None when not given; a ConfigError naming the option otherwise."""
+    from .errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != n:
+        raise ConfigError(f"{what} {text!r}: expected {n} comma-separated numbers")
+    return vals

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rfir_cli.figures import pyplot, save_figure
+
 from .rows import Rows
 
 PERMUTATIONS = 200
@@ -117,11 +119,7 @@ def analyse(rows: Rows, base_db: np.ndarray, seed: int = 0) -> list[Breakdown]:
 def plot(path: Path, rows: Rows, residual_db: np.ndarray, items: list[Breakdown], title: str) -> Path:
     """One PNG: a panel per breakdown (mean residual per bin, train and test), plus a map of the mean
     residual [N] dB per receiver position for links."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     panels = [b for b in items if b.feature != "receiver cell (1 m)"]
     has_map = not rows.monostatic
     n = len(panels) + has_map
@@ -156,8 +154,4 @@ def plot(path: Path, rows: Rows, residual_db: np.ndarray, items: list[Breakdown]
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90)

@@ -10,14 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from rfir_cli.figures import pyplot, save_figure
 
 
 def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0, step_m: float = 0.4) -> dict:
@@ -32,7 +25,7 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
     tx = np.broadcast_to(np.asarray(tx_m, np.float64).reshape(1, 3), rx.shape)
     pg0, pg1 = before.path_gain_db(tx, rx), after.path_gain_db(tx, rx)
     change = pg1 - pg0
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     lo, hi = float(min(pg0.min(), pg1.min())), float(max(pg0.max(), pg1.max()))
     lim = max(1e-3, float(np.abs(change).max()))
@@ -51,10 +44,7 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
     axes[0].set_ylabel("y [m]")
     fig.suptitle(f"radio map of the Tx at ({tx_m[0]:.2f}, {tx_m[1]:.2f}, {tx_m[2]:.2f}) m, receivers at "
                  f"{height_m:g} m: mean |change| {np.mean(np.abs(change)):.2f} dB", fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
     return {"mean_abs_change_db": float(np.mean(np.abs(change))), "max_abs_change_db": float(np.abs(change).max()),
             "points": int(len(rx))}
 
@@ -74,7 +64,7 @@ def rcs_change(path: Path, rf_before, rf_after, range_m: float = 3.0, step_deg: 
     for rf in (rf_before, rf_after):
         pg = predict_path_gain_db(rf, tx, rx, freq, "rcs", cull_rel=1e-3)[:, 0]
         out.append(10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), rng, freq[0], g0, g0)))
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     deg = np.degrees(asp)
     ax.plot(deg, out[0], color="0.5", lw=1.2, label="before")
@@ -87,9 +77,6 @@ def rcs_change(path: Path, rf_before, rf_after, range_m: float = 3.0, step_deg: 
     change = out[1] - out[0]
     ax.set_title(f"RCS at {freq[0] / 1e9:g} GHz, {range_m:g} m: mean |change| {np.mean(np.abs(change)):.2f} dB",
                  fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return {"mean_abs_change_db": float(np.mean(np.abs(change))), "max_abs_change_db": float(np.abs(change).max()),
             "points": int(len(asp)), "range_m": range_m, "aspect_step_deg": step_deg}

@@ -5,16 +5,14 @@ from pathlib import Path
 
 import numpy as np
 
+from rfir_cli.figures import pyplot, save_figure
+
 
 def top_view(path: Path, before_m: np.ndarray, selected: np.ndarray, after_m: np.ndarray, touched: np.ndarray,
              title: str = "") -> Path:
     """Write a PNG: left, input centres before_m [G, 3] m with selected [G] bool in colour; right, the
     edited centres after_m [G', 3] m with touched [G'] bool in colour. Axes equal, metres."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 5.2))
     both = np.concatenate([before_m[:, :2], after_m[:, :2]]) if len(after_m) else before_m[:, :2]
     lo, hi = both.min(0), both.max(0)
@@ -33,8 +31,4 @@ def top_view(path: Path, before_m: np.ndarray, selected: np.ndarray, after_m: np
     axes[0].set_ylabel("y [m]")
     if title:
         fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

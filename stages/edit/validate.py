@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rfir_cli.artifacts import read_artifact
+from rfir_cli.figures import pyplot, save_figure
 
 
 def _predict_rcs(rf_path: Path, meas_path: Path, out: Path):
@@ -73,11 +74,7 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 5))
     ax.scatter(d_meas, d_pred, s=4, alpha=0.4, lw=0)
     lim = float(max(1.0, np.abs(d_meas).max(), np.abs(d_pred).max()))
@@ -90,11 +87,7 @@ def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict
     ax.grid(alpha=0.3)
     ax.set_title(f"{name}: r = {m['change_correlation']:.2f}; MAE {m['unedited_mae_db']:.2f} -> "
                  f"{m['edited_mae_db']:.2f} dB", fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def validate(rf_path, before_path, after_path, selects: list[str], ops: list[str], name: str, work_dir,

@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ..context import RichReporter, console, err_console, options, run_guarded
+from ..context import RichReporter, comma_numbers, console, err_console, options, run_guarded
 
 
 def register(app: typer.Typer) -> None:
@@ -48,7 +48,7 @@ def edit(
             edits += read_script(script, allow_empty)
         with RichReporter(opts.verbosity) as reporter:
             return run(rf, out, edits, dry_run=dry_run, allow_empty=allow_empty, plot_path=plot,
-                       map_tx=_xyz(map_tx), config_toml=opts.config_toml(), progress=reporter)
+                       map_tx=comma_numbers(map_tx, "--map-tx", 3), config_toml=opts.config_toml(), progress=reporter)
 
     r = run_guarded(ctx, work)
     for i, rec in enumerate(r.records, 1):
@@ -67,17 +67,3 @@ def edit(
                       f"max {r.radio_change['max_abs_change_db']:.2f} dB over {r.radio_change['points']} points)",
                       highlight=False)
 
-
-def _xyz(text: Optional[str]):
-    """--map-tx X,Y,Z -> [3] floats (a ConfigError naming the option otherwise)."""
-    if text is None:
-        return None
-    from rfir_cli.errors import ConfigError
-
-    try:
-        xyz = [float(v) for v in text.split(",")]
-    except ValueError:
-        xyz = []
-    if len(xyz) != 3:
-        raise ConfigError(f"--map-tx {text!r}: expected X,Y,Z in metres")
-    return xyz

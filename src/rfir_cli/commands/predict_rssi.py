@@ -7,25 +7,12 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from ..context import RichReporter, console, err_console, options, run_guarded
-from ..errors import ConfigError
+from ..context import RichReporter, comma_numbers, console, err_console, options, run_guarded
 from .predict import predict_app
 
 
 def register(app: typer.Typer) -> None:
     predict_app.command("rssi")(predict_rssi)
-
-
-def _triple(text: Optional[str], what: str, n: int) -> Optional[list[float]]:
-    if text is None:
-        return None
-    try:
-        vals = [float(x) for x in text.split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) != n:
-        raise ConfigError(f"{what} {text!r}: expected {n} comma-separated numbers")
-    return vals
 
 
 def predict_rssi(
@@ -52,8 +39,8 @@ def predict_rssi(
         if results_path is None and measurements is not None and tx is None:
             results_path = Path("results") / f"{out_path.stem}.json"
         with RichReporter(opts.verbosity) as reporter:
-            return run_rssi(rf, out_path, dict(opts.config().get("predict", {})), tx=_triple(tx, "--tx", 3),
-                            rx_file=rx, grid=_triple(grid, "--grid", 2), measurements_path=measurements,
+            return run_rssi(rf, out_path, dict(opts.config().get("predict", {})), tx=comma_numbers(tx, "--tx", 3),
+                            rx_file=rx, grid=comma_numbers(grid, "--grid", 2), measurements_path=measurements,
                             plots_dir=plots, results_path=results_path, seed=opts.seed,
                             config_toml=opts.config_toml(), progress=reporter)
 
