@@ -108,6 +108,7 @@ class Nerf2Field(nn.Module):
         self.rad_tx = nn.Linear(3 * (1 + 2 * s.n_freqs_tx), w, bias=False)
         self.rad = _mlp(w, w, s.rad_layers - 1, 2) if s.rad_layers > 1 else nn.Linear(w, 2)
         self.offset_db = nn.Parameter(torch.zeros(()))
+        self.float()   # float32 whatever torch's default dtype is (another module may have changed it)
 
     def normalise(self, x: torch.Tensor) -> torch.Tensor:
         """Positions [.., 3] m -> [-1, 1]^3 over the scene box."""

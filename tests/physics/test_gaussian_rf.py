@@ -2,13 +2,22 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from rfir_cli.physics import C0, rcs_from_path_gain
 from rfir_cli.physics.gaussian_rf import (bistatic_gaussian_response, covariance, projected_cross_section_m2,
                                           reflect, scattering_lobe)
 
-torch.set_default_dtype(torch.float64)
+
+
+@pytest.fixture(autouse=True)
+def _float64():
+    """These closed-form checks run in float64; restore the default so other tests see torch's own."""
+    before = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    yield
+    torch.set_default_dtype(before)
 
 
 def disc(n=1, scale=0.05, flat=1e-4):
