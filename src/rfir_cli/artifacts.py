@@ -55,6 +55,18 @@ class Artifact:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.data[name]
 
+    def free_for_write(self) -> dict:
+        """The free groups in write_artifact's layout: group -> {name: array, ..., "@attrs": dict}
+        (copies of the dicts; the arrays are shared), so a stage can pass an input's groups on."""
+        out = {}
+        for group, content in self.free.items():
+            if group.endswith("@attrs"):
+                continue
+            out[group] = dict(content)
+            if self.free.get(group + "@attrs"):
+                out[group]["@attrs"] = dict(self.free[group + "@attrs"])
+        return out
+
 
 def _utc_now() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())

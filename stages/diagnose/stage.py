@@ -151,13 +151,7 @@ def _write_model(rf_path: Path, out_path: Path, effects_json: list, config_toml:
     from rfir_cli.provenance import Provenance
 
     rf = read_artifact(rf_path, "rf")
-    free = {}
-    for key, val in rf.free.items():
-        if key.endswith("@attrs"):
-            continue
-        free[key] = dict(val)
-        if rf.free.get(key + "@attrs"):
-            free[key]["@attrs"] = rf.free[key + "@attrs"]
+    free = rf.free_for_write()
     free["effects"] = {"@attrs": {"chain_json": json.dumps(effects_json),
                                   "doc": "stages/diagnose/effects.py; applied in order to predicted path gain"}}
     prov = Provenance(stage="diagnose", config_toml=config_toml)

@@ -153,13 +153,9 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
     attrs = dict(art.attrs)
     if scene.label_names:
         attrs["label_names"] = np.asarray(scene.label_names, dtype=object)
-    free = {}
-    for group, content in art.free.items():
-        if group.endswith("@attrs"):
-            continue
-        free[group] = {k: scene.arrays.get(f"{group}/{k}", v) for k, v in content.items()}
-        if art.free.get(group + "@attrs"):
-            free[group]["@attrs"] = art.free[group + "@attrs"]
+    free = art.free_for_write()
+    for group, content in free.items():   # per-Gaussian datasets follow the edit
+        content.update({k: scene.arrays[f"{group}/{k}"] for k in content if f"{group}/{k}" in scene.arrays})
     if is_rssi_model(art.free.get("model@attrs", {})) and "model" in free:  # receivers' transmittances follow
         free["model"].update(refreshed_probe_field(scene.arrays, art.free["model@attrs"]))
     up = art.provenance
