@@ -113,9 +113,7 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
                 rep(rx)[good], np.tile(f_meas[cols], n_l)[good], task,
                 None if aspect is None else aspect[good], None if rng_m is None else rng_m[good],
                 None if crossings is None else crossings[good], None if channel is None else channel[good],
-                None if pchannel is None else pchannel[good])
-    if incidence is not None:
-        rows.incidence_deg = incidence[good]
+                None if pchannel is None else pchannel[good], None if incidence is None else incidence[good])
     info.update(num_rows=rows.num, num_train=int(rows.train.sum()), num_test=int(rows.test.sum()),
                 num_links=int(n_l), num_freqs=int(n_f))
     if rows.test.sum() < 10 or rows.train.sum() < 10:
@@ -147,9 +145,8 @@ def incidence_deg(art, radar_m: np.ndarray, min_response: float = 0.3) -> np.nda
     out = np.full(len(radar_m), np.nan)
     q = strong.query.numpy()
     first = np.unique(q, return_index=True)[1]          # hits are sorted front to back per query
-    for i in first:
-        n = geom.normals[strong.gaussian[i]]
-        out[q[i]] = float(np.degrees(np.arccos(min(1.0, abs(float((n * dirs[q[i]]).sum()))))))
+    cos = (geom.normals[strong.gaussian[first]] * dirs[q[first]]).sum(-1).abs().clamp(max=1.0)
+    out[q[first]] = np.degrees(np.arccos(cos.numpy()))
     return out
 
 

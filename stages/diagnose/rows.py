@@ -1,7 +1,7 @@
 """The rows diagnose works on: one per (link, frequency), with the features an engineer can act on."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,7 +32,7 @@ class Rows:
     crossings: np.ndarray | None = None
     meas_channel: np.ndarray | None = None   # [N] complex measured channel, where phase is measured
     pred_channel: np.ndarray | None = None   # [N] complex predicted channel, where the model gives phase
-    notes: list = field(default_factory=list)
+    incidence_deg: np.ndarray | None = None  # [N] on the dominant surface (monostatic rows with geometry)
 
     def __post_init__(self):
         self.dist_m = np.linalg.norm(self.rx_m - self.tx_m, axis=1)
@@ -40,7 +40,6 @@ class Rows:
         if self.monostatic and self.range_m is not None:
             self.dist_m = np.asarray(self.range_m, np.float64)
         self.wavelength_m = C0 / self.freq_hz
-        self.incidence_deg = None   # [N] on the dominant surface (monostatic rows with geometry), set by data.py
         if self.aspect_rad is not None:
             key = np.stack([np.round(self.range_m if self.range_m is not None else 0 * self.freq_hz, 4),
                             np.round(self.freq_hz)], 1)
