@@ -6,7 +6,8 @@ STAMP  := $(VENV)/.rfir-setup
 DEPS   := pyproject.toml setup.py scripts/setup.sh $(wildcard ext/csrc/*)
 DEMO   ?= demo_out
 
-.PHONY: setup demo test test-all bench lint clean
+.PHONY: setup demo test test-all bench lint clean reproduce reproduce-quick \
+	reproduce-rcs reproduce-wideband reproduce-rssi reproduce-extrapolation reproduce-edit reproduce-ablation
 
 setup: $(STAMP)
 
@@ -24,6 +25,16 @@ test: setup
 
 test-all: setup
 	$(PY) -m pytest -q -m "slow or not slow"
+
+## Paper-shaped tables: data, rfir and every baseline on the same splits -> results/reproduce/<target>.{md,csv,png}.
+## Steps whose outputs exist are reused (data/reproduce/); FORCE=--force reruns them.
+REPRO := $(PY) -m rfir_stages.reproduce
+reproduce: setup
+	$(REPRO) all $(FORCE)
+reproduce-quick: setup
+	$(REPRO) all --quick $(FORCE)
+reproduce-rcs reproduce-wideband reproduce-rssi reproduce-extrapolation reproduce-edit reproduce-ablation: setup
+	$(REPRO) $(patsubst reproduce-%,%,$@) $(FORCE)
 
 bench: setup
 	@for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

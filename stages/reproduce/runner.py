@@ -1,0 +1,93 @@
+"""Running the steps of a reproduce target: commands, their logs, wall times and a cache.
+
+A step is a command line plus the file it produces. If that file exists (and --force is not
+given) the step is skipped and its earlier wall time is reused, so an interrupted `make reproduce`
+resumes where it stopped and a table can be rebuilt without rerunning anything.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rfir_cli.errors import StageError
+
+
+@dataclass
+class Runner:
+    """Runs steps for one reproduce invocation.
+
+    data: folder for generated data and fits; out: folder for tables, logs and times.json.
+    quick: the reduced variant (targets read it to pick sizes)."""
+
+    data: Path
+    out: Path
+    quick: bool = False
+    force: bool = False
+    echo: bool = True
+    times: dict = field(default_factory=dict)   # step label -> wall seconds (all runs, from times.json)
+    used: set = field(default_factory=set)      # labels of the steps the current target went through
+    failed: list = field(default_factory=list)  # errors of baseline steps that failed (the run went on)
+
+    def __post_init__(self) -> None:
+        self.data, self.out = Path(self.data), Path(self.out)
+        self.data.mkdir(parents=True, exist_ok=True)
+        (self.out / "logs").mkdir(parents=True, exist_ok=True)
+        (self.out / "json").mkdir(parents=True, exist_ok=True)
+        path = self.out / "times.json"
+        if path.exists():
+            self.times = json.loads(path.read_text())
+
+    @property
+    def python(self) -> str:
+        return sys.executable
+
+    @property
+    def rfir(self) -> str:
+        """The `rfir` entry point installed beside this Python."""
+        exe = Path(sys.executable).parent / "rfir"
+        return str(exe) if exe.exists() else "rfir"
+
+    def json_path(self, label: str) -> Path:
+        return self.out / "json" / f"{label}.json"
+
+    def step(self, label: str, argv: list[str], produces: Path, env: dict | None = None) -> float:
+        """Run argv unless `produces` exists; return the step's wall time [s] (0 if unknown).
+
+        The command's output goes to OUT/logs/<label>.log; a failure raises StageError naming it."""
+        produces = Path(produces)
+        self.used.add(label)
+        if produces.exists() and not self.force:
+            self._say(f"[dim]cached[/] {label}")
+            return float(self.times.get(label, 0.0))
+        log = self.out / "logs" / f"{label}.log"
+        shown = shlex.join(argv)
+        self._say(f"[bold]run[/] {label}: {shown if len(shown) < 400 else shown[:400] + ' ...'}")
+        t0 = time.perf_counter()
+        with log.open("w") as fh:
+            fh.write(shlex.join(argv) + "\n")
+            fh.flush()
+            proc = subprocess.run(argv, stdout=fh, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})})
+        wall = time.perf_counter() - t0
+        if proc.returncode != 0 or not produces.exists():
+            why = f"exit {proc.returncode}" if proc.returncode else f"it did not write {produces}"
+            raise StageError(f"step '{label}' failed ({why}); see the log", path=log)
+        self.times[label] = wall
+        (self.out / "times.json").write_text(json.dumps(self.times, indent=1, sort_keys=True) + "\n")
+        self._say(f"    done in {wall:.0f} s")
+        return wall
+
+    def _say(self, text: str) -> None:
+        if self.echo:
+            from rich.console import Console
+
+            Console(stderr=True, highlight=False).print(text)
+
+
+def read_json(path: Path) -> dict:
+    return json.loads(Path(path).read_text())
