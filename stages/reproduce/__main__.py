@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     runner = Runner(a.data or Path(f"data/reproduce{suffix}"), a.out or Path(f"results/reproduce{suffix}"),
                     quick=a.quick, force=a.force)
     summary_path = runner.out / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    summary: dict = {}
     for name in names:
         t0 = time.perf_counter()
         try:
@@ -45,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
         summary[name] = {"wall_s_this_run": wall, "step_s_total": sum(steps.values()), "steps": steps,
                          "rfir_lowest": table.ours_lowest(), "files": [str(p) for p in paths]}
         runner.used.clear()
+        on_disk = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+        summary = {**on_disk, name: summary[name]}     # other targets may have finished meanwhile
         summary_path.write_text(json.dumps(summary, indent=1) + "\n")
         print(to_markdown(table))
         print(f"reproduce {name}: {wall / 60:.1f} min this run ({sum(steps.values()) / 60:.1f} min of steps "

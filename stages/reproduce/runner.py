@@ -78,9 +78,18 @@ class Runner:
             why = f"exit {proc.returncode}" if proc.returncode else f"it did not write {produces}"
             raise StageError(f"step '{label}' failed ({why}); see the log", path=log)
         self.times[label] = wall
-        (self.out / "times.json").write_text(json.dumps(self.times, indent=1, sort_keys=True) + "\n")
+        self._write_times()
         self._say(f"    done in {wall:.0f} s")
         return wall
+
+    def _write_times(self) -> None:
+        """Merge into times.json (another target may run at the same time and add its own steps)."""
+        path = self.out / "times.json"
+        on_disk = json.loads(path.read_text()) if path.exists() else {}
+        self.times = {**on_disk, **self.times}
+        tmp = path.with_name(f"times.json.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(self.times, indent=1, sort_keys=True) + "\n")
+        tmp.replace(path)
 
     def _say(self, text: str) -> None:
         if self.echo:

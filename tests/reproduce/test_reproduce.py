@@ -64,3 +64,12 @@ def test_failed_step_names_its_log(tmp_path):
 def test_unknown_target_is_a_clear_error(capsys):
     assert main(["nope"]) == 2
     assert "unknown target 'nope'" in capsys.readouterr().err
+
+
+def test_two_runners_on_one_folder_keep_each_others_times(tmp_path):
+    a = Runner(tmp_path / "data", tmp_path / "out", echo=False)
+    b = Runner(tmp_path / "data", tmp_path / "out", echo=False)      # started before a wrote anything
+    a.step("from_a", [sys.executable, "-c", f"open({str(tmp_path / 'a')!r}, 'w')"], tmp_path / "a")
+    b.step("from_b", [sys.executable, "-c", f"open({str(tmp_path / 'b')!r}, 'w')"], tmp_path / "b")
+    times = json.loads((tmp_path / "out" / "times.json").read_text())
+    assert set(times) == {"from_a", "from_b"}
