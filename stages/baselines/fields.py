@@ -33,3 +33,14 @@ def mlp(n_in: int, width: int, layers: int, n_out: int) -> nn.Sequential:
         d = width
     mods.append(nn.Linear(d, n_out))
     return nn.Sequential(*mods)
+
+
+def decay_lr(opt: torch.optim.Optimizer, base_lrs: list[float], decay: float, step: int, total_steps: int,
+             elapsed_s: float, budget_s: float | None) -> None:
+    """Set each param group's lr to base * decay^frac, frac = the larger of the share of steps done and
+    the share of the wall-clock budget used (capped at 1): the decay ends with whichever ends first."""
+    frac = step / max(1, total_steps)
+    if budget_s is not None:
+        frac = max(frac, elapsed_s / budget_s)
+    for group, lr0 in zip(opt.param_groups, base_lrs):
+        group["lr"] = lr0 * decay ** min(frac, 1.0)

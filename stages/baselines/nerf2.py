@@ -49,7 +49,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .fields import encode, fibonacci_sphere
+from .fields import decay_lr, encode, fibonacci_sphere
 from .fields import mlp as _mlp
 
 
@@ -309,11 +309,7 @@ def train_nerf2(tx, rx, y_db, train_idx, settings: Nerf2Settings | None = None,
             if budget is not None and elapsed > budget:
                 stop = True
                 break
-            frac = step / total_steps
-            if budget is not None:
-                frac = max(frac, elapsed / budget)
-            for g, lr0 in zip(opt.param_groups, base_lrs):
-                g["lr"] = lr0 * s.lr_decay ** min(frac, 1.0)
+            decay_lr(opt, base_lrs, s.lr_decay, step, total_steps, elapsed, budget)
             b = perm[i:i + s.batch_links]
             pred = render_links(field, tx_t[b], rx_t[b], stratified=True, generator=gen)
             err = pred - y_t[b]

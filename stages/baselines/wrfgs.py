@@ -57,7 +57,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .fields import encode, fibonacci_sphere
+from .fields import decay_lr, encode, fibonacci_sphere
 from .fields import mlp as _mlp
 
 ALPHA_MAX = 0.99   # the tracer's alpha clamp (PHYSICS.md)
@@ -391,11 +391,7 @@ def train_wrfgs(geometry, tx, rx, y_db, train_idx, settings: WrfgsSettings | Non
             if budget is not None and elapsed > budget:
                 stop = True
                 break
-            frac = step / total_steps
-            if budget is not None:
-                frac = max(frac, elapsed / budget)
-            for grp, lr0 in zip(opt.param_groups, base_lrs):
-                grp["lr"] = lr0 * s.lr_decay ** min(frac, 1.0)
+            decay_lr(opt, base_lrs, s.lr_decay, step, total_steps, elapsed, budget)
             b = perm[i:i + s.batch_links]
             pred = render_links(field, hits, recv_t[b], tx_t[b])
             err = pred - y_t[b]

@@ -24,7 +24,7 @@ SINGLE_FREQ = "not run: single-frequency implementation"
 def _simulate(r: Runner, name: str, scene: str, sets: dict, args: list[str] = ()) -> Path:
     folder = r.data / name
     meas = folder / "measurements.h5"
-    r.step(f"data__{name}", [r.rfir, *M._sets(sets), "simulate", scene, str(folder), *args], meas)
+    r.step(f"data__{name}", [r.rfir, *M.set_args(sets), "simulate", scene, str(folder), *args], meas)
     return meas
 
 
@@ -135,7 +135,7 @@ def target_wideband(r: Runner) -> Table:
     fit_sets = {"rf_fit.wideband.base_iterations": it[0], "rf_fit.wideband.net_iterations": it[1],
                 "rf_fit.wideband.links_per_step": 60, "rf_fit.wideband.freqs_per_step": 6,
                 "rf_fit.wideband.pair_floor": 0.001, "rf_fit.wideband.save_base": "true"}
-    t_fit = r.step("wideband_htarget__rfir_fit", [r.rfir, "--seed", "0", *M._sets(fit_sets), "rf-fit", str(scene),
+    t_fit = r.step("wideband_htarget__rfir_fit", [r.rfir, "--seed", "0", *M.set_args(fit_sets), "rf-fit", str(scene),
                                                   str(meas), "-o", str(rf)], rf)
     freqs = _wideband_freqs(meas, 1 if r.quick else 8)
     cells = {}
@@ -228,7 +228,6 @@ def target_ablation(r: Runner) -> Table:
         t.add("classroom RSSI, random", {"rfir": full, "without LoS weighting": now,
                                          "without path-loss term": Cell(note="RCS only"),
                                          "without phase term": Cell(note="RCS only")})
-    t.ours = "rfir"
     return t
 
 

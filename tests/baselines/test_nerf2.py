@@ -318,3 +318,16 @@ def test_results_history_is_thinned_and_keeps_the_last_epoch():
     assert len(out["epochs"]) <= 101 and out["epochs"][0]["epoch"] == 1 and out["epochs"][-1]["epoch"] == 1001
     assert out["epochs_total"] == 1001 and out["steps"] == 5
     assert thin({"epochs": fit["epochs"][:50]}, keep=100)["epochs"] == fit["epochs"][:50]
+
+
+def test_decay_lr_follows_steps_or_budget_whichever_is_further():
+    from rfir_stages.baselines.fields import decay_lr
+
+    p = torch.nn.Parameter(torch.zeros(1))
+    opt = torch.optim.Adam([{"params": [p]}, {"params": [torch.nn.Parameter(torch.zeros(1))]}])
+    decay_lr(opt, [1.0, 2.0], 0.1, step=5, total_steps=10, elapsed_s=0.0, budget_s=None)
+    assert [g["lr"] for g in opt.param_groups] == pytest.approx([0.1 ** 0.5, 2 * 0.1 ** 0.5])
+    decay_lr(opt, [1.0, 2.0], 0.1, step=1, total_steps=10, elapsed_s=90.0, budget_s=100.0)
+    assert opt.param_groups[0]["lr"] == pytest.approx(0.1 ** 0.9)
+    decay_lr(opt, [1.0, 2.0], 0.1, step=30, total_steps=10, elapsed_s=0.0, budget_s=None)
+    assert opt.param_groups[0]["lr"] == pytest.approx(0.1)          # capped at the final lr
