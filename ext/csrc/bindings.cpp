@@ -92,6 +92,44 @@ std::vector<torch::Tensor> backward(const SceneTensors& s, const RayTensors& r, 
   return backward_cpu(s, r, p, outs, grads, hit_offsets, hit_ids, hit_t);
 }
 
+std::vector<torch::Tensor> transmittance(const SceneTensors& s, const RayTensors& r, const TraceParams& p) {
+  check_inputs(s, r);
+  TORCH_CHECK(!s.means.is_cuda(), "transmittance is CPU-only; on CUDA use forward (rfir_tracer.trace)");
+  return transmittance_cpu(s, r, p);
+}
+
+std::vector<torch::Tensor> footprint_sums(const torch::Tensor& offsets, const torch::Tensor& ids,
+                                          const torch::Tensor& t, const torch::Tensor& response,
+                                          const torch::Tensor& opacities, const torch::Tensor& group_offsets,
+                                          const torch::Tensor& ray_weight, double margin, double alpha_max) {
+  TORCH_CHECK(!t.is_cuda(), "footprint_sums is CPU-only");
+  TORCH_CHECK(t.dim() == 1 && (t.scalar_type() == torch::kFloat32 || t.scalar_type() == torch::kFloat64) &&
+                  t.is_contiguous(), "t must be [H] float32 or float64, contiguous");
+  const int64_t H = t.size(0);
+  TORCH_CHECK(ids.scalar_type() == torch::kInt32 && ids.numel() == H && ids.is_contiguous(), "ids must be [H] int32");
+  check_float(response, "response", t, H, -1);
+  TORCH_CHECK(opacities.dim() == 1, "opacities must be [N]");
+  check_float(opacities, "opacities", t, opacities.size(0), -1);
+  for (const torch::Tensor* o : {&offsets, &group_offsets}) {
+    TORCH_CHECK(o->dim() == 1 && o->numel() >= 1 && o->scalar_type() == torch::kInt64 && o->is_contiguous(),
+                "offsets must be 1-D int64, contiguous");
+    const int64_t* p = o->data_ptr<int64_t>();
+    for (int64_t i = 1; i < o->numel(); ++i) TORCH_CHECK(p[i] >= p[i - 1], "offsets must be non-decreasing");
+  }
+  const int64_t R = offsets.size(0) - 1;
+  TORCH_CHECK(offsets.data_ptr<int64_t>()[0] == 0 && offsets.data_ptr<int64_t>()[R] == H,
+              "hit offsets must run from 0 to H");
+  TORCH_CHECK(group_offsets.data_ptr<int64_t>()[0] == 0 && group_offsets.data_ptr<int64_t>()[group_offsets.numel() - 1] == R,
+              "group offsets must run from 0 to the number of rays");
+  check_float(ray_weight, "ray_weight", t, R, -1);
+  if (H) {
+    const auto mm = ids.aminmax();
+    TORCH_CHECK(std::get<0>(mm).item<int32_t>() >= 0 && std::get<1>(mm).item<int32_t>() < opacities.size(0),
+                "ids out of range of opacities");
+  }
+  return footprint_sums_cpu(offsets, ids, t, response, opacities, group_offsets, ray_weight, margin, alpha_max);
+}
+
 py::dict build_info() {
   py::dict d;
 #ifdef RFIR_WITH_CUDA
@@ -100,7 +138,7 @@ py::dict build_info() {
   d["cuda_compiled"] = false;
 #endif
   d["openmp_max_threads"] = omp_get_max_threads();
-  d["k_buffer_cpu"] = 32;
+  d["k_buffer_cpu"] = 64;
   d["k_buffer_cuda"] = 16;
   return d;
 }
@@ -137,6 +175,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   // The heavy calls release the GIL: other Python threads (data loading, monitoring) keep running.
   using release = py::call_guard<py::gil_scoped_release>;
   m.def("forward", &forward, "Trace rays: composited outputs and optional CSR hit lists", release());
+  m.def("transmittance", &transmittance, "Transmittance only, hits in traversal order (CPU)", release());
+  m.def("footprint_sums", &footprint_sums,
+        "Per group of rays and Gaussian: sums of w G and w G T-in-front over sorted CSR hit lists (CPU)", release());
   m.def("backward", &backward, "Gradients of the traced outputs w.r.t. the Gaussians", release());
   m.def("build_bvh", &build_bvh, "Build a BVH (binned SAH) over the Gaussians' bounds", release());
   m.def("refit_bvh", &refit_bvh, "Refit a BVH's bounds to moved Gaussians", release());

@@ -54,9 +54,13 @@ struct Peak {
   T inv_len;  // 1 / |d'|
 };
 
-// Returns false when the whitened direction is degenerate (never for finite inputs and d != 0).
+// Returns false when the whitened direction is degenerate (never for finite inputs and d != 0)
+// or, with cull_kappa2 > 0, when maha > cull_kappa2 for certain: Lagrange's identity
+// |p' x d'|^2 = |p'|^2 |d'|^2 - (p'.d')^2 tests that before the square root and division, with
+// a rounding slack so that no Gaussian within the bound is ever culled (most candidates of a BVH
+// leaf miss, so this is the common exit).
 template <typename T>
-RFIR_HD bool peak_along_ray(const T* prim, const T* o, const T* d, Peak<T>& pk) {
+RFIR_HD bool peak_along_ray(const T* prim, const T* o, const T* d, Peak<T>& pk, T cull_kappa2 = T(-1)) {
   const T* M = prim + kM;
   const T p[3] = {prim[0] - o[0], prim[1] - o[1], prim[2] - o[2]};
   T dw[3];
@@ -65,6 +69,11 @@ RFIR_HD bool peak_along_ray(const T* prim, const T* o, const T* d, Peak<T>& pk) 
     dw[i] = M[3 * i] * d[0] + M[3 * i + 1] * d[1] + M[3 * i + 2] * d[2];
   }
   T len2 = dot3(dw, dw);
+  if (cull_kappa2 > T(0) && len2 > T(1e-30) && len2 < T(1e30)) {
+    const T pp = dot3(pk.pw, pk.pw), pd = dot3(pk.pw, dw);
+    const T slack = sizeof(T) == 4 ? T(1e-4) : T(1e-10);
+    if (pp * len2 - pd * pd > cull_kappa2 * len2 + slack * pp * len2) return false;
+  }
   T len;
   if (len2 > T(1e-30) && len2 < T(1e30)) {
     len = r_sqrt(len2);

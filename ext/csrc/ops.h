@@ -36,6 +36,18 @@ struct RayTensors {
 // Without want_hits the four hit tensors are empty (offsets all zero).
 std::vector<torch::Tensor> forward_cpu(const SceneTensors& s, const RayTensors& r,
                                        const TraceParams& p, bool want_hits);
+// Transmittance only (no features, no hit lists, hits multiplied in traversal order, early stop):
+// returns {transmittance [R], evaluations [R] int32}.
+std::vector<torch::Tensor> transmittance_cpu(const SceneTensors& s, const RayTensors& r, const TraceParams& p);
+// Footprint sums on CSR hit lists sorted front to back per ray (offsets [R+1] int64, ids [H]
+// int32, t [H], response G [H]); rays come in groups (group_offsets [M+1] int64 over the rays)
+// with weights w [R]. With T_h = prod of (1 - min(a G, alpha_max)) over the hits of the same ray
+// with t < t_h - margin: den[k, i] = sum w_r G_h and num[k, i] = sum w_r G_h T_h over the hits h
+// of Gaussian i on the rays of group k. Returns {num [M, N], den [M, N]}.
+std::vector<torch::Tensor> footprint_sums_cpu(const torch::Tensor& offsets, const torch::Tensor& ids,
+                                              const torch::Tensor& t, const torch::Tensor& response,
+                                              const torch::Tensor& opacities, const torch::Tensor& group_offsets,
+                                              const torch::Tensor& ray_weight, double margin, double alpha_max);
 // Backward returns {g_means, g_log_scales, g_rotations, g_opacities, g_normals, g_features}.
 // outs = {features, depth, depth_sq, normal, transmittance}; grads likewise.
 std::vector<torch::Tensor> backward_cpu(const SceneTensors& s, const RayTensors& r,

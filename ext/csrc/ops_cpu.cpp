@@ -114,6 +114,60 @@ std::vector<torch::Tensor> forward_impl(const SceneTensors& s, const RayTensors&
 }
 
 template <typename T>
+std::vector<torch::Tensor> transmittance_impl(const SceneTensors& s, const RayTensors& r, const TraceParams& p) {
+  const torch::Tensor prims = preprocess<T>(s, true);
+  const int64_t R = r.origins.size(0);
+  auto trans = torch::empty({R}, s.means.options());
+  auto evals = torch::empty({R}, s.means.options().dtype(torch::kInt32));
+  T* tp = trans.data_ptr<T>();
+  int32_t* ep = evals.data_ptr<int32_t>();
+  const SceneView<T> sc = make_scene_view<T>(s, prims);
+  const RayBatch<T> rb = make_ray_batch<T>(r);
+#pragma omp parallel for schedule(dynamic, 64) if (R > kMinParallel)
+  for (int64_t i = 0; i < R; ++i) tp[i] = trace_ray_transmittance<T>(sc, rb, i, p, ep[i]);
+  return {trans, evals};
+}
+
+template <typename T>
+std::vector<torch::Tensor> footprint_sums_impl(const torch::Tensor& offsets, const torch::Tensor& ids,
+                                               const torch::Tensor& t, const torch::Tensor& response,
+                                               const torch::Tensor& opacities, const torch::Tensor& group_offsets,
+                                               const torch::Tensor& ray_weight, double margin, double alpha_max) {
+  const int64_t M = group_offsets.size(0) - 1, N = opacities.size(0);
+  auto num = torch::zeros({M, N}, t.options()), den = torch::zeros({M, N}, t.options());
+  const int64_t* off = offsets.data_ptr<int64_t>();
+  const int64_t* grp = group_offsets.data_ptr<int64_t>();
+  const int32_t* id = ids.data_ptr<int32_t>();
+  const T* tt = t.data_ptr<T>();
+  const T* g = response.data_ptr<T>();
+  const T* a = opacities.data_ptr<T>();
+  const T* w = ray_weight.data_ptr<T>();
+  T* np_ = num.data_ptr<T>();
+  T* dp = den.data_ptr<T>();
+  const T m = T(margin), amax = T(alpha_max);
+  // one group per iteration: its rays write only into its own row, so threads never collide
+#pragma omp parallel for schedule(dynamic, 1) if (M > 1 && off[grp[M]] > 64 * kMinParallel)
+  for (int64_t k = 0; k < M; ++k) {
+    T* nk = np_ + k * N;
+    T* dk = dp + k * N;
+    for (int64_t r = grp[k]; r < grp[k + 1]; ++r) {
+      int64_t j = off[r];
+      T tr = 1;
+      for (int64_t h = off[r]; h < off[r + 1]; ++h) {
+        for (; j < h && tt[j] < tt[h] - m; ++j) {
+          const T alpha = a[id[j]] * g[j];
+          tr *= T(1) - (alpha > amax ? amax : alpha);
+        }
+        const T wg = w[r] * g[h];
+        dk[id[h]] += wg;
+        nk[id[h]] += wg * tr;
+      }
+    }
+  }
+  return {num, den};
+}
+
+template <typename T>
 struct BufferGradSink {
   T* acc;    // [N, kGradStride] of this thread
   T* gfeat;  // [N, K] of this thread
@@ -177,6 +231,22 @@ std::vector<torch::Tensor> forward_cpu(const SceneTensors& s, const RayTensors& 
                                        const TraceParams& p, bool want_hits) {
   if (s.means.scalar_type() == torch::kFloat64) return forward_impl<double>(s, r, p, want_hits);
   return forward_impl<float>(s, r, p, want_hits);
+}
+
+std::vector<torch::Tensor> transmittance_cpu(const SceneTensors& s, const RayTensors& r, const TraceParams& p) {
+  if (s.means.scalar_type() == torch::kFloat64) return transmittance_impl<double>(s, r, p);
+  return transmittance_impl<float>(s, r, p);
+}
+
+std::vector<torch::Tensor> footprint_sums_cpu(const torch::Tensor& offsets, const torch::Tensor& ids,
+                                              const torch::Tensor& t, const torch::Tensor& response,
+                                              const torch::Tensor& opacities, const torch::Tensor& group_offsets,
+                                              const torch::Tensor& ray_weight, double margin, double alpha_max) {
+  if (t.scalar_type() == torch::kFloat64)
+    return footprint_sums_impl<double>(offsets, ids, t, response, opacities, group_offsets, ray_weight, margin,
+                                       alpha_max);
+  return footprint_sums_impl<float>(offsets, ids, t, response, opacities, group_offsets, ray_weight, margin,
+                                    alpha_max);
 }
 
 std::vector<torch::Tensor> backward_cpu(const SceneTensors& s, const RayTensors& r,

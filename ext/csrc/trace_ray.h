@@ -100,7 +100,7 @@ RFIR_HD void collect_hits(const SceneView<T>& sc, const T* o, const T* d, T t_lo
         const T* prim = sc.prims + int64_t(k) * kPrimStride;
         ++evals;
         Peak<T> pk;
-        if (!peak_along_ray(prim, o, d, pk)) continue;
+        if (!peak_along_ray(prim, o, d, pk, kappa2)) continue;
         if (!(pk.maha <= kappa2) || !(pk.t > t_lo && pk.t < t_hi)) continue;
         if (pk.t < last_t || (pk.t == last_t && id <= last_id)) continue;
         const T G = r_exp(T(-0.5) * pk.maha);
@@ -192,6 +192,67 @@ RFIR_HD void trace_ray_forward(const SceneView<T>& sc, const RayBatch<T>& rays, 
   out.transmittance[r] = Tr;
   out.count[r] = count;
   if (out.evals) out.evals[r] = evals;
+}
+
+// Transmittance only: the product over accepted hits of (1 - alpha), taken in traversal order
+// (a product does not depend on the order), stopping as soon as it falls below t_stop. Same
+// acceptance rules as collect_hits; without early stopping the result equals trace_ray_forward's
+// transmittance, with it both are below t_stop. One traversal and no hit buffer: the fast path
+// for frozen visibility (segments to many targets). Near-child-first order meets the occluders
+// closest to the origin first, so occluded segments stop early.
+template <typename T>
+RFIR_HD T trace_ray_transmittance(const SceneView<T>& sc, const RayBatch<T>& rays, int64_t r,
+                                  const TraceParams& p, int32_t& evals) {
+  evals = 0;
+  if (sc.n_nodes == 0) return T(1);
+  const T* o = rays.origins + 3 * r;
+  const T* d = rays.dirs + 3 * r;
+  const T t_lo = rays.t_min[r], t_hi = rays.t_max[r];
+  const int32_t exclude = rays.exclude ? rays.exclude[r] : -1;
+  const float of[3] = {float(o[0]), float(o[1]), float(o[2])};
+  const float inv[3] = {1.f / float(d[0]), 1.f / float(d[1]), 1.f / float(d[2])};
+  const float lo = widen_lo(t_lo), hi = widen_hi(t_hi);
+  const T kappa2 = T(p.kappa2), amin = T(p.alpha_min), amax = T(p.alpha_max), stop = T(p.t_stop);
+  T Tr = 1;
+  int stack[64];
+  int sp = 0;
+  float e0, e1;
+  if (!ray_box(sc.nodes[0], of, inv, lo, hi, e0)) return Tr;
+  int node = 0;
+  while (true) {
+    const BVHNode& nd = sc.nodes[node];
+    if (nd.count > 0) {
+      for (int k = nd.first; k < nd.first + nd.count; ++k) {
+        const int32_t id = sc.prim_order[k];
+        if (id == exclude) continue;
+        const T* prim = sc.prims + int64_t(k) * kPrimStride;
+        ++evals;
+        Peak<T> pk;
+        if (!peak_along_ray(prim, o, d, pk, kappa2)) continue;
+        if (!(pk.maha <= kappa2) || !(pk.t > t_lo && pk.t < t_hi)) continue;
+        T alpha = prim[kOpa] * r_exp(T(-0.5) * pk.maha);
+        alpha = alpha > amax ? amax : alpha;
+        if (!(alpha >= amin)) continue;
+        Tr *= T(1) - alpha;
+        if (Tr < stop) return Tr;
+      }
+    } else {
+      const bool h0 = ray_box(sc.nodes[nd.first], of, inv, lo, hi, e0);
+      const bool h1 = ray_box(sc.nodes[nd.first + 1], of, inv, lo, hi, e1);
+      if (h0 && h1) {
+        const bool near0 = e0 <= e1;
+        if (sp < 64) stack[sp++] = near0 ? nd.first + 1 : nd.first;
+        node = near0 ? nd.first : nd.first + 1;
+        continue;
+      }
+      if (h0 || h1) {
+        node = h0 ? nd.first : nd.first + 1;
+        continue;
+      }
+    }
+    if (sp == 0) return Tr;
+    node = stack[--sp];
+  }
 }
 
 // GradSink needs add(id, const T* acc /*kGradStride*/) and add_features(id, T w, const T* gF, K).

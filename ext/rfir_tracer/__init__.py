@@ -13,6 +13,7 @@ PHYSICS.md ("Gaussian primitive"). Typical use::
 from ._ext import backend_info
 from .result import HitLists, TraceResult
 from .scene import GaussianScene
-from .trace import trace, transmittance_to_points
+from .trace import trace, trace_transmittance, transmittance_to_points
 
-__all__ = ["GaussianScene", "HitLists", "TraceResult", "backend_info", "trace", "transmittance_to_points"]
+__all__ = ["GaussianScene", "HitLists", "TraceResult", "backend_info", "trace", "trace_transmittance",
+           "transmittance_to_points"]

@@ -29,6 +29,47 @@ class HitLists:
         counts = self.offsets[1:] - self.offsets[:-1]
         return torch.repeat_interleave(torch.arange(counts.shape[0], device=counts.device), counts)
 
+    def footprint_sums(self, opacities: torch.Tensor, group_offsets: torch.Tensor, ray_weight: torch.Tensor,
+                       margin: float = 0.0, alpha_max: float = 0.99) -> tuple[torch.Tensor, torch.Tensor]:
+        """(num, den), each [M, N]: per group of rays and Gaussian, sum of w G and of w G T over its hits.
+
+        The rays come in M consecutive groups (group_offsets [M + 1] int64 over the rays) with
+        weights ray_weight [R] (e.g. solid angles); G is a hit's response and T the transmittance in
+        front of it with `opacities` [N]: prod of (1 - min(a G, alpha_max)) over the same ray's hits
+        with t < t_hit - margin. C++ on the CPU, torch elsewhere.
+        """
+        op = opacities.detach().to(self.t.device, self.t.dtype).contiguous()
+        w = ray_weight.detach().to(self.t.device, self.t.dtype).contiguous()
+        grp = group_offsets.to(self.t.device, torch.int64).contiguous()
+        if self.t.device.type == "cpu":
+            from ._ext import native
+
+            num, den = native().footprint_sums(self.offsets.contiguous(), self.gaussian_ids.contiguous(),
+                                               self.t.contiguous(), self.response.contiguous(), op, grp, w,
+                                               float(margin), float(alpha_max))
+            return num, den
+        return self._footprint_sums_torch(op, grp, w, margin, alpha_max)
+
+    def _footprint_sums_torch(self, op: torch.Tensor, grp: torch.Tensor, w: torch.Tensor, margin: float,
+                              alpha_max: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The same sums in torch (devices without the C++ loop; a cross-check in the tests)."""
+        n = op.shape[0]
+        m = grp.shape[0] - 1
+        ray = self.ray_ids()
+        ids = self.gaussian_ids.long()
+        log1m = torch.log1p(-(op[ids] * self.response).clamp(max=alpha_max))
+        excl = torch.cumsum(log1m, 0) - log1m
+        key = ray.to(self.t.dtype) * (float(self.t.max()) + abs(margin) + 1.0 if self.num_hits else 1.0) + self.t
+        first = self.offsets[:-1][ray]
+        j = torch.maximum(torch.searchsorted(key, key - margin), first)
+        t_before = torch.exp(excl[j] - excl[first])
+        group = torch.searchsorted(grp, ray, right=True) - 1
+        cell = group * n + ids
+        wg = w[ray] * self.response
+        den = torch.zeros(m * n, dtype=self.t.dtype, device=self.t.device).index_add_(0, cell, wg)
+        num = torch.zeros(m * n, dtype=self.t.dtype, device=self.t.device).index_add_(0, cell, wg * t_before)
+        return num.reshape(m, n), den.reshape(m, n)
+
     def of_ray(self, r: int):
         """(ids, t, response) of one ray."""
         a, b = int(self.offsets[r]), int(self.offsets[r + 1])

@@ -141,6 +141,46 @@ def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor,
                        evaluations=ev.reshape(batch))
 
 
+def trace_transmittance(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor, *,
+                        opacities: torch.Tensor | None = None, t_min=0.0, t_max=math.inf,
+                        alpha_min: float | None = None, t_stop: float = 1e-4,
+                        exclude: torch.Tensor | None = None) -> torch.Tensor:
+    """Transmittance [...] of each ray, without gradients, features or hit lists: the fast path.
+
+    Same rays, acceptance rules and arguments as ``trace``; the hits are multiplied in BVH
+    traversal order in one pass, so the result equals ``trace(...).transmittance`` to rounding
+    when t_stop = 0, and both are below t_stop when the ray is stopped early. On CUDA it runs
+    ``trace`` (the CPU kernel is the one that needs the shortcut).
+    """
+    if not isinstance(scene, GaussianScene):
+        raise TypeError(f"scene must be a GaussianScene, got {type(scene).__name__}")
+    if scene.device.type != "cpu":
+        with torch.no_grad():
+            return trace(scene, origins, directions, opacities=opacities, t_min=t_min, t_max=t_max,
+                         alpha_min=alpha_min, t_stop=t_stop, exclude=exclude).transmittance
+    alpha_min = scene.bvh_alpha_min if alpha_min is None else float(alpha_min)
+    _checks.check_params(alpha_min, t_stop)
+    n, dtype, device = scene.num_gaussians, scene.dtype, scene.device
+    o, d, tmin, tmax, batch = _checks.prepare_rays(origins, directions, t_min, t_max, dtype, device)
+    opac = scene.opacities if opacities is None else opacities
+    _checks.check_opacities(opac, n)
+    s = native().SceneTensors()
+    s.means, s.log_scales, s.rotations = (t.detach().to(dtype).contiguous()
+                                          for t in (scene.means, scene.log_scales, scene.rotations))
+    s.opacities = opac.detach().to(device, dtype).contiguous()
+    s.normals = torch.zeros(0, 3, dtype=dtype, device=device)
+    s.features = torch.zeros(n, 0, dtype=dtype, device=device)
+    scene.ensure_bvh(alpha_min)
+    s.nodes, s.prim_order = scene.nodes, scene.prim_order
+    r = native().RayTensors()
+    r.origins, r.dirs, r.t_min, r.t_max = o, d, tmin, tmax
+    if exclude is not None:
+        r.exclude = torch.broadcast_to(torch.as_tensor(exclude, device=device), batch).reshape(-1).to(
+            torch.int32).contiguous()
+    trans, _evals = native().transmittance(s, r, _params(alpha_min, t_stop))
+    return trans.reshape(batch)
+
+
 def transmittance_to_points(scene: GaussianScene, origins: torch.Tensor, gaussian_ids: torch.Tensor,
                             *, opacities: torch.Tensor | None = None, alpha_min: float | None = None,
                             t_stop: float = 1e-4, return_hits: bool = False) -> TraceResult:

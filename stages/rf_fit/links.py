@@ -52,18 +52,20 @@ def _enclosed(geom: FrozenGeometry, pts: torch.Tensor) -> torch.Tensor:
     i.e. the point is inside a closed surface whose normals point outward (a room's walls face
     into the room, so antennas inside a room are not 'inside')."""
     means, normals = geom.means, geom.normals
-    reach = 2.0 * torch.exp(geom.log_scales).max(-1).values                  # [G]
+    reach2 = (2.0 * torch.exp(geom.log_scales).max(-1).values) ** 2           # [G]
     inside = torch.ones(len(pts), dtype=torch.bool)
-    for d in torch.cat([torch.eye(3), -torch.eye(3)]).double():
-        diff = means[None] - pts[:, None]                                     # [P, G, 3]
-        t = diff @ d
-        perp = (diff - t[..., None] * d).norm(dim=-1)
-        hit = (t > 0) & (perp < reach[None])
-        t_hit = torch.where(hit, t, torch.full_like(t, float("inf")))
-        first = t_hit.argmin(1)
-        any_hit = torch.isfinite(t_hit.min(1).values)
-        away = (normals[first] @ d) > 0
-        inside &= any_hit & away
+    diff = means[None] - pts[:, None]                                         # [P, G, 3]
+    sq = diff * diff
+    for k in range(3):
+        # along +-e_k: t = +-diff_k, and the squared distance off the line is the other two components
+        near_line = sq[..., (k + 1) % 3] + sq[..., (k + 2) % 3] < reach2[None]
+        for sign in (1.0, -1.0):
+            t = sign * diff[..., k]
+            t_hit = torch.where((t > 0) & near_line, t, torch.full_like(t, float("inf")))
+            first = t_hit.argmin(1)
+            any_hit = torch.isfinite(t_hit.min(1).values)
+            away = sign * normals[first, k] > 0                                # the first surfel faces away
+            inside &= any_hit & away
     return inside
 
 

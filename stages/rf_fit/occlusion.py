@@ -66,6 +66,27 @@ class OcclusionProvider(Protocol):
     def segment_transmittance(self, origins: torch.Tensor, target_ids: torch.Tensor, margin_m: float,
                               opacity: torch.Tensor, t_stop: float = 1e-4) -> torch.Tensor: ...
 
+    def footprint_sums(self, origins: torch.Tensor, directions: torch.Tensor, group_offsets: torch.Tensor,
+                       ray_weight: torch.Tensor, opacity: torch.Tensor, t_stop: float,
+                       margin_m: float) -> tuple[torch.Tensor, torch.Tensor]: ...
+
+
+def transmittance_before_from_table(hits: HitTable, opacity: torch.Tensor, margin_m: float,
+                                    alpha_max: float = 0.99) -> torch.Tensor:
+    """[H]: per hit, prod of (1 - min(a G, alpha_max)) over its query's hits with t < t_hit - margin_m."""
+    n = hits.query.numel()
+    if n == 0:
+        return torch.zeros(0, dtype=torch.float64)
+    idx = torch.arange(n)
+    new_query = torch.ones(n, dtype=torch.bool)
+    new_query[1:] = hits.query[1:] != hits.query[:-1]
+    first = torch.cummax(torch.where(new_query, idx, torch.zeros_like(idx)), 0).values
+    key = hits.query.double() * (float(hits.t_m.max()) + margin_m + 1.0) + hits.t_m
+    j = torch.maximum(torch.searchsorted(key, key - margin_m), first)
+    log1m = torch.log1p(-(opacity.double()[hits.gaussian] * hits.response).clamp(max=alpha_max))
+    excl = torch.cumsum(log1m, 0) - log1m
+    return torch.exp(excl[j] - excl[first])
+
 
 def product_from_hits(hits: HitTable, opacity: torch.Tensor) -> torch.Tensor:
     """Transmittance [Q] = prod over each query's hits of (1 - min(a G, 0.99))."""
@@ -159,6 +180,20 @@ class BruteForceOcclusion:
         length = (self.geom.means[target_ids[hits.query]] - origins[hits.query].double()).norm(dim=-1)
         return product_from_hits(hits.select(hits.t_m < length - margin_m), opacity)
 
+    def footprint_sums(self, origins, directions, group_offsets, ray_weight, opacity, t_stop, margin_m) -> tuple:
+        """(num, den) [M, G]: per group of rays (group_offsets [M + 1]) and Gaussian, the sums of w G T and
+        of w G over its hits (every hit: no early stop here), T the transmittance in front with `opacity`
+        ignoring the last margin_m, w = ray_weight [R]."""
+        hits = self.ray_hits(origins, directions)
+        m, g = group_offsets.shape[0] - 1, self.geom.num
+        group = torch.searchsorted(group_offsets, hits.query, right=True) - 1
+        cell = group * g + hits.gaussian
+        wg = ray_weight.double()[hits.query] * hits.response
+        t_before = transmittance_before_from_table(hits, opacity, margin_m)
+        den = torch.zeros(m * g, dtype=torch.float64).index_add_(0, cell, wg)
+        num = torch.zeros(m * g, dtype=torch.float64).index_add_(0, cell, wg * t_before)
+        return num.reshape(m, g), den.reshape(m, g)
+
 
 class TracerOcclusion:
     """rfir_tracer's BVH (transmittance_to_points for segments, trace for rays)."""
@@ -227,10 +262,36 @@ class TracerOcclusion:
                 d = (self.geom.means[ids].double() - o)
                 length = d.norm(dim=-1).clamp(min=1e-12)
                 t_max = (1.0 - margin_m / length).clamp(min=0.0)
-                res = self._rt.trace(self.scene, o, d.contiguous(), opacities=op, t_min=0.0, t_max=t_max,
-                                     alpha_min=self.alpha_min, t_stop=t_stop, exclude=ids)
-                out[a:b] = res.transmittance
+                out[a:b] = self._rt.trace_transmittance(self.scene, o, d.contiguous(), opacities=op, t_min=0.0,
+                                                        t_max=t_max, alpha_min=self.alpha_min, t_stop=t_stop,
+                                                        exclude=ids)
         return out
+
+    def footprint_sums(self, origins, directions, group_offsets, ray_weight, opacity, t_stop, margin_m) -> tuple:
+        """(num, den) [M, G] as BruteForceOcclusion.footprint_sums, each ray's hits ending where its
+        transmittance falls below t_stop; traced in chunks of whole groups, summed in C++."""
+        op = opacity.double().contiguous()
+        m = group_offsets.shape[0] - 1
+        nums, dens = [], []
+        with torch.no_grad():
+            k = 0
+            while k < m:
+                a = int(group_offsets[k])
+                # as many whole groups as fit in one chunk of rays (at least one)
+                k_end = max(k + 1, int(torch.searchsorted(group_offsets, a + self.chunk, right=True)) - 1)
+                k_end = min(k_end, m)
+                b = int(group_offsets[k_end])
+                res = self._rt.trace(self.scene, origins[a:b].double().contiguous(), directions[a:b].double().contiguous(),
+                                     opacities=op, alpha_min=self.alpha_min, t_stop=t_stop, return_hits=True)
+                num, den = res.hits.footprint_sums(op, group_offsets[k:k_end + 1] - a, ray_weight[a:b].double(),
+                                                   margin_m)
+                nums.append(num)
+                dens.append(den)
+                k = k_end
+        if not nums:
+            e = torch.zeros(0, self.geom.num, dtype=torch.float64)
+            return e, e.clone()
+        return torch.cat(nums), torch.cat(dens)
 
 
 def make_provider(kind: str, geom: FrozenGeometry, alpha_min: float = 1e-3) -> OcclusionProvider:

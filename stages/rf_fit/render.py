@@ -171,14 +171,19 @@ def _segments(provider: OcclusionProvider, geom: FrozenGeometry, origins: torch.
     return _Segments(hits.query, hits.gaussian, hits.response)
 
 
-def _grid_rays(provider, geom, links: LinkSet, rx_ant: AntennaPattern, settings: RenderSettings,
-               opacity: torch.Tensor | None = None):
-    """Grid-ray hit tables of every receiver, and the static denominators of Tbar."""
+def _grid_directions(geom: FrozenGeometry, links: LinkSet, rx_ant: AntennaPattern, settings: RenderSettings):
+    """Every receiver's grid rays toward the scene: (origins [R, 3], dirs [R, 3], dOmega [R] sr, link [R])."""
     centre = 0.5 * (geom.means.min(0).values + geom.means.max(0).values)
     radius = float((geom.means - centre).norm(dim=-1).max() + 4.0 * torch.exp(geom.log_scales).max())
     local_d, local_w = local_grid(settings.grid_step_deg, rx_ant.front_only)
     dirs, dom, link_of = rays_toward_sphere_batch(links.rx_m, links.rx_axis, centre, radius, local_d, local_w)
-    origins = links.rx_m[link_of]
+    return links.rx_m[link_of], dirs, dom, link_of
+
+
+def _grid_rays(provider, geom, links: LinkSet, rx_ant: AntennaPattern, settings: RenderSettings,
+               opacity: torch.Tensor | None = None):
+    """Grid-ray hit tables of every receiver, and the static denominators of Tbar."""
+    origins, dirs, dom, link_of = _grid_directions(geom, links, rx_ant, settings)
     hits: HitTable = provider.ray_hits(origins, dirs, opacity, settings.t_stop if opacity is not None else 0.0)
     g = geom.num
     n = hits.query.numel()
@@ -244,17 +249,28 @@ def build_cache(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
 
             v = traced(links.tx_m)
             t_c = v if colocated else traced(links.rx_m)
-            cache.rays = _grid_rays(provider, geom, links, rx_ant, settings, a_vis)
-        den = torch.full((links.num * geom.num,), cache.w_c, dtype=torch.float64)
-        if cache.rays is not None:
-            den.index_add_(0, cache.rays.pair, cache.rays.weight)
-        cache.den = den
-        if not settings.learn_visibility:  # frozen: evaluate once, drop the tables
+            cache.den, tbar = _frozen_tbar(provider, geom, links, rx_ant, settings, a_vis, t_c, cache.w_c)
             shape = (links.num, geom.num)
-            cache.v_fixed = v.reshape(shape)
-            cache.tbar_fixed = _tbar(cache, t_c, a_vis).reshape(shape)
-            cache.rays = None
+            cache.v_fixed, cache.tbar_fixed = v.reshape(shape), tbar.reshape(shape)
+            return cache
+        den = torch.full((links.num * geom.num,), cache.w_c, dtype=torch.float64)
+        den.index_add_(0, cache.rays.pair, cache.rays.weight)
+        cache.den = den
     return cache
+
+
+def _frozen_tbar(provider: OcclusionProvider, geom: FrozenGeometry, links: LinkSet, rx_ant: AntennaPattern,
+                 settings: RenderSettings, opacity: torch.Tensor, t_c: torch.Tensor, w_c: float):
+    """(den, Tbar), each [M * G], with fixed opacities [G]: the same sums as `_tbar` over the grid rays
+    (stopped where their transmittance < t_stop), with each hit's transmittance in front of it
+    composited by the provider instead of kept as tables."""
+    origins, dirs, dom, link_of = _grid_directions(geom, links, rx_ant, settings)
+    group_offsets = torch.searchsorted(link_of, torch.arange(links.num + 1))   # rays come grouped by link
+    num, den = provider.footprint_sums(origins, dirs, group_offsets, dom, opacity, settings.t_stop,
+                                       settings.self_shadow_margin_m)
+    den = den.reshape(-1) + w_c
+    num = num.reshape(-1) + w_c * t_c
+    return den, torch.where(den > 0, num / den.clamp(min=1e-300), t_c)
 
 
 def _cull_mask(amp: torch.Tensor, lobe: torch.Tensor, mats: Materials, rel: float) -> torch.Tensor:
