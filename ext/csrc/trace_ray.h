@@ -72,6 +72,19 @@ RFIR_HD float widen_hi(T v) {
   return f + 1e-5f * fabsf(f) + 1e-7f;
 }
 
+// The acceptance rules every traversal shares: the peak lies inside the bound (maha <= kappa2)
+// and inside (t_lo, t_hi), and alpha = min(opacity G, alpha_max) >= alpha_min.
+template <typename T>
+RFIR_HD bool accept_candidate(const T* prim, const T* o, const T* d, T t_lo, T t_hi, T kappa2, T amin, T amax,
+                              Peak<T>& pk, T& G, T& alpha) {
+  if (!peak_along_ray(prim, o, d, pk, kappa2)) return false;
+  if (!(pk.maha <= kappa2) || !(pk.t > t_lo && pk.t < t_hi)) return false;
+  G = r_exp(T(-0.5) * pk.maha);
+  alpha = prim[kOpa] * G;
+  alpha = alpha > amax ? amax : alpha;
+  return alpha >= amin;
+}
+
 // One pass: fill buf with the C nearest accepted hits with key > (last_t, last_id).
 template <typename T, int C>
 RFIR_HD void collect_hits(const SceneView<T>& sc, const T* o, const T* d, T t_lo, T t_hi,
@@ -100,13 +113,9 @@ RFIR_HD void collect_hits(const SceneView<T>& sc, const T* o, const T* d, T t_lo
         const T* prim = sc.prims + int64_t(k) * kPrimStride;
         ++evals;
         Peak<T> pk;
-        if (!peak_along_ray(prim, o, d, pk, kappa2)) continue;
-        if (!(pk.maha <= kappa2) || !(pk.t > t_lo && pk.t < t_hi)) continue;
+        T G, alpha;
+        if (!accept_candidate(prim, o, d, t_lo, t_hi, kappa2, amin, amax, pk, G, alpha)) continue;
         if (pk.t < last_t || (pk.t == last_t && id <= last_id)) continue;
-        const T G = r_exp(T(-0.5) * pk.maha);
-        T alpha = prim[kOpa] * G;
-        alpha = alpha > amax ? amax : alpha;
-        if (!(alpha >= amin)) continue;
         buf.insert(pk.t, id, G, alpha);
       }
     } else {
@@ -228,11 +237,8 @@ RFIR_HD T trace_ray_transmittance(const SceneView<T>& sc, const RayBatch<T>& ray
         const T* prim = sc.prims + int64_t(k) * kPrimStride;
         ++evals;
         Peak<T> pk;
-        if (!peak_along_ray(prim, o, d, pk, kappa2)) continue;
-        if (!(pk.maha <= kappa2) || !(pk.t > t_lo && pk.t < t_hi)) continue;
-        T alpha = prim[kOpa] * r_exp(T(-0.5) * pk.maha);
-        alpha = alpha > amax ? amax : alpha;
-        if (!(alpha >= amin)) continue;
+        T G, alpha;
+        if (!accept_candidate(prim, o, d, t_lo, t_hi, kappa2, amin, amax, pk, G, alpha)) continue;
         Tr *= T(1) - alpha;
         if (Tr < stop) return Tr;
       }

@@ -80,6 +80,23 @@ def _params(alpha_min: float, t_stop: float):
     return p
 
 
+def _checked(scene, origins, directions, opacities, t_min, t_max, alpha_min, t_stop):
+    """Validated (alpha_min, prepared rays (o, d, t_min, t_max, batch shape), opacities) of one call."""
+    if not isinstance(scene, GaussianScene):
+        raise TypeError(f"scene must be a GaussianScene, got {type(scene).__name__}")
+    alpha_min = scene.bvh_alpha_min if alpha_min is None else float(alpha_min)
+    _checks.check_params(alpha_min, t_stop)
+    rays = _checks.prepare_rays(origins, directions, t_min, t_max, scene.dtype, scene.device)
+    opac = scene.opacities if opacities is None else opacities
+    _checks.check_opacities(opac, scene.num_gaussians)
+    return alpha_min, rays, opac
+
+
+def _exclude_ids(exclude, batch, device) -> torch.Tensor:
+    """[R] int32 Gaussian id each ray ignores, broadcast over the rays' batch shape."""
+    return torch.broadcast_to(torch.as_tensor(exclude, device=device), batch).reshape(-1).to(torch.int32).contiguous()
+
+
 def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor, *,
           features: torch.Tensor | None = None, opacities: torch.Tensor | None = None,
           t_min=0.0, t_max=math.inf, alpha_min: float | None = None, t_stop: float = 1e-4,
@@ -102,14 +119,9 @@ def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor,
         TraceResult with features [..., K], depth, depth_sq, transmittance [...], normal
         [..., 3], hit_count [...] int32, hits (or None).
     """
-    if not isinstance(scene, GaussianScene):
-        raise TypeError(f"scene must be a GaussianScene, got {type(scene).__name__}")
-    alpha_min = scene.bvh_alpha_min if alpha_min is None else float(alpha_min)
-    _checks.check_params(alpha_min, t_stop)
+    alpha_min, (o, d, tmin, tmax, batch), opac = _checked(scene, origins, directions, opacities, t_min, t_max,
+                                                          alpha_min, t_stop)
     n, dtype, device = scene.num_gaussians, scene.dtype, scene.device
-    o, d, tmin, tmax, batch = _checks.prepare_rays(origins, directions, t_min, t_max, dtype, device)
-    opac = scene.opacities if opacities is None else opacities
-    _checks.check_opacities(opac, n)
     if features is None:
         features = torch.zeros(n, 0, dtype=dtype, device=device)
     if not isinstance(features, torch.Tensor) or features.dim() != 2:
@@ -123,10 +135,7 @@ def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor,
     for t, name in ((opac, "opacities"), (features, "features"), (normals, "normals")):
         if t.device != device:
             raise ValueError(f"{name} is on {t.device} but the scene is on {device}")
-    ex = None
-    if exclude is not None:
-        ex = torch.broadcast_to(torch.as_tensor(exclude, device=device), batch).reshape(-1)
-        ex = ex.to(torch.int32).contiguous()
+    ex = None if exclude is None else _exclude_ids(exclude, batch, device)
     scene.ensure_bvh(alpha_min)
     tensors = [scene.means, scene.log_scales, scene.rotations, opac, normals, features]
     tensors = [t.to(dtype).contiguous() for t in tensors]
@@ -152,18 +161,13 @@ def trace_transmittance(scene: GaussianScene, origins: torch.Tensor, directions:
     when t_stop = 0, and both are below t_stop when the ray is stopped early. On CUDA it runs
     ``trace`` (the CPU kernel is the one that needs the shortcut).
     """
-    if not isinstance(scene, GaussianScene):
-        raise TypeError(f"scene must be a GaussianScene, got {type(scene).__name__}")
-    if scene.device.type != "cpu":
+    if isinstance(scene, GaussianScene) and scene.device.type != "cpu":
         with torch.no_grad():
             return trace(scene, origins, directions, opacities=opacities, t_min=t_min, t_max=t_max,
                          alpha_min=alpha_min, t_stop=t_stop, exclude=exclude).transmittance
-    alpha_min = scene.bvh_alpha_min if alpha_min is None else float(alpha_min)
-    _checks.check_params(alpha_min, t_stop)
+    alpha_min, (o, d, tmin, tmax, batch), opac = _checked(scene, origins, directions, opacities, t_min, t_max,
+                                                          alpha_min, t_stop)
     n, dtype, device = scene.num_gaussians, scene.dtype, scene.device
-    o, d, tmin, tmax, batch = _checks.prepare_rays(origins, directions, t_min, t_max, dtype, device)
-    opac = scene.opacities if opacities is None else opacities
-    _checks.check_opacities(opac, n)
     s = native().SceneTensors()
     s.means, s.log_scales, s.rotations = (t.detach().to(dtype).contiguous()
                                           for t in (scene.means, scene.log_scales, scene.rotations))
@@ -175,8 +179,7 @@ def trace_transmittance(scene: GaussianScene, origins: torch.Tensor, directions:
     r = native().RayTensors()
     r.origins, r.dirs, r.t_min, r.t_max = o, d, tmin, tmax
     if exclude is not None:
-        r.exclude = torch.broadcast_to(torch.as_tensor(exclude, device=device), batch).reshape(-1).to(
-            torch.int32).contiguous()
+        r.exclude = _exclude_ids(exclude, batch, device)
     trans, _evals = native().transmittance(s, r, _params(alpha_min, t_stop))
     return trans.reshape(batch)
 
