@@ -28,7 +28,7 @@ import torch
 
 from rfir_cli.artifacts import read_artifact
 from rfir_stages.baselines.nerf2 import Nerf2Settings, predict_nerf2, train_nerf2
-from rfir_stages.predict.baselines import aspect_baselines
+from rfir_stages.predict.baselines import aspect_baselines, range_baselines
 from rfir_stages.rf_fit.splits import describe, protocol_masks
 
 HOLDOUT_TX = [6, 11, 14, 17]
@@ -158,17 +158,18 @@ def main(argv: list[str] | None = None) -> dict:
     }
     if task == "rcs":
         out["split_protocol"] = a.protocol
-        base = aspect_baselines(np.asarray(d["aspect_rad"], np.float64), np.asarray(d["range_m"], np.float64),
-                                score[:, None], train_idx, test_idx)
-        for k in ("nearest", "linear"):
-            out["metrics"][f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(base[k][:, 0] - y[test_idx])))
+        asp, rng = np.asarray(d["aspect_rad"], np.float64), np.asarray(d["range_m"], np.float64)
+        base = {**aspect_baselines(asp, rng, score[:, None], train_idx, test_idx),
+                **range_baselines(asp, rng, score[:, None], train_idx, test_idx)}
+        for k, b in base.items():   # a baseline that has no training rows to copy (e.g. aspect ones at an unseen range) is left out
+            err = np.abs(b[:, 0] - y[test_idx])
+            if np.isfinite(err).all():
+                out["metrics"][f"baseline_{k}_mae_db"] = float(err.mean())
 
     Path(a.results).parent.mkdir(parents=True, exist_ok=True)
     Path(a.results).write_text(json.dumps(out, indent=2) + "\n")
-    extra = ""
-    if task == "rcs":
-        extra = (f"  nearest-aspect {out['metrics']['baseline_nearest_mae_db']:.3f} dB, "
-                 f"linear {out['metrics']['baseline_linear_mae_db']:.3f} dB")
+    extra = "".join(f"  {k[len('baseline_'):-len('_mae_db')]} {v:.3f} dB" for k, v in out["metrics"].items()
+                    if k.startswith("baseline_") and k != "baseline_train_mean_mae_db")
     print(f"test MAE {mae_test:.3f} dB  train MAE {mae_train:.3f} dB  (train-mean predictor {mean_mae:.3f} dB){extra}  "
           f"epochs {len(hist['epochs'])} ({hist['stopped_by']})  train {train_s:.0f} s  wall {wall:.0f} s  -> {a.results}")
     return out

@@ -224,21 +224,43 @@ def test_source_box_normalises_a_far_radar_and_leaves_rssi_alone():
     assert (n.abs() <= 1).all() and n.abs().max() > 0.8
 
 
-def _rcs_file(path, n_deg=4.0, offset=None):
-    """A small monostatic RCS artifact: radar at 3 m in the horizontal plane, aspects every
+def _rcs_file(path, n_deg=4.0, offset=None, ranges=(3.0,)):
+    """A small monostatic RCS artifact: radar at `ranges` m in the horizontal plane, aspects every
     n_deg degrees, path gain -60 + 5 cos(3 a) dB, rcs_dbsm = path gain + a per-row constant."""
     from rfir_cli.artifacts import write_artifact
 
-    a = np.radians(np.arange(0.0, 360.0, n_deg))
-    rx = np.stack([3 * np.cos(a), 3 * np.sin(a), np.full_like(a, 0.001)], 1)
+    a1 = np.radians(np.arange(0.0, 360.0, n_deg))
+    a, r = np.tile(a1, len(ranges)), np.repeat(np.asarray(ranges, float), len(a1))
+    rx = np.stack([r * np.cos(a), r * np.sin(a), np.full_like(a, 0.001)], 1)
     pg = (-60.0 + 5.0 * np.cos(3 * a))[:, None]
     off = 30.0 + 2.0 * np.sin(a) if offset is None else offset(a)
     write_artifact(path, "measurements", {
         "tx_pos": rx, "rx_pos": rx, "freq_hz": np.array([2.4e9]), "path_gain_db": pg,
         "split": (np.arange(len(a)) % 2).astype(np.int64), "tx_id": np.arange(len(a)),
         "rx_id": np.arange(len(a)), "scene_bounds": BOX, "rcs_dbsm": pg + off[:, None],
-        "aspect_rad": a, "range_m": np.full(len(a), 3.0)}, attrs={"task": "rcs", "scene": "synthetic"})
+        "aspect_rad": a, "range_m": r}, attrs={"task": "rcs", "scene": "synthetic"})
     return a, pg[:, 0] + off
+
+
+def test_rcs_cli_range_protocol_reports_range_baselines_and_strict_json(tmp_path):
+    """Held-out range: aspect baselines have nothing to copy (left out, no NaN in the JSON); the
+    nearest / linear range baselines are scored instead."""
+    import json
+
+    meas = tmp_path / "m.h5"
+    _, rcs = _rcs_file(meas, n_deg=10.0, ranges=(2.0, 3.0, 4.0))
+    res = tmp_path / "r.json"
+    _cli().main([str(meas), "--task", "rcs", "--protocol", "range:3", "--results", str(res), "--epochs", "2", *FAST])
+
+    def no_constants(name):
+        raise ValueError(f"{name} in the results JSON")
+
+    m = json.loads(res.read_text(), parse_constant=no_constants)["metrics"]
+    assert "baseline_nearest_mae_db" not in m and "baseline_linear_mae_db" not in m
+    # rcs_dbsm does not depend on range here, so copying another range is exact
+    assert m["baseline_nearest_range_mae_db"] == pytest.approx(0.0, abs=1e-9)
+    assert m["baseline_linear_range_mae_db"] == pytest.approx(0.0, abs=1e-9)
+    assert m["num_test"] == len(rcs) // 3
 
 
 def _cli():
