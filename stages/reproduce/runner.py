@@ -1,8 +1,11 @@
 """Running the steps of a reproduce target: commands, their logs, wall times and a cache.
 
-A step is a command line plus the file it produces. If that file exists (and --force is not
-given) the step is skipped and its earlier wall time is reused, so an interrupted `make reproduce`
-resumes where it stopped and a table can be rebuilt without rerunning anything.
+A step is a command line plus the file it produces. If that file exists and this data folder
+holds the step's stamp (DATA/steps/<label>.done, written when the step succeeded here; --force
+ignores both) the step is skipped and its earlier wall time is reused, so an interrupted
+`make reproduce` resumes where it stopped and a table can be rebuilt without rerunning anything.
+The stamp lives beside the generated data, which is never committed: results that came with a
+clone (results/reproduce/json) do not count as done, so a fresh clone reruns every step.
 """
 from __future__ import annotations
 
@@ -62,7 +65,8 @@ class Runner:
         The command's output goes to OUT/logs/<label>.log; a failure raises StageError naming it."""
         produces = Path(produces)
         self.used.add(label)
-        if produces.exists() and not self.force:
+        stamp = self.data / "steps" / f"{label}.done"
+        if produces.exists() and stamp.exists() and not self.force:
             self._say(f"[dim]cached[/] {label}")
             return float(self.times.get(label, 0.0))
         log = self.out / "logs" / f"{label}.log"
@@ -79,6 +83,8 @@ class Runner:
             raise StageError(f"step '{label}' failed ({why}); see the log", path=log)
         self.times[label] = wall
         self._write_times()
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        stamp.write_text(f"{produces}\n{wall:.1f} s\n")
         self._say(f"    done in {wall:.0f} s")
         return wall
 

@@ -52,6 +52,21 @@ def test_step_runs_once_then_is_cached(tmp_path):
     assert target.read_text() == "xx"                                # --force reruns
 
 
+def test_outputs_that_came_without_this_data_folders_stamp_are_rerun(tmp_path):
+    """A fresh clone holds results/reproduce/json but no generated data: its steps must run."""
+    target = tmp_path / "out" / "json" / "committed.json"
+    target.parent.mkdir(parents=True)
+    target.write_text("old")
+    argv = [sys.executable, "-c", f"open({str(target)!r}, 'w').write('new')"]
+    r = Runner(tmp_path / "fresh_data", tmp_path / "out", echo=False)
+    r.step("committed", argv, target)
+    assert target.read_text() == "new"
+    assert (tmp_path / "fresh_data" / "steps" / "committed.done").exists()
+    target.write_text("kept")
+    r.step("committed", argv, target)                                # stamped now: cached
+    assert target.read_text() == "kept"
+
+
 def test_failed_step_names_its_log(tmp_path):
     r = Runner(tmp_path / "data", tmp_path / "out", echo=False)
     with pytest.raises(StageError, match=r"make\.log.*exit 3"):
