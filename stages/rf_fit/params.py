@@ -7,6 +7,7 @@ transmitted signal, learned because the model's absolute level depends on the Ga
 (docs/rf-model.md).
 
 Optional incoherent term (docs/rf-model.md): D = sigmoid(theta_d) in (0, 1), R_d = 1 + exp(theta_rd).
+coherent=False drops the coherent sum (Gamma = 0, not learned): the incoherent term alone.
 
 Sharing: "gaussian" (one set per Gaussian), "label" (one per object label), "global" (one).
 """
@@ -34,10 +35,13 @@ class RFParams(nn.Module):
 
     def __init__(self, index: torch.Tensor, num_freqs: int, *, opacity: float = 0.9, roughness: float = 4.0,
                  gamma_abs: float = 0.5, gamma_phase_rad: float = 0.0, diffuse: float | None = None,
-                 diffuse_roughness: float = 2.0):
+                 diffuse_roughness: float = 2.0, coherent: bool = True):
         super().__init__()
         if roughness < 1.0:
             raise ValueError(f"initial roughness must be >= 1, got {roughness}")
+        if not coherent and diffuse is None:
+            raise ValueError("a model without the coherent sum needs the diffuse term")
+        self.coherent = bool(coherent)
         p = int(index.max()) + 1 if index.numel() else 0
         self.register_buffer("index", index.long())
         full = lambda v: nn.Parameter(torch.full((p,), float(v), dtype=torch.float64))  # noqa: E731
@@ -67,7 +71,7 @@ class RFParams(nn.Module):
 
     def materials(self) -> Materials:
         i = self.index
-        gamma_abs = torch.sigmoid(self.theta_g)[i]
+        gamma_abs = torch.sigmoid(self.theta_g)[i] if self.coherent else torch.zeros_like(self.theta_g[i])
         gamma = torch.polar(gamma_abs, self.theta_phi[i])
         diffuse = torch.sigmoid(self.theta_d)[i] if self.has_diffuse else None
         diffuse_r = 1.0 + torch.exp(self.theta_rd)[i] if self.has_diffuse else None
@@ -85,6 +89,8 @@ class RFParams(nn.Module):
             raise ValueError(f"unknown learnable attribute(s) {sorted(unknown)} (known: {sorted(table)})")
         if not self.has_diffuse:
             names = [n for n in names if n not in ("diffuse", "diffuse_roughness")]
+        if not self.coherent:
+            names = [n for n in names if n not in ("gamma_abs", "gamma_phase")]
         for key, param in table.items():
             param.requires_grad_(key in names)
         return [{"params": [table[n]], "name": n} for n in names]

@@ -23,16 +23,17 @@ from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 
 from .antennas import resolve_antenna
-from .fit import FitConfig, FitResult, fit
+from .fit import FitConfig, FitResult, fit, mae_db, predict_db
 from .unseen import fill_unseen, unseen_mask
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
 from .params import RFParams
-from .render import RenderSettings, build_cache
+from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
 from .splits import split_rows
 from .wideband_stage import is_wideband_request, run_wideband
 
+SCATTERING = ("auto", "coherent", "incoherent")
 RENDER_KEYS = ("visibility", "grid_step_deg", "center_ray_cells", "self_shadow_margin_m", "alpha_min",
                "colocated_tol_m", "learn_visibility", "t_stop", "path_loss", "phase")
 FIT_KEYS = ("iterations", "lr", "s_tx_lr", "loss", "huber_db", "learn", "init_opacity", "init_roughness",
@@ -55,6 +56,7 @@ class RfFitResult:
     trace_time_s: float
     occlusion: str
     timings_s: dict = field(default_factory=dict)
+    scattering: dict = field(default_factory=dict)   # requested / selected model, validation MAEs
 
 
 def settings_from_config(cfg: dict) -> tuple[RenderSettings, FitConfig]:
@@ -93,6 +95,11 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                         config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, str(measurements_path))
+    mode = str(config.get("scattering", "coherent"))
+    if mode not in SCATTERING:
+        raise ConfigError(f"rf_fit.scattering = {mode!r}: expected one of {', '.join(SCATTERING)}")
+    if mode != "coherent" and not fit_cfg.diffuse:
+        raise ConfigError(f"rf_fit.scattering = {mode!r} needs rf_fit.diffuse = true (the incoherent term)")
     protocol = str(config.get("split", "data"))
     rows, _ = split_rows(meas, protocol, str(measurements_path))
     if is_wideband_request(task, config):  # PHYSICS.md step 7: stages/rf_fit/wideband_stage.py
@@ -128,10 +135,12 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     labels = scene.get("gaussians/labels")
     index = RFParams.sharing_index(fit_cfg.sharing, geom.num,
                                    None if labels is None else torch.as_tensor(np.asarray(labels)))
-    params = RFParams(index, len(freqs), opacity=fit_cfg.init_opacity, roughness=fit_cfg.init_roughness,
-                      gamma_abs=fit_cfg.init_gamma_abs, gamma_phase_rad=fit_cfg.init_gamma_phase_rad,
-                      diffuse=fit_cfg.init_diffuse if fit_cfg.diffuse else None,
-                      diffuse_roughness=fit_cfg.init_diffuse_roughness)
+    scattering = {"requested": mode, "selected": mode}
+    t_sel = time.time()
+    if mode == "auto":
+        scattering = _select_scattering(geom, links, target, ant, provider, render_cfg, index, fit_cfg, progress)
+    select_s = time.time() - t_sel
+    params = _new_params(index, len(freqs), fit_cfg, coherent=scattering["selected"] == "coherent")
     # A checkpoint fits any run with the same inputs and settings; more iterations may follow it.
     key = _key(str(scene_path.resolve()), str(measurements_path.resolve()),
                {k: v for k, v in config.items() if k not in ("iterations", "checkpoint_every")}, seed)
@@ -149,15 +158,57 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     prov.add_input(measurements_path)
     prov.wall_time_s = time.time() - t_start
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s,
-                  "occlusion": getattr(provider, "name", "off"), "fit_time_s": result.wall_time_s}
-    _write(out_path, scene, meas, task, freqs, rows, result, ant, render_cfg, fit_cfg, prov, trace_s, protocol)
+                  "occlusion": getattr(provider, "name", "off"), "fit_time_s": result.wall_time_s,
+                  "scattering_selection_time_s": select_s}
+    _write(out_path, scene, meas, task, freqs, rows, result, ant, render_cfg, fit_cfg, prov, trace_s, protocol,
+           scattering)
     return RfFitResult(out_path, geom.num, int(len(rows)), freqs.tolist(), result.train_mae_db,
                        result.initial_mae_db, result.iterations, time.time() - t_start, trace_s,
-                       getattr(provider, "name", "off"), {"trace": trace_s, "fit": result.wall_time_s})
+                       getattr(provider, "name", "off"),
+                       {"trace": trace_s, "select": select_s, "fit": result.wall_time_s}, scattering)
+
+
+def _new_params(index: torch.Tensor, num_freqs: int, fit_cfg: FitConfig, coherent: bool) -> RFParams:
+    return RFParams(index, num_freqs, opacity=fit_cfg.init_opacity, roughness=fit_cfg.init_roughness,
+                    gamma_abs=fit_cfg.init_gamma_abs, gamma_phase_rad=fit_cfg.init_gamma_phase_rad,
+                    diffuse=fit_cfg.init_diffuse if fit_cfg.diffuse else None,
+                    diffuse_roughness=fit_cfg.init_diffuse_roughness, coherent=coherent)
+
+
+def _subset(links: LinkSet, idx: np.ndarray) -> LinkSet:
+    i = torch.as_tensor(idx)
+    return LinkSet(links.tx_m[i], links.rx_m[i], links.freq_hz, links.tx_axis[i], links.rx_axis[i])
+
+
+def _select_scattering(geom, links: LinkSet, target: np.ndarray, ant, provider, render_cfg: RenderSettings,
+                       index: torch.Tensor, fit_cfg: FitConfig, progress) -> dict:
+    """Coherent sum + diffuse term, or the diffuse (incoherent) term alone: whichever predicts every
+    10th training link (held out here; the test split is never looked at) better after the same fit on
+    the other nine. Fewer than 10 training links: coherent (PHYSICS.md's model)."""
+    m = links.num
+    if m < 10:
+        progress.log(f"rf-fit: scattering = auto needs >= 10 training links (got {m}); using coherent")
+        return {"requested": "auto", "selected": "coherent", "why": "fewer than 10 training links"}
+    val = np.arange(5, m, 10) if m > 5 else np.arange(0, m, 10)
+    fit_rows = np.setdiff1d(np.arange(m), val)
+    cache_fit = build_cache(geom, _subset(links, fit_rows), ant, ant, provider, render_cfg)
+    cache_val = build_cache(geom, _subset(links, val), ant, ant, provider, render_cfg)
+    out = {"requested": "auto", "validation_links": int(len(val))}
+    for mode in ("coherent", "incoherent"):
+        params = _new_params(index, target.shape[1], fit_cfg, coherent=mode == "coherent")
+        fit(cache_fit, target[fit_rows], params, fit_cfg, progress=progress)
+        with torch.no_grad():
+            pred = predict_db(cache_val, params).numpy()
+        out[f"val_mae_{mode}_db"] = mae_db(pred, target[val])
+    out["selected"] = min(("coherent", "incoherent"), key=lambda k: out[f"val_mae_{k}_db"])
+    progress.log(f"rf-fit: validation MAE on {len(val)} held-out training links: coherent "
+                 f"{out['val_mae_coherent_db']:.2f} dB, incoherent {out['val_mae_incoherent_db']:.2f} dB "
+                 f"-> {out['selected']}")
+    return out
 
 
 def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, render_cfg: RenderSettings,
-           fit_cfg: FitConfig, prov, trace_s, protocol: str = "data") -> None:
+           fit_cfg: FitConfig, prov, trace_s, protocol: str = "data", scattering: dict | None = None) -> None:
     data = {k: v for k, v in scene.data.items() if k.startswith("gaussians/")}
     data.update({
         "rf/opacity": result.opacity, "rf/roughness": result.roughness, "rf/gamma_abs": result.gamma_abs,
@@ -174,6 +225,7 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
                       "resumed_at": result.resumed_at, "measurements": str(meas.path),
                       "split": protocol, "split_protocol": describe_split(protocol),
                       "unseen_filled": int(result.extra.get("unseen_filled", 0))}
+    training_attrs.update({f"scattering_{k}": v for k, v in (scattering or {"selected": "coherent"}).items()})
     attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
     if "label_names" in scene.attrs:
         attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)

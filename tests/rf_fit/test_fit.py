@@ -2,6 +2,7 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from rfir_stages.geom import gaussians_from_mesh
@@ -80,3 +81,16 @@ def test_fit_generalises_between_training_aspects_better_than_nearest_aspect():
     base = aspect_baselines(aspects, np.full(len(aspects), 2.5), meas, train, test)
     nearest_mae = np.nanmean(np.abs(base["nearest"] - meas[test]))
     assert model_mae < nearest_mae, (model_mae, nearest_mae)
+
+
+def test_incoherent_params_have_no_coherent_sum_and_do_not_learn_gamma():
+    from rfir_stages.rf_fit.params import RFParams
+
+    p = RFParams(torch.arange(5), 1, diffuse=0.2, coherent=False)
+    m = p.materials()
+    assert torch.equal(m.gamma, torch.zeros(5, dtype=torch.complex128)) and m.diffuse is not None
+    names = [g["name"] for g in p.groups(["opacity", "gamma_abs", "gamma_phase", "diffuse"])]
+    assert names == ["opacity", "diffuse"]
+    assert not p.theta_g.requires_grad and not p.theta_phi.requires_grad
+    with pytest.raises(ValueError, match="diffuse term"):
+        RFParams(torch.arange(5), 1, diffuse=None, coherent=False)

@@ -48,3 +48,21 @@ def test_antenna_patterns(tmp_path):
     assert auto.kind == "horn" and auto.hpbw_deg == 30.0
     assert resolve_antenna("auto", 40.0, "", {}, "rssi").kind == "isotropic"
     assert math.isclose(AntennaPattern("horn").boresight_gain, 24.29, rel_tol=1e-3)
+
+
+def test_positions_inside_a_closed_box_are_refused_and_outside_accepted():
+    """check_positions against the box's own geometry: every point well inside refused, outside fine."""
+    from rfir_stages.rf_fit.links import _enclosed, check_positions, geometry_from_artifact
+
+    from .helpers import box_fields
+
+    fields = box_fields(0.2, 0.03)
+    geom = geometry_from_artifact({k: v for k, v in fields.items()})
+    g = torch.Generator().manual_seed(3)
+    pts = (torch.rand(400, 3, generator=g, dtype=torch.float64) * 2 - 1) * 0.35
+    inside = (pts.abs() < 0.15).all(-1)
+    outside = (pts.abs() > 0.25).any(-1)
+    assert bool(_enclosed(geom, pts[inside]).all()) and not bool(_enclosed(geom, pts[outside]).any())
+    check_positions(geom, pts[outside].numpy(), "m.h5", 0.0)
+    with pytest.raises(InputFileError, match="enclosed"):
+        check_positions(geom, pts[inside][:3].numpy(), "m.h5", 0.0)

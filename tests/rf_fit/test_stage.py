@@ -134,3 +134,64 @@ def test_predict_refuses_unfitted_frequencies_and_overwriting(tiny, tmp_path):
     assert r.exit_code == 5 and "outside the fitted frequencies" in r.output
     r = CliRunner().invoke(app, ["predict", "rcs", str(tmp_path / "rf.h5"), "-o", str(tmp_path / "rf.h5")])
     assert r.exit_code == 4 and "never overwrites" in r.output
+
+
+def _scattering_measurements(path, fields, coherent: bool):
+    """36 aspects of the box rendered by a coherent-only or an incoherent-only material set."""
+    geom = geometry(fields)
+    aspects = np.arange(0, 360, 10) * DEG + 0.05
+    tx, rx, asp, rng = radar_links(aspects, np.asarray([2.0]), scene_centre(geom).numpy())
+    horn = AntennaPattern("horn")
+    links = make_links(tx, rx, [2.4e9], scene_centre(geom), "rcs")
+    g = geom.num
+    gen = torch.Generator().manual_seed(4)
+    a = torch.full((g,), 0.9, dtype=torch.float64)
+    r = 1.0 + 4.0 * torch.rand(g, generator=gen, dtype=torch.float64)
+    gamma = torch.polar(0.3 + 0.6 * torch.rand(g, generator=gen, dtype=torch.float64),
+                        6.28 * torch.rand(g, generator=gen, dtype=torch.float64))
+    m = Materials(a, r, gamma if coherent else torch.zeros(g, dtype=torch.complex128),
+                  None if coherent else 0.2 + 0.6 * torch.rand(g, generator=gen, dtype=torch.float64),
+                  None if coherent else r)
+    from rfir_stages.rf_fit.render import render_power
+
+    pg = 10 * np.log10(render_power(build_cache(geom, links, horn, horn, None, RenderSettings(visibility=False)),
+                                    m).numpy())
+    lo, hi = fields["gaussians/means"].min(0), fields["gaussians/means"].max(0)
+    write_artifact(path, "measurements", {
+        "tx_pos": tx, "rx_pos": rx, "freq_hz": np.array([2.4e9]), "path_gain_db": pg, "rcs_dbsm": pg + 40.0,
+        "aspect_rad": asp, "range_m": rng, "split": np.zeros(len(asp), dtype=np.int64),
+        "scene_bounds": np.stack([lo, hi])}, attrs={"task": "rcs", "scene": "box"})
+    return path
+
+
+@pytest.mark.parametrize("coherent", [True, False])
+def test_scattering_auto_picks_the_model_that_made_the_data(tmp_path, coherent):
+    from rfir_stages.rf_fit import run
+
+    fields = box_fields(0.06, 0.03)
+    scene = tmp_path / "scene.h5"
+    write_scene_artifact(scene, fields)
+    meas = _scattering_measurements(tmp_path / "m.h5", fields, coherent)
+    res = run(scene, meas, tmp_path / "rf.h5", {"visibility": False, "iterations": 60, "checkpoint_every": 0,
+                                                "scattering": "auto"})
+    want = "coherent" if coherent else "incoherent"
+    assert res.scattering["selected"] == want, res.scattering
+    assert res.scattering["validation_links"] == 4
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert rf.free["training@attrs"]["scattering_selected"] == want
+    if not coherent:
+        assert np.all(np.asarray(rf["rf/gamma_abs"]) == 0.0)       # no coherent sum left to predict with
+
+
+def test_scattering_mode_is_checked(tmp_path):
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit import run
+
+    fields = box_fields(0.06, 0.03)
+    scene = tmp_path / "scene.h5"
+    write_scene_artifact(scene, fields)
+    meas = _scattering_measurements(tmp_path / "m.h5", fields, True)
+    with pytest.raises(ConfigError, match="scattering"):
+        run(scene, meas, tmp_path / "rf.h5", {"scattering": "magic"})
+    with pytest.raises(ConfigError, match="diffuse = true"):
+        run(scene, meas, tmp_path / "rf.h5", {"scattering": "incoherent", "diffuse": False})
