@@ -99,3 +99,26 @@ def describe(protocol: str) -> str:
         a, b = arg.split(":")
         return f"aspects in [{a}, {b}) deg held out (test), the rest train"
     return f"rows at range {arg} m held out (test), the other ranges train"
+
+
+def validation_rows(protocol: str, aspect_deg: np.ndarray | None, range_m: np.ndarray | None) -> tuple[np.ndarray, str]:
+    """Training rows [V] to hold out when choosing between models, shaped like the protocol's test.
+
+    aspect_deg / range_m: of the training rows (None when the file has none). "sector:A:B": the
+    tenth of the training rows nearest the held-out sector (on both sides of it: an extrapolation
+    like the test's); "range:R": the rows at the training range nearest R; otherwise every 10th
+    row (an interpolation, like the data / every-N protocols). Returns (indices, description)."""
+    name, _, arg = protocol.partition(":")
+    m = len(aspect_deg) if aspect_deg is not None else len(range_m) if range_m is not None else 0
+    if name == "sector" and aspect_deg is not None and m >= 10:
+        a, b = (float(x) % 360.0 for x in arg.split(":"))
+        deg = np.mod(np.asarray(aspect_deg, np.float64), 360.0)
+        gap = np.minimum(np.mod(deg - b, 360.0), np.mod(a - deg, 360.0))   # degrees to the sector's edges
+        return np.sort(np.argsort(gap, kind="stable")[:m // 10]), "the tenth of the training rows next to the sector"
+    if name == "range" and range_m is not None:
+        rng = np.asarray(range_m, np.float64)
+        ranges = np.unique(np.round(rng, 6))
+        if ranges.size >= 2:
+            near = ranges[np.argmin(np.abs(ranges - float(arg)))]
+            return np.flatnonzero(np.abs(rng - near) < 1e-6), f"the training rows at {near:g} m"
+    return np.arange(5, m, 10) if m > 5 else np.arange(0, m, 10), "every 10th training row"

@@ -30,7 +30,7 @@ from .occlusion import make_provider
 from .params import RFParams
 from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
-from .splits import split_rows
+from .splits import split_rows, validation_rows
 from .wideband_stage import is_wideband_request, run_wideband
 
 SCATTERING = ("auto", "coherent", "incoherent")
@@ -138,7 +138,11 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     scattering = {"requested": mode, "selected": mode}
     t_sel = time.time()
     if mode == "auto":
-        scattering = _select_scattering(geom, links, target, ant, provider, render_cfg, index, fit_cfg, progress)
+        asp, rng = meas.get("aspect_rad"), meas.get("range_m")
+        val, how = validation_rows(protocol, None if asp is None else np.degrees(np.asarray(asp)[rows]),
+                                   None if rng is None else np.asarray(rng)[rows])
+        scattering = _select_scattering(geom, links, target, val, how, ant, provider, render_cfg, index, fit_cfg,
+                                        progress)
     select_s = time.time() - t_sel
     params = _new_params(index, len(freqs), fit_cfg, coherent=scattering["selected"] == "coherent")
     # A checkpoint fits any run with the same inputs and settings; more iterations may follow it.
@@ -180,20 +184,21 @@ def _subset(links: LinkSet, idx: np.ndarray) -> LinkSet:
     return LinkSet(links.tx_m[i], links.rx_m[i], links.freq_hz, links.tx_axis[i], links.rx_axis[i])
 
 
-def _select_scattering(geom, links: LinkSet, target: np.ndarray, ant, provider, render_cfg: RenderSettings,
-                       index: torch.Tensor, fit_cfg: FitConfig, progress) -> dict:
-    """Coherent sum + diffuse term, or the diffuse (incoherent) term alone: whichever predicts every
-    10th training link (held out here; the test split is never looked at) better after the same fit on
-    the other nine. Fewer than 10 training links: coherent (PHYSICS.md's model)."""
+def _select_scattering(geom, links: LinkSet, target: np.ndarray, val: np.ndarray, how: str, ant, provider,
+                       render_cfg: RenderSettings, index: torch.Tensor, fit_cfg: FitConfig, progress) -> dict:
+    """Coherent sum + diffuse term, or the diffuse (incoherent) term alone: whichever predicts the
+    validation rows `val` (training rows held out here, shaped like the protocol's test by
+    splits.validation_rows; the test split is never looked at) better after the same fit on the
+    rest. Fewer than 10 training links: coherent (PHYSICS.md's model)."""
     m = links.num
-    if m < 10:
-        progress.log(f"rf-fit: scattering = auto needs >= 10 training links (got {m}); using coherent")
-        return {"requested": "auto", "selected": "coherent", "why": "fewer than 10 training links"}
-    val = np.arange(5, m, 10) if m > 5 else np.arange(0, m, 10)
+    if m < 10 or len(val) == 0 or len(val) == m:
+        progress.log(f"rf-fit: scattering = auto needs >= 10 training links and a validation set (got {m}); "
+                     "using coherent")
+        return {"requested": "auto", "selected": "coherent", "why": "too few training links to validate"}
     fit_rows = np.setdiff1d(np.arange(m), val)
     cache_fit = build_cache(geom, _subset(links, fit_rows), ant, ant, provider, render_cfg)
     cache_val = build_cache(geom, _subset(links, val), ant, ant, provider, render_cfg)
-    out = {"requested": "auto", "validation_links": int(len(val))}
+    out = {"requested": "auto", "validation_links": int(len(val)), "validation": how}
     for mode in ("coherent", "incoherent"):
         params = _new_params(index, target.shape[1], fit_cfg, coherent=mode == "coherent")
         fit(cache_fit, target[fit_rows], params, fit_cfg, progress=progress)
@@ -201,7 +206,7 @@ def _select_scattering(geom, links: LinkSet, target: np.ndarray, ant, provider, 
             pred = predict_db(cache_val, params).numpy()
         out[f"val_mae_{mode}_db"] = mae_db(pred, target[val])
     out["selected"] = min(("coherent", "incoherent"), key=lambda k: out[f"val_mae_{k}_db"])
-    progress.log(f"rf-fit: validation MAE on {len(val)} held-out training links: coherent "
+    progress.log(f"rf-fit: validation MAE on {len(val)} held-out training links ({how}): coherent "
                  f"{out['val_mae_coherent_db']:.2f} dB, incoherent {out['val_mae_incoherent_db']:.2f} dB "
                  f"-> {out['selected']}")
     return out

@@ -11,7 +11,7 @@ from rfir_stages.rf_fit.grid import local_grid, rays_toward_sphere, rays_toward_
 from rfir_stages.rf_fit.occlusion import TracerOcclusion
 from rfir_stages.geom import gaussians_from_mesh
 from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, link_geometry, render, render_power
-from rfir_stages.rf_fit.splits import split_rows, protocol_masks
+from rfir_stages.rf_fit.splits import protocol_masks, split_rows, validation_rows
 
 from .helpers import DEG, box_fields, geometry, radar, square
 
@@ -125,3 +125,20 @@ def test_diffuse_term_adds_power_without_phase():
     torch.testing.assert_close(render_power(cache, diffuse)[0, 0], expect)
     both = Materials(one, one, one.to(torch.complex128), diffuse=0.5 * one, diffuse_roughness=3 * one)
     torch.testing.assert_close(render_power(cache, both)[0, 0], render_power(cache, coherent)[0, 0] + expect)
+
+
+def test_validation_rows_are_shaped_like_the_protocols_test():
+    meas = _turntable()
+    train, _ = split_rows(meas, "sector:45:135", "m.h5")
+    deg = np.degrees(meas["aspect_rad"][train])
+    val, how = validation_rows("sector:45:135", deg, meas["range_m"][train])
+    got = np.sort(np.round(deg[val]).astype(int))
+    assert len(val) == 27 and "next to the sector" in how                   # a tenth of 270 rows
+    assert set(got) <= set(range(135, 150)) | set(range(30, 45))           # on both sides of the gap
+    assert {135, 44} <= set(got)
+    multi = _turntable(10.0, (2.0, 2.5, 3.0, 4.0))
+    train, _ = split_rows(multi, "range:3", "m.h5")
+    val, how = validation_rows("range:3", np.degrees(multi["aspect_rad"][train]), multi["range_m"][train])
+    assert np.all(multi["range_m"][train][val] == 2.5) and len(val) == 36 and "2.5 m" in how
+    val, how = validation_rows("every-10", np.arange(36.0) * 10, np.full(36, 3.0))
+    assert np.array_equal(val, [5, 15, 25, 35]) and "every 10th" in how
