@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import torch
 
 from rfir_cli.physics.closed_forms import C0
-from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2, reflect
+from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2
 
 from .antennas import AntennaPattern
 from .grid import local_grid, rays_toward_sphere_batch
@@ -144,17 +144,19 @@ def link_geometry(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, 
     to_rx = links.rx_m[:, None] - means[None]
     r_out = to_rx.norm(dim=-1)
     w_o = to_rx / r_out[..., None]
-    n = normals[None].expand_as(u_in)
-    side = torch.sign(-(u_in * n).sum(-1, keepdim=True))
-    n = n * torch.where(side == 0, torch.ones_like(side), side)      # two-sided: face the Tx
-    cos_i = (-(u_in * n).sum(-1)).clamp(min=0.0)
-    cos_o = (w_o * n).sum(-1)
-    cos_psi = (w_o * reflect(u_in, n)).sum(-1)
+    # Two-sided surfels: the normal n = side * n0 faces the Tx. With u.n0, w.n0 and w.u the cosines
+    # follow without forming n: cos_i = -u.n, cos_o = w.n, cos_psi = w.reflect(u, n) = w.u - 2 (u.n0)(w.n0).
+    un0 = torch.einsum("mgc,gc->mg", u_in, normals)
+    wn0 = torch.einsum("mgc,gc->mg", w_o, normals)
+    side = torch.where(un0 > 0, -1.0, 1.0)
+    cos_i = (-side * un0).clamp(min=0.0)
+    cos_o = side * wn0
+    cos_psi = (w_o * u_in).sum(-1) - 2.0 * un0 * wn0
     area = projected_cross_section_m2(covariance(geom.log_scales, geom.rotations), u_in)
     g_t = tx_ant.gain(u_in, links.tx_axis[:, None])
     g_r = rx_ant.gain(-w_o, links.rx_axis[:, None])
     amp = torch.sqrt(g_t * area / (4 * math.pi * d_in**2)) * cos_i * torch.sqrt(cos_o.clamp(min=0.0)) \
-        * (cos_o > 0) * torch.sqrt(g_r) / (math.sqrt(4 * math.pi) * r_out)
+        * torch.sqrt(g_r) / (math.sqrt(4 * math.pi) * r_out)
     if not path_loss:
         amp = amp * d_in * r_out / (d_in.mean(1, keepdim=True) * r_out.mean(1, keepdim=True))
     return amp, ((1.0 + cos_psi) / 2.0).clamp(min=0.0), d_in + r_out
