@@ -1,8 +1,9 @@
 """Running the steps of a reproduce target: commands, their logs, wall times and a cache.
 
 A step is a command line plus the file it produces. If that file exists and this data folder
-holds the step's stamp (DATA/steps/<label>.done, written when the step succeeded here; --force
-ignores both) the step is skipped and its earlier wall time is reused, so an interrupted
+holds the step's stamp (DATA/steps/<label>.done, written when the step succeeded here, holding its
+command line) for the same command line (--force ignores both), the step is skipped and its
+earlier wall time is reused, so an interrupted
 `make reproduce` resumes where it stopped and a table can be rebuilt without rerunning anything.
 The stamp lives beside the generated data, which is never committed: results that came with a
 clone (results/reproduce/json) do not count as done, so a fresh clone reruns every step.
@@ -66,7 +67,7 @@ class Runner:
         produces = Path(produces)
         self.used.add(label)
         stamp = self.data / "steps" / f"{label}.done"
-        if produces.exists() and stamp.exists() and not self.force:
+        if produces.exists() and _stamped_command(stamp) == shlex.join(argv) and not self.force:
             self._say(f"[dim]cached[/] {label}")
             return float(self.times.get(label, 0.0))
         log = self.out / "logs" / f"{label}.log"
@@ -84,7 +85,7 @@ class Runner:
         self.times[label] = wall
         self._write_times()
         stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(f"{produces}\n{wall:.1f} s\n")
+        stamp.write_text(json.dumps({"command": shlex.join(argv), "produces": str(produces), "wall_s": wall}) + "\n")
         self._say(f"    done in {wall:.0f} s")
         return wall
 
@@ -102,6 +103,14 @@ class Runner:
             from rich.console import Console
 
             Console(stderr=True, highlight=False).print(text)
+
+
+def _stamped_command(stamp: Path) -> str | None:
+    """The command line a step's stamp records (None: no stamp, or one from before stamps held it)."""
+    try:
+        return json.loads(stamp.read_text()).get("command")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def read_json(path: Path) -> dict:

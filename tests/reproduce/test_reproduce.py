@@ -67,6 +67,21 @@ def test_outputs_that_came_without_this_data_folders_stamp_are_rerun(tmp_path):
     assert target.read_text() == "kept"
 
 
+def test_a_changed_command_line_reruns_the_step(tmp_path):
+    """A new option (say a config default spelled out in the command) must not reuse old outputs."""
+    r = Runner(tmp_path / "data", tmp_path / "out", echo=False)
+    target = tmp_path / "made.txt"
+    argv = [sys.executable, "-c", f"open({str(target)!r}, 'a').write('x')", "--old"]
+    r.step("make", argv, target)
+    r.step("make", argv, target)
+    assert target.read_text() == "x"
+    r.step("make", argv[:-1] + ["--new"], target)
+    assert target.read_text() == "xx"
+    (tmp_path / "data" / "steps" / "make.done").write_text("made.txt\n1.0 s\n")   # a stamp without its command
+    r.step("make", argv[:-1] + ["--new"], target)
+    assert target.read_text() == "xxx"
+
+
 def test_failed_step_names_its_log(tmp_path):
     r = Runner(tmp_path / "data", tmp_path / "out", echo=False)
     with pytest.raises(StageError, match=r"make\.log.*exit 3"):
