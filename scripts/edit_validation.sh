@@ -26,7 +26,7 @@ sim back_wall_metal classroom 'wall_back:material:metal'
 sim lego_rotate lego 'brick_1[6-9]:rotate:0,0,1,45,0,0,0' "${LEGO[@]}"
 [ -f "$E/lego_po/measurements.h5" ] || $R "${LEGO[@]}" simulate lego "$E/lego_po" --no-photos --rcs-backend po
 sim lego_po_rotate lego 'brick_1[6-9]:rotate:0,0,1,45,0,0,0' "${LEGO[@]}" --set simulate.rcs_backend=po
-for s in label gaussian; do
+for s in global label gaussian; do
   [ -f "$E/lego/rf_$s.h5" ] || $R --seed 0 --set rf_fit.iterations=200 --set rf_fit.sharing=$s rf-fit \
     "$D/lego24/protocols/scene.h5" "$D/lego24/measurements.h5" -o "$E/lego/rf_$s.h5"
   [ -f "$E/lego/rf_po_$s.h5" ] || $R --seed 0 --set rf_fit.iterations=200 --set rf_fit.sharing=$s rf-fit \
@@ -39,7 +39,7 @@ val classroom_move_desk_row "$RF" "$C" "$E/desk_row_moved/measurements.h5" \
   --select 'label:desk_0[0369]' --op translate:0,1,0 --select 'label:chair_0[0369]' --op translate:0,1,0
 val classroom_back_wall_metal "$RF" "$C" "$E/back_wall_metal/measurements.h5" --select label:wall_back --op set:gamma_abs=1,a=1
 ROT=(--select 'label:brick_1[6-9]' --op rotate:0,0,1,45,0,0,0)
-for s in label gaussian; do
+for s in global label gaussian; do
   val lego_rotate_top_sionna_$s "$E/lego/rf_$s.h5" "$D/lego24/measurements.h5" "$E/lego_rotate/measurements.h5" "${ROT[@]}"
   val lego_rotate_top_po_$s "$E/lego/rf_po_$s.h5" "$E/lego_po/measurements.h5" "$E/lego_po_rotate/measurements.h5" "${ROT[@]}"
 done

@@ -8,7 +8,8 @@ apply the same edit with `rfir edit` and compare:
 - edited MAE: the edited fit against the edited scene, on the same rows (target: <= 1.5x unedited);
 - "not edited" MAE: the unedited fit against the edited scene (what ignoring the edit would cost);
 - the correlation (Pearson) over all links between the change rfir predicts (edited fit - fit) and
-  the change the simulator shows (edited scene - scene), in dB.
+  the change the simulator shows (edited scene - scene), in dB, and its rank (Spearman) version,
+  which a few single-aspect glints of +-30 dB (Sionna's geometric optics) cannot dominate.
 
     python -m rfir_stages.edit.validate RF BEFORE.h5 AFTER.h5 --select S --op O [...] --name NAME
         [--results results/NAME.json] [--plots DIR] [--work DIR]
@@ -63,6 +64,7 @@ def change_metrics(pred_before, pred_after, meas_before, meas_after, test) -> di
     }
     out["mae_ratio"] = out["edited_mae_db"] / out["unedited_mae_db"]
     out["change_correlation"] = _pearson(d_pred, d_meas)
+    out["change_rank_correlation"] = _pearson(_ranks(d_pred), _ranks(d_meas))
     out["change_correlation_over_1db"] = _pearson(d_pred[big], d_meas[big]) if big.sum() > 2 else float("nan")
     return out
 
@@ -71,6 +73,13 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float:
     if a.std() == 0 or b.std() == 0:
         return float("nan")
     return float(np.corrcoef(a, b)[0, 1])
+
+
+def _ranks(a: np.ndarray) -> np.ndarray:
+    """Ranks [N] with ties averaged (Spearman's correlation is Pearson's on these)."""
+    from scipy.stats import rankdata
+
+    return rankdata(a)
 
 
 def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict) -> Path:
@@ -85,7 +94,7 @@ def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict
     ax.set_xlabel("simulated change [dB] (Sionna, edited - unedited scene)")
     ax.set_ylabel("predicted change [dB] (rfir, edited - unedited fit)")
     ax.grid(alpha=0.3)
-    ax.set_title(f"{name}: r = {m['change_correlation']:.2f}; MAE {m['unedited_mae_db']:.2f} -> "
+    ax.set_title(f"{name}: r = {m['change_correlation']:.2f} (rank {m['change_rank_correlation']:.2f}); MAE {m['unedited_mae_db']:.2f} -> "
                  f"{m['edited_mae_db']:.2f} dB", fontsize=9)
     return save_figure(fig, path, dpi=110)
 

@@ -34,6 +34,8 @@ from .splits import split_rows, validation_rows
 from .wideband_stage import is_wideband_request, run_wideband
 
 SCATTERING = ("auto", "coherent", "incoherent")
+SHARING = ("auto", "gaussian", "label", "global")
+SHARING_AUTO = ("gaussian", "global")   # the candidates of sharing = "auto" (RCS fits)
 RENDER_KEYS = ("visibility", "grid_step_deg", "center_ray_cells", "self_shadow_margin_m", "alpha_min",
                "colocated_tol_m", "learn_visibility", "t_stop", "path_loss", "phase")
 FIT_KEYS = ("iterations", "lr", "s_tx_lr", "loss", "huber_db", "learn", "init_opacity", "init_roughness",
@@ -87,6 +89,11 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     scene = read_artifact(scene_path, ("scene", "rf"))
     meas = read_artifact(measurements_path, "measurements")
     task = str(meas.attrs.get("task", ""))
+    if fit_cfg.sharing not in SHARING:
+        raise ConfigError(f"rf_fit.sharing = {fit_cfg.sharing!r}: expected one of {', '.join(SHARING)}")
+    sharing_requested = fit_cfg.sharing
+    if fit_cfg.sharing == "auto" and (task == "rssi" or is_wideband_request(task, config)):
+        fit_cfg.sharing = "gaussian"   # the choice by validation is made for narrowband RCS fits only
     if task == "rssi":  # the LoS/NLoS model (PHYSICS.md step 6): stages/rf_fit/rssi_fit.py
         from .rssi_fit import run_rssi
         if resume:
@@ -95,7 +102,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                         config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, str(measurements_path))
-    mode = str(config.get("scattering", "coherent"))
+    mode = str(config.get("scattering", "auto"))
     if mode not in SCATTERING:
         raise ConfigError(f"rf_fit.scattering = {mode!r}: expected one of {', '.join(SCATTERING)}")
     if mode != "coherent" and not fit_cfg.diffuse:
@@ -133,17 +140,21 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     trace_s = time.time() - t0
 
     labels = scene.get("gaussians/labels")
-    index = RFParams.sharing_index(fit_cfg.sharing, geom.num,
-                                   None if labels is None else torch.as_tensor(np.asarray(labels)))
-    scattering = {"requested": mode, "selected": mode}
+    labels = None if labels is None else torch.as_tensor(np.asarray(labels))
+    candidates = [(m, s) for m in (("coherent", "incoherent") if mode == "auto" else (mode,))
+                  for s in (SHARING_AUTO if fit_cfg.sharing == "auto" else (fit_cfg.sharing,))]
+    scattering = {"requested": mode, "selected": candidates[0][0], "sharing_requested": sharing_requested,
+                  "sharing_selected": candidates[0][1]}
     t_sel = time.time()
-    if mode == "auto":
+    if len(candidates) > 1:
         asp, rng = meas.get("aspect_rad"), meas.get("range_m")
         val, how = validation_rows(protocol, None if asp is None else np.degrees(np.asarray(asp)[rows]),
                                    None if rng is None else np.asarray(rng)[rows])
-        scattering = _select_scattering(geom, links, target, val, how, ant, provider, render_cfg, index, fit_cfg,
-                                        progress)
+        scattering.update(_select_model(geom, links, target, val, how, ant, provider, render_cfg, candidates,
+                                        labels, fit_cfg, progress))
     select_s = time.time() - t_sel
+    fit_cfg.sharing = scattering["sharing_selected"]
+    index = RFParams.sharing_index(fit_cfg.sharing, geom.num, labels)
     params = _new_params(index, len(freqs), fit_cfg, coherent=scattering["selected"] == "coherent")
     # A checkpoint fits any run with the same inputs and settings; more iterations may follow it.
     key = _key(str(scene_path.resolve()), str(measurements_path.resolve()),
@@ -184,31 +195,38 @@ def _subset(links: LinkSet, idx: np.ndarray) -> LinkSet:
     return LinkSet(links.tx_m[i], links.rx_m[i], links.freq_hz, links.tx_axis[i], links.rx_axis[i])
 
 
-def _select_scattering(geom, links: LinkSet, target: np.ndarray, val: np.ndarray, how: str, ant, provider,
-                       render_cfg: RenderSettings, index: torch.Tensor, fit_cfg: FitConfig, progress) -> dict:
-    """Coherent sum + diffuse term, or the diffuse (incoherent) term alone: whichever predicts the
-    validation rows `val` (training rows held out here, shaped like the protocol's test by
-    splits.validation_rows; the test split is never looked at) better after the same fit on the
-    rest. Fewer than 10 training links: coherent (PHYSICS.md's model)."""
+def _select_model(geom, links: LinkSet, target: np.ndarray, val: np.ndarray, how: str, ant, provider,
+                  render_cfg: RenderSettings, candidates: list[tuple[str, str]], labels: torch.Tensor | None,
+                  fit_cfg: FitConfig, progress) -> dict:
+    """The (scattering, sharing) candidate that predicts the validation rows `val` best after the same
+    fit on the rest: scattering "coherent" (coherent sum + diffuse term) or "incoherent" (the diffuse
+    term alone); sharing "gaussian" (a material per Gaussian) or "global" (one for the scene), say.
+    `val`: training rows held out here, shaped like the protocol's test by splits.validation_rows; the
+    test split is never looked at. Fewer than 10 training links: the first candidate.
+    Returns {"selected", "sharing_selected", "validation_links", "validation", "val_mae_<...>_db"}."""
     m = links.num
     if m < 10 or len(val) == 0 or len(val) == m:
-        progress.log(f"rf-fit: scattering = auto needs >= 10 training links and a validation set (got {m}); "
-                     "using coherent")
-        return {"requested": "auto", "selected": "coherent", "why": "too few training links to validate"}
+        progress.log(f"rf-fit: choosing the model by validation needs >= 10 training links and a validation set "
+                     f"(got {m}); using {' / '.join(candidates[0])}")
+        return {"why": "too few training links to validate"}
     fit_rows = np.setdiff1d(np.arange(m), val)
     cache_fit = build_cache(geom, _subset(links, fit_rows), ant, ant, provider, render_cfg)
     cache_val = build_cache(geom, _subset(links, val), ant, ant, provider, render_cfg)
-    out = {"requested": "auto", "validation_links": int(len(val)), "validation": how}
-    for mode in ("coherent", "incoherent"):
+    out = {"validation_links": int(len(val)), "validation": how}
+    several_sharings = len({s for _, s in candidates}) > 1
+    scores = {}
+    for mode, sharing in candidates:
+        index = RFParams.sharing_index(sharing, geom.num, labels)
         params = _new_params(index, target.shape[1], fit_cfg, coherent=mode == "coherent")
         fit(cache_fit, target[fit_rows], params, fit_cfg, progress=progress)
         with torch.no_grad():
             pred = predict_db(cache_val, params).numpy()
-        out[f"val_mae_{mode}_db"] = mae_db(pred, target[val])
-    out["selected"] = min(("coherent", "incoherent"), key=lambda k: out[f"val_mae_{k}_db"])
-    progress.log(f"rf-fit: validation MAE on {len(val)} held-out training links ({how}): coherent "
-                 f"{out['val_mae_coherent_db']:.2f} dB, incoherent {out['val_mae_incoherent_db']:.2f} dB "
-                 f"-> {out['selected']}")
+        scores[mode, sharing] = mae_db(pred, target[val])
+        out[f"val_mae_{mode}_{sharing}_db" if several_sharings else f"val_mae_{mode}_db"] = scores[mode, sharing]
+    out["selected"], out["sharing_selected"] = min(candidates, key=scores.get)
+    progress.log(f"rf-fit: validation MAE on {len(val)} held-out training links ({how}): "
+                 + ", ".join(f"{m}/{s} {v:.2f} dB" for (m, s), v in scores.items())
+                 + f" -> {out['selected']}/{out['sharing_selected']}")
     return out
 
 

@@ -136,8 +136,9 @@ def test_predict_refuses_unfitted_frequencies_and_overwriting(tiny, tmp_path):
     assert r.exit_code == 4 and "never overwrites" in r.output
 
 
-def _scattering_measurements(path, fields, coherent: bool):
-    """36 aspects of the box rendered by a coherent-only or an incoherent-only material set."""
+def _scattering_measurements(path, fields, coherent: bool, uniform: bool = False):
+    """36 aspects of the box rendered by a coherent-only or an incoherent-only material set
+    (uniform: one material for every Gaussian, else one drawn per Gaussian)."""
     geom = geometry(fields)
     aspects = np.arange(0, 360, 10) * DEG + 0.05
     tx, rx, asp, rng = radar_links(aspects, np.asarray([2.0]), scene_centre(geom).numpy())
@@ -149,6 +150,8 @@ def _scattering_measurements(path, fields, coherent: bool):
     r = 1.0 + 4.0 * torch.rand(g, generator=gen, dtype=torch.float64)
     gamma = torch.polar(0.3 + 0.6 * torch.rand(g, generator=gen, dtype=torch.float64),
                         6.28 * torch.rand(g, generator=gen, dtype=torch.float64))
+    if uniform:
+        r, gamma = torch.full_like(r, 3.0), torch.full_like(gamma, 0.7 * np.exp(0.4j))
     m = Materials(a, r, gamma if coherent else torch.zeros(g, dtype=torch.complex128),
                   None if coherent else 0.2 + 0.6 * torch.rand(g, generator=gen, dtype=torch.float64),
                   None if coherent else r)
@@ -183,6 +186,26 @@ def test_scattering_auto_picks_the_model_that_made_the_data(tmp_path, coherent):
         assert np.all(np.asarray(rf["rf/gamma_abs"]) == 0.0)       # no coherent sum left to predict with
 
 
+@pytest.mark.parametrize("uniform", [True, False])
+def test_sharing_auto_picks_one_material_when_the_data_have_one(tmp_path, uniform):
+    """sharing = auto: one material for the scene ("global") when one made the data, else per Gaussian."""
+    from rfir_stages.rf_fit import run
+
+    fields = box_fields(0.06, 0.03)
+    scene = tmp_path / "scene.h5"
+    write_scene_artifact(scene, fields)
+    meas = _scattering_measurements(tmp_path / "m.h5", fields, True, uniform=uniform)
+    res = run(scene, meas, tmp_path / "rf.h5", {"visibility": False, "iterations": 60, "checkpoint_every": 0,
+                                                "scattering": "coherent", "sharing": "auto"})
+    want = "global" if uniform else "gaussian"
+    assert res.scattering["sharing_selected"] == want, res.scattering
+    assert {"val_mae_coherent_gaussian_db", "val_mae_coherent_global_db"} <= set(res.scattering)
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert rf.free["training@attrs"]["sharing"] == want
+    gamma = np.asarray(rf["rf/gamma_abs"])
+    assert (np.ptp(gamma) == 0.0) == uniform
+
+
 def test_scattering_mode_is_checked(tmp_path):
     from rfir_cli.errors import ConfigError
     from rfir_stages.rf_fit import run
@@ -195,3 +218,5 @@ def test_scattering_mode_is_checked(tmp_path):
         run(scene, meas, tmp_path / "rf.h5", {"scattering": "magic"})
     with pytest.raises(ConfigError, match="diffuse = true"):
         run(scene, meas, tmp_path / "rf.h5", {"scattering": "incoherent", "diffuse": False})
+    with pytest.raises(ConfigError, match="sharing"):
+        run(scene, meas, tmp_path / "rf.h5", {"sharing": "per-brick"})

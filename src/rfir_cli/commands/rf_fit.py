@@ -48,5 +48,6 @@ def rf_fit(
     console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
                   f"{len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
                   f"{r.iterations} steps ({r.wall_time_s:.0f} s, trace {r.trace_time_s:.0f} s, {r.occlusion})"
-                  + (f"; scattering {r.scattering['selected']}" if r.scattering else ""),
+                  + (f"; scattering {r.scattering['selected']}, materials per {r.scattering['sharing_selected']}"
+                     if r.scattering else ""),
                   highlight=False)
