@@ -19,7 +19,7 @@ $RFIR calibrate "$OUT/lego/images" -o "$OUT/calib.h5" --poses "$OUT/lego/cameras
 echo "== 3/5 geom: 3D Gaussians with normals trained from the calibrated photos (compared with the true mesh)"
 $RFIR geom "$OUT/calib.h5" -o "$OUT/scene.h5"
 
-echo "== 4/5 rf-fit: per-Gaussian radio materials from the even aspects"
+echo "== 4/5 rf-fit: radio materials (per Gaussian or one for the object, chosen by validation) from the even aspects"
 $RFIR rf-fit "$OUT/scene.h5" "$OUT/lego/measurements.h5" -o "$OUT/rf.h5" --iterations 200
 
 echo "== 5/5 predict rcs: the odd aspects, beside the nearest-aspect and interpolation baselines"
