@@ -94,8 +94,8 @@ def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict
     ax.set_xlabel("simulated change [dB] (Sionna, edited - unedited scene)")
     ax.set_ylabel("predicted change [dB] (rfir, edited - unedited fit)")
     ax.grid(alpha=0.3)
-    ax.set_title(f"{name}: r = {m['change_correlation']:.2f} (rank {m['change_rank_correlation']:.2f}); MAE {m['unedited_mae_db']:.2f} -> "
-                 f"{m['edited_mae_db']:.2f} dB", fontsize=9)
+    ax.set_title(f"{name}: r = {m['change_correlation']:.2f} (rank {m['change_rank_correlation']:.2f}); "
+                 f"MAE {m['unedited_mae_db']:.2f} -> {m['edited_mae_db']:.2f} dB", fontsize=9)
     return save_figure(fig, path, dpi=110)
 
 
