@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import rankdata
 
 from rfir_cli.artifacts import read_artifact
 from rfir_cli.figures import pyplot, save_figure
@@ -64,7 +65,7 @@ def change_metrics(pred_before, pred_after, meas_before, meas_after, test) -> di
     }
     out["mae_ratio"] = out["edited_mae_db"] / out["unedited_mae_db"]
     out["change_correlation"] = _pearson(d_pred, d_meas)
-    out["change_rank_correlation"] = _pearson(_ranks(d_pred), _ranks(d_meas))
+    out["change_rank_correlation"] = _pearson(rankdata(d_pred), rankdata(d_meas))   # Spearman
     out["change_correlation_over_1db"] = _pearson(d_pred[big], d_meas[big]) if big.sum() > 2 else float("nan")
     return out
 
@@ -73,13 +74,6 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float:
     if a.std() == 0 or b.std() == 0:
         return float("nan")
     return float(np.corrcoef(a, b)[0, 1])
-
-
-def _ranks(a: np.ndarray) -> np.ndarray:
-    """Ranks [N] with ties averaged (Spearman's correlation is Pearson's on these)."""
-    from scipy.stats import rankdata
-
-    return rankdata(a)
 
 
 def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict) -> Path:

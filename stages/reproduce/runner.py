@@ -67,15 +67,15 @@ class Runner:
         produces = Path(produces)
         self.used.add(label)
         stamp = self.data / "steps" / f"{label}.done"
-        if produces.exists() and _stamped_command(stamp) == shlex.join(argv) and not self.force:
+        command = shlex.join(argv)
+        if produces.exists() and _stamped_command(stamp) == command and not self.force:
             self._say(f"[dim]cached[/] {label}")
             return float(self.times.get(label, 0.0))
         log = self.out / "logs" / f"{label}.log"
-        shown = shlex.join(argv)
-        self._say(f"[bold]run[/] {label}: {shown if len(shown) < 400 else shown[:400] + ' ...'}")
+        self._say(f"[bold]run[/] {label}: {command if len(command) < 400 else command[:400] + ' ...'}")
         t0 = time.perf_counter()
         with log.open("w") as fh:
-            fh.write(shlex.join(argv) + "\n")
+            fh.write(command + "\n")
             fh.flush()
             proc = subprocess.run(argv, stdout=fh, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})})
         wall = time.perf_counter() - t0
@@ -85,7 +85,7 @@ class Runner:
         self.times[label] = wall
         self._write_times()
         stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(json.dumps({"command": shlex.join(argv), "produces": str(produces), "wall_s": wall}) + "\n")
+        stamp.write_text(json.dumps({"command": command, "produces": str(produces), "wall_s": wall}) + "\n")
         self._say(f"    done in {wall:.0f} s")
         return wall
 
