@@ -19,6 +19,7 @@ app = typer.Typer(
          "materials that predicts RCS and RSSI for setups nobody measured.",
     no_args_is_help=True,
     add_completion=False,
+    rich_markup_mode=None,   # help as written: rich markup would turn "sector:A:B" into an emoji
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )

@@ -8,7 +8,8 @@ import typer
 
 from ..context import console, options, run_guarded
 
-import_app = typer.Typer(help="Bring real measurements in (CSV links, NeRF2 BLE).", no_args_is_help=True)
+import_app = typer.Typer(help="Bring real measurements in (CSV links, NeRF2 BLE).", no_args_is_help=True,
+                         rich_markup_mode=None)
 
 
 def register(app: typer.Typer) -> None:

@@ -10,7 +10,8 @@ from rich.table import Table
 from ..context import RichReporter, console, options, run_guarded
 from ..errors import ConfigError
 
-predict_app = typer.Typer(help="Predict radio quantities from a fitted rf artifact.", no_args_is_help=True)
+predict_app = typer.Typer(help="Predict radio quantities from a fitted rf artifact.", no_args_is_help=True,
+                         rich_markup_mode=None)
 
 
 def register(app: typer.Typer) -> None:
