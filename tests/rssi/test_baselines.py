@@ -1,10 +1,11 @@
 """Log-distance and multi-wall baselines: exact recovery on data made by their own formulas, and
 crossing counts from the Gaussians against an analytic segment-plane test."""
 import numpy as np
+import pytest
 import torch
 
 from rfir_stages.predict import rssi_baselines as bl
-from rfir_stages.rf_fit.occlusion import TracerOcclusion
+from rfir_stages.rf_fit.occlusion import BruteForceOcclusion, TracerOcclusion
 
 from ..rf_fit.helpers import geometry
 from .helpers import crosses_partition, links, scene_fields
@@ -66,3 +67,66 @@ def test_nearest_links_averages_the_k_nearest_training_links():
     y = np.array([1.0, 2.0, 3.0, 4.0, 50.0, 0.0])
     got = bl.nearest_links(tx, rx, y, np.arange(5), np.array([5]), k=2)
     assert got.tolist() == [2.5]      # receivers at 1 and 2 m are the two nearest to 1.4 m
+
+
+def _two_walls(labelled: bool, spacing_m: float = 0.3):
+    """Surfels on two 2 x 2 m walls in the planes x = 1 and x = 3 (centred on the x axis)."""
+    from rfir_stages.geom import gaussians_from_mesh
+    from rfir_stages.simulate.scenes import _merge
+
+    from ..rf_fit.helpers import square
+
+    v, f = _merge([square(2.0, 1.0), square(2.0, 3.0)])
+    labels = np.repeat([0, 1], len(f) // 2) if labelled else None
+    fields = gaussians_from_mesh(v, f, spacing_m, labels=labels)
+    return geometry(fields), (fields["gaussians/labels"] if labelled else None), \
+        (["wall_00", "wall_01"] if labelled else None)
+
+
+# through both walls; through the second only; beside both (0.1 m past their edge, where the
+# surfels' footprints still give hits); far beside
+WALL_LINKS = (np.array([[0.0, 0.1, 0.13], [2.0, -0.4, 0.5], [0.0, 1.1, 0.0], [0.0, 1.6, -0.3]]),
+              np.array([[4.0, -0.2, 0.2], [4.0, -0.3, 0.6], [4.0, 1.1, 0.0], [4.0, 1.6, 0.3]]))
+
+
+@pytest.mark.parametrize("labelled", [False, True], ids=["unlabelled", "labelled"])
+@pytest.mark.parametrize("provider", [TracerOcclusion, BruteForceOcclusion])
+def test_crossings_count_each_wall_once(labelled, provider):
+    geom, labels, names = _two_walls(labelled)
+    occ = provider(geom)
+    tx, rx = WALL_LINKS
+    counts, classes = bl.crossing_counts(occ, labels, names, tx, rx)
+    assert classes == (["wall"] if labelled else ["surface"])
+    assert counts[:, 0].tolist() == [2, 1, 0, 0]
+    # why a per-Gaussian criterion failed: no single surfel reaches a response of 1 on the ray
+    d = torch.as_tensor(rx - tx)
+    hits = occ.ray_hits(torch.as_tensor(tx).contiguous(), (d / d.norm(dim=-1, keepdim=True)).contiguous())
+    assert float(hits.response[hits.query == 0].max()) < 1.0
+
+
+def test_the_two_faces_of_a_thin_wall_are_one_surface():
+    from rfir_stages.geom import gaussians_from_mesh
+    from rfir_stages.simulate.scenes import box
+
+    v, f = box((1.0, -1.0, -1.0), (1.05, 1.0, 1.0))             # a 5 cm thick wall, outward normals
+    geom = geometry(gaussians_from_mesh(v, f, 0.3))
+    tx, rx = np.array([[0.0, 0.37, 0.13]]), np.array([[3.0, 0.3, 0.1]])
+    assert bl.crossing_counts(TracerOcclusion(geom), None, None, tx, rx)[0].tolist() == [[1.0]]
+    # faces further apart than merge_m are two surfaces
+    assert bl.crossing_counts(TracerOcclusion(geom), None, None, tx, rx, merge_m=0.01)[0].tolist() == [[2.0]]
+
+
+def test_surface_groups_split_by_ray_depth_and_orientation():
+    q = np.array([0, 0, 0, 0, 0, 1, 1])
+    t = np.array([1.0, 1.0, 1.02, 1.5, 1.01, 2.0, 2.3])
+    x, y = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
+    n = np.array([x, y, [-1.0, 0, 0], x, x, x, x])
+    r = np.full(7, 0.5)
+    s = bl.surface_groups(q, t, n, r)
+    # ray 0: the x-facing hits at ~1 m are one surface (sign ignored), the y-facing one at the
+    # same depth another (a corner), the hit at 1.5 m a third; ray 1: 0.3 m apart, two surfaces
+    assert s[0] == s[2] == s[4] and len({s[0], s[1], s[3]}) == 3
+    assert s[5] != s[6] and len(set(s.tolist())) == 5
+    # without normals, depth alone decides
+    s = bl.surface_groups(q, t, None, r)
+    assert s[0] == s[1] == s[2] == s[4] and len(set(s.tolist())) == 4
