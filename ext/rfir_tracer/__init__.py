@@ -1,7 +1,7 @@
 """rfir_tracer: the Gaussian ray tracer of rfir (C++/OpenMP on the CPU, CUDA on a GPU).
 
 Rays are traced through 3D Gaussians with a BVH and composited front to back as in
-PHYSICS.md ("Gaussian primitive"). Typical use::
+docs/physics.md section 2. Typical use::
 
     scene = rfir_tracer.GaussianScene(means, log_scales, rotations, opacities, normals)
     out = rfir_tracer.trace(scene, origins, directions, features=colours)

@@ -5,7 +5,7 @@ import math
 
 import torch
 
-ALPHA_MAX = 0.99  # alpha = min(opacity * G, 0.99), PHYSICS.md
+ALPHA_MAX = 0.99  # alpha = min(opacity * G, 0.99), docs/physics.md section 2
 
 
 def check_matrix(t: torch.Tensor, name: str, cols: int, rows: int | None = None) -> None:

@@ -1,4 +1,4 @@
-"""Brute-force pure-torch reference tracer (the test oracle), written from PHYSICS.md.
+"""Brute-force pure-torch reference tracer (the test oracle), written from docs/physics.md section 2.
 
 Every ray is tested against every Gaussian in float64, with the literal formulas
 ``t* = d^T Sigma^-1 (mu - o) / (d^T Sigma^-1 d)`` and

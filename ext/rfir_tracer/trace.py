@@ -101,7 +101,7 @@ def trace(scene: GaussianScene, origins: torch.Tensor, directions: torch.Tensor,
           features: torch.Tensor | None = None, opacities: torch.Tensor | None = None,
           t_min=0.0, t_max=math.inf, alpha_min: float | None = None, t_stop: float = 1e-4,
           exclude: torch.Tensor | None = None, return_hits: bool = False) -> TraceResult:
-    """Trace rays ``x(t) = o + t d`` through the scene and composite front to back (PHYSICS.md).
+    """Trace rays ``x(t) = o + t d`` through the scene and composite front to back (docs/physics.md section 2).
 
     Args:
         scene: the Gaussians and their BVH.
@@ -187,7 +187,7 @@ def trace_transmittance(scene: GaussianScene, origins: torch.Tensor, directions:
 def transmittance_to_points(scene: GaussianScene, origins: torch.Tensor, gaussian_ids: torch.Tensor,
                             *, opacities: torch.Tensor | None = None, alpha_min: float | None = None,
                             t_stop: float = 1e-4, return_hits: bool = False) -> TraceResult:
-    """Visibility V of each target Gaussian from a point (PHYSICS.md RF step 1).
+    """Visibility V of each target Gaussian from a point (docs/physics.md section 4.1).
 
     V_m = prod over Gaussians hit on the segment from origins[m] to means[gaussian_ids[m]]
     (0 < t* < 1, the target itself excluded) of (1 - alpha), with the same compositing, alpha

@@ -60,7 +60,7 @@ from torch import nn
 from .fields import decay_lr, encode, fibonacci_sphere
 from .fields import mlp as _mlp
 
-ALPHA_MAX = 0.99   # the tracer's alpha clamp (PHYSICS.md)
+ALPHA_MAX = 0.99   # the tracer's alpha clamp (docs/physics.md section 2)
 
 
 

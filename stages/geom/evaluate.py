@@ -1,6 +1,6 @@
 """After training: render every view, orient the normals, score held-out views, compare with a mesh.
 
-Metrics (PHYSICS.md "Metrics"):
+Metrics (docs/physics.md section 9):
 - PSNR (dB) and SSIM of the held-out photos (at training resolution);
 - normal angular error (degrees) of the rendered normal map against the ground-truth mesh's face
   normals, per pixel of the held-out views where both see a surface; also over the "flat" pixels

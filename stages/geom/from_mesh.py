@@ -6,7 +6,7 @@ each sub-triangle becomes one Gaussian:
 - normal: the face normal (winding v0 -> v1 -> v2, right hand);
 - in-plane covariance: the sub-triangle's own second moments, scaled so that the Gaussian's
   projected cross-section along the normal, pi sqrt(det Sigma_2D), equals the sub-triangle's
-  area. So the areas A_l seen face-on add up to the mesh area (PHYSICS.md step 1);
+  area. So the areas A_l seen face-on add up to the mesh area (docs/physics.md sections 2 and 4.1);
 - thickness: `thickness_ratio` times the smaller in-plane standard deviation.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Image and geometry losses of stage `geom` (PHYSICS.md "Geometry losses").
+"""Image and geometry losses of stage `geom` (docs/physics.md section 3).
 
 All maps are torch tensors laid out [H, W, C] (or [H, W]) in image order: row v (down), column u
 (right), OpenCV camera axes. Colours are linear in [0, 1]; depths are metres along the ray.

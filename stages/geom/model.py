@@ -6,7 +6,7 @@ Raw parameters (all [N, ...] torch tensors):
 - rotations [N, 4] quaternion wxyz (normalised by the tracer);
 - opacity_logits [N]: opacity = sigmoid;
 - color_logits [N, 3]: RGB = sigmoid (view-independent appearance);
-- normals_raw [N, 3]: normal = normalize (a learnable attribute, PHYSICS.md, not the shortest axis).
+- normals_raw [N, 3]: normal = normalize (a learnable attribute, docs/physics.md section 2, not the shortest axis).
 
 The optimiser keeps its moments as tensors with the same first dimension, so densification and
 pruning only index or extend them, and a checkpoint is a flat dict of tensors.

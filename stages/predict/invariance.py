@@ -1,6 +1,6 @@
 """Resolution invariance of a fitted model: predictions with the receiver grid at two steps.
 
-PHYSICS.md step 3 asks that refining the grid from 1 to 0.5 degrees changes predictions by
+docs/physics.md section 5.1 (step 3) asks that refining the grid from 1 to 0.5 degrees changes predictions by
 < 0.5 dB. `grid_invariance(rf, measurements rows...)` renders the same links at both steps.
 """
 from __future__ import annotations

@@ -91,7 +91,7 @@ def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto
 
     render_overrides: RenderSettings fields to change (e.g. {"grid_step_deg": 0.5}).
     cull_rel: drop each link's weakest Gaussians carrying this share of its sum |c_l| (see build_cache)."""
-    if is_wideband_model(rf):  # PHYSICS.md step 7: any frequency inside the fitted band (predict/wideband.py)
+    if is_wideband_model(rf):  # docs/physics.md section 7: any frequency inside the fitted band (predict/wideband.py)
         return predict_wideband_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
                                    progress=progress, render_overrides=render_overrides)
     progress = progress or NullProgress()

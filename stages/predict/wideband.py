@@ -1,4 +1,4 @@
-"""Prediction with a wideband `rf` artifact (PHYSICS.md step 7) and spectrum plots.
+"""Prediction with a wideband `rf` artifact (docs/physics.md section 7) and spectrum plots.
 
 A wideband artifact (rf-fit on a "wideband" measurement file; stages/rf_fit/wideband_stage.py)
 holds the base materials, the system gain s_tx(f) as knots and the modulation network in its free

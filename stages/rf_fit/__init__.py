@@ -1,6 +1,6 @@
 """Stage `rf-fit`: per-Gaussian radio materials (RF opacity, roughness, complex Gamma) by inverse rendering.
 
-Modules: `render` (the forward model, PHYSICS.md steps 1-4), `occlusion` (hit tables from the
+Modules: `render` (the forward model, docs/physics.md sections 4-5), `occlusion` (hit tables from the
 tracer or a brute-force oracle), `grid` (the receiver's direction grid), `antennas`, `params`
 (parametrisations), `fit` (Adam, checkpoints), `links` (artifacts -> renderer inputs), `stage` (run).
 """

@@ -3,7 +3,7 @@
 All patterns are rotationally symmetric about an axis (boresight for horn/table, the dipole's
 axis for the dipole). `gain(directions, axis)` returns linear power gain (relative to isotropic)
 toward unit directions [..., 3] leaving the antenna; `axis` [..., 3] broadcasts against them.
-The field pattern C_R of PHYSICS.md step 3 is sqrt(gain).
+The field pattern C_R of docs/physics.md section 5.1 (step 3) is sqrt(gain).
 """
 from __future__ import annotations
 

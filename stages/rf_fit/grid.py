@@ -1,4 +1,4 @@
-"""The receiver's direction grid (PHYSICS.md step 3, paper appendix "Antenna FoV discretization").
+"""The receiver's direction grid (docs/physics.md section 5.1, step 3; paper appendix "Antenna FoV discretization").
 
 Cells of `step_deg` in polar angle theta (from the antenna axis) and azimuth phi: theta covers
 0..180 deg (omni, 180 x 360 at 1 deg) or 0..90 deg (front-only antennas such as the horn,

@@ -4,7 +4,7 @@ A provider answers two geometric questions with hit tables (no RF opacities invo
 Gaussian is traced with opacity 1 and t_stop 0, so the table is the superset of hits for any RF
 opacities a <= 1, since alpha = a G <= G):
 - `segment_hits(origins [Q, 3], target_ids [Q])`: Gaussians on the segment from each origin to the
-  target Gaussian's mean (the target itself excluded), for V (PHYSICS.md step 1);
+  target Gaussian's mean (the target itself excluded), for V (docs/physics.md section 4.1);
 - `ray_hits(origins [R, 3], directions [R, 3] unit)`: every Gaussian along each ray, for the
   receiver grid of step 3.
 The renderer turns the tables into differentiable transmittances with the RF opacities.

@@ -211,7 +211,7 @@ def _write(out_path, scene, meas, freq, rows, held, model: RssiModel, field, cfg
                   "probe_shape": np.asarray(field.shape, np.int64)}
     for name, p in model.los.state_dict().items():
         model_data["los." + name] = p.detach().numpy().copy()
-    model_attrs = {"model_kind": "rssi_los_nlos", "renderer": "rfir_stages.rf_fit.rssi_model (PHYSICS.md step 6)",
+    model_attrs = {"model_kind": "rssi_los_nlos", "renderer": "rfir_stages.rf_fit.rssi_model (docs/physics.md section 6)",
                    "weighting": bool(cfg["weighting"]), "hidden": int(cfg["hidden"]),
                    "probe_step_m": float(field.step_m), "render.self_shadow_margin_m": render_cfg.self_shadow_margin_m,
                    "render.t_stop": render_cfg.t_stop, "render.alpha_min": render_cfg.alpha_min,

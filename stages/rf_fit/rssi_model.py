@@ -1,4 +1,4 @@
-"""The RSSI model: direct path with visibility + RFIR-rendered NLoS part (PHYSICS.md step 6).
+"""The RSSI model: direct path with visibility + RFIR-rendered NLoS part (docs/physics.md section 6).
 
 For a link from x_t to x_r (omni antennas, P_T = 1 W, one frequency, k = 2 pi f / c):
 
@@ -11,12 +11,12 @@ For a link from x_t to x_r (omni antennas, P_T = 1 W, one frequency, k = 2 pi f 
   transmit strength and attenuation. Its last layer starts at zero, so an untrained model's direct
   path is exactly free-space Friis times v (test). `weighting = False` (the ablation) fixes w = 1
   and v = 1: LoS and NLoS summed without the weighting.
-- S_NLoS = sum_l c_l of PHYSICS.md steps 1-3 (stages/rf_fit/render.py's conventions:
+- S_NLoS = sum_l c_l of docs/physics.md sections 4-5 (stages/rf_fit/render.py's conventions:
   `link_geometry` for the geometric amplitude, lobe base and path length), with learned a_l, R_l,
   Gamma_l; g_nlos = 10^(nlos_gain_db / 20) is a learned scale, because the rendering's absolute
   level depends on the Gaussian density (docs/rf-model.md), and s_tx_db the learned system gain.
 
-Visibilities (deviation from PHYSICS.md step 3, on purpose, for speed; docs/rssi.md): V_l (Tx ->
+Visibilities (deviation from docs/physics.md section 5.1, on purpose, for speed; docs/rssi.md): V_l (Tx ->
 Gaussian l) is traced exactly per transmitter; the receiver-side Tbar_l is the transmittance from the
 receiver to l's mean, interpolated trilinearly from a `ProbeField` traced once on a lattice of
 probe points. Each receiver then costs no tracing, so a 440-point map for a new Tx costs one Tx

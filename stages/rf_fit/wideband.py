@@ -1,4 +1,4 @@
-"""Wideband RF model (PHYSICS.md step 7): one material set, each frequency's own k, and a
+"""Wideband RF model (docs/physics.md section 7): one material set, each frequency's own k, and a
 frequency-aware modulation network trained on top of it.
 
 Model, for link m, Gaussian l, frequency f (P_T = 1 W):

@@ -1,5 +1,5 @@
 """Two-step wideband fit: (1) base materials and s_tx(f) over the band, (2) the modulation network
-on top (PHYSICS.md step 7). Loss: dB MSE of path gain over the training links and a random subset
+on top (docs/physics.md section 7). Loss: dB MSE of path gain over the training links and a random subset
 of `freqs_per_step` frequencies per step (the full [M, G, K] problem does not fit in memory).
 """
 from __future__ import annotations

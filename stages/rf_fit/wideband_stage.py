@@ -133,7 +133,7 @@ def _write(out_path, model: WidebandModel, *, network: bool, scene, meas, task, 
                  "rf/freq_hz": np.asarray(freqs, dtype=np.float64)})
     model_attrs = {"wideband": 1, "wideband.network": int(network), "wideband.f_min_hz": float(freqs.min()),
                    "wideband.f_max_hz": float(freqs.max()),
-                   "renderer": "rfir_stages.rf_fit.wideband (PHYSICS.md steps 1-4 and 7)",
+                   "renderer": "rfir_stages.rf_fit.wideband (docs/physics.md sections 4, 5 and 7)",
                    "s_tx_db_doc": "s_tx(f) at rf/freq_hz [dB]; wideband.s_tx.knots_db interpolates it over the band"}
     model_attrs.update({f"wideband.{k}": getattr(wb, k) for k in WB_KEYS})
     model_attrs.update(extra_attrs)

@@ -128,7 +128,7 @@ def wavelength_m(freq_hz) -> np.ndarray:
 
 
 def rcs_dbsm_from_gain(path_gain_lin, range_m, freq_hz, boresight_gain: float) -> np.ndarray:
-    """sigma = (4 pi)^3 r^4 P_R / (P_T G_T G_R lambda^2), in dBsm (PHYSICS.md, item 5)."""
+    """sigma = (4 pi)^3 r^4 P_R / (P_T G_T G_R lambda^2), in dBsm (docs/physics.md section 5.2, step 5)."""
     lam = wavelength_m(freq_hz)
     r = np.asarray(range_m, dtype=np.float64)
     sigma = (4 * math.pi) ** 3 * r[:, None] ** 4 * path_gain_lin / (boresight_gain ** 2 * lam[None, :] ** 2)

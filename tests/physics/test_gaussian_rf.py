@@ -1,4 +1,4 @@
-"""Each term of the RFIR forward model against a closed form (PHYSICS.md steps 1-5)."""
+"""Each term of the RFIR forward model against a closed form (docs/physics.md sections 4-5)."""
 import math
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The renderer against closed forms (PHYSICS.md steps 1-4), occlusion, and grid invariance."""
+"""The renderer against closed forms (docs/physics.md sections 4-5), occlusion, and grid invariance."""
 import math
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Wideband model (PHYSICS.md step 7): each frequency's own k, the modulation network, the fitted band.
+"""Wideband model (docs/physics.md section 7): each frequency's own k, the modulation network, the fitted band.
 
 Synthetic target: two small metal-like squares 0.3 m apart along the line of sight, so the
 two-way path difference is ~0.6 m and the spectrum ripples with period c / 0.6 m = 500 MHz.

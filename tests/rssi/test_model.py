@@ -1,4 +1,4 @@
-"""The RSSI model against closed forms and independent references (PHYSICS.md step 6)."""
+"""The RSSI model against closed forms and independent references (docs/physics.md section 6)."""
 import math
 
 import numpy as np

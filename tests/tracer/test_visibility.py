@@ -1,4 +1,4 @@
-"""transmittance_to_points: incident-field visibility (PHYSICS.md RF step 1)."""
+"""transmittance_to_points: incident-field visibility (docs/physics.md section 4.1)."""
 import pytest
 import torch
 from tracer_helpers import make_scene, random_scene, scene_args

@@ -1,4 +1,4 @@
-"""The per-Gaussian radio terms of the RFIR forward model (docs: PHYSICS.md, steps 1-5), in torch.
+"""The per-Gaussian radio terms of the RFIR forward model (docs/physics.md sections 4-5, steps 1-5), in torch.
 
 Shapes: G Gaussians, M links (Tx/Rx pairs), K frequencies. Positions in metres, world frame.
 These are pure functions; the renderer (rf-fit) combines them with tracer visibilities.
@@ -54,7 +54,7 @@ def reflect(direction_in: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
 def bistatic_gaussian_response(means_m, cov_m2, normals, tx_m, rx_m, freq_hz, roughness, gamma, *,
                                tx_gain=None, rx_gain=None, visibility=None, rx_transmittance=None,
                                rf_opacity=None):
-    """Complex contribution c_l of every Gaussian to every link and frequency (PHYSICS.md steps 1-3).
+    """Complex contribution c_l of every Gaussian to every link and frequency (docs/physics.md sections 4-5, steps 1-3).
 
     means_m [G, 3], cov_m2 [G, 3, 3], normals [G, 3] (unit), tx_m / rx_m [M, 3], freq_hz [K],
     roughness [G] (>= 1), gamma [G] complex. Optional per-link-per-Gaussian factors [M, G]:
