@@ -1,0 +1,150 @@
+"""Fitting physical materials to measured path gains (the model of rfir_stages.model.physical).
+
+Loss: mean squared dB error (or Huber in dB) between predicted and measured path gain. Predicted
+power enters the logarithm with a floor 30 dB below the weakest measurement, so a surfel set that
+predicts nothing (a plate seen edge-on) gives a large but finite loss, never -300 dB.
+
+The loss over eps_r, sigma and thickness has several minima (a thin slab's reflection oscillates
+with thickness; metal and a dense dielectric can look alike at one angle), so the fit starts from a
+few physical materials (`STARTS`), runs each a short while with every material at that start, and
+continues from the best. The state with the lowest training loss is kept (not the last step).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from rfir_cli.progress import NullProgress
+
+from .physical import MaterialParams, PairGeometry, scattered_power
+
+# (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
+STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, 1e6, 0.1, 0.01),
+          ("thick dielectric", 6.0, 0.05, 0.1, 0.2))
+FLOOR_BELOW_DB = 30.0
+
+
+@dataclass
+class PhysicalFitConfig:
+    """[rf_fit.physical] settings (configs/rf_fit.toml documents each)."""
+
+    iterations: int = 300
+    start_iterations: int = 60
+    lr: float = 0.05
+    loss: str = "db_mse"
+    huber_db: float = 1.0
+    fit_gain: bool = False
+    half_space: bool = False
+    sigma_exponent: float = 1.0
+
+
+@dataclass
+class PhysicalFitResult:
+    params: MaterialParams
+    train_mae_db: float
+    initial_mae_db: float
+    loss_curve: np.ndarray
+    start: str
+    wall_time_s: float
+    extra: dict = field(default_factory=dict)
+
+
+def predict_db(pairs: PairGeometry, material_of_gaussian: torch.Tensor, params: MaterialParams,
+               floor_power: float = 0.0) -> torch.Tensor:
+    """Predicted path gain [M, K] dB (power + floor_power in the logarithm)."""
+    gain = params.gain_db
+    power = scattered_power(pairs, material_of_gaussian, params.values(), gain)
+    return 10 * torch.log10(power + floor_power)
+
+
+def _loss(pred_db, target, cfg: PhysicalFitConfig):
+    if cfg.loss == "db_huber":
+        return torch.nn.functional.smooth_l1_loss(pred_db, target, beta=cfg.huber_db)
+    return ((pred_db - target) ** 2).mean()
+
+
+def fit_materials(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int, target_db: np.ndarray,
+                  cfg: PhysicalFitConfig, progress=None, label: str = "physical") -> PhysicalFitResult:
+    """Fit `num_materials` materials so that the predicted path gain [M, K] dB matches target_db."""
+    progress = progress or NullProgress()
+    t0 = time.time()
+    target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
+    floor = float(10 ** ((float(target.min()) - FLOOR_BELOW_DB) / 10))
+    idx = torch.as_tensor(material_of_gaussian, dtype=torch.int64)
+
+    def new(start) -> MaterialParams:
+        _, eps, sig, s, th = start
+        return MaterialParams(num_materials, eps_r=eps, sigma_1ghz=sig, scattering=s,
+                              thickness_m=None if cfg.half_space else th, sigma_exponent=cfg.sigma_exponent)
+
+    def run(params: MaterialParams, steps: int, bar) -> tuple[float, dict, list]:
+        groups = [{"params": [params.t_eps, params.t_sig, params.t_s] + ([] if params.half_space else [params.t_th]),
+                   "lr": cfg.lr}]
+        if cfg.fit_gain:
+            groups.append({"params": [params.gain_db], "lr": 0.2})
+        opt = torch.optim.Adam(groups)
+        best, best_state, curve = math.inf, None, []
+        for _ in range(steps):
+            opt.zero_grad()
+            loss = _loss(predict_db(pairs, idx, params, floor), target, cfg)
+            if float(loss.detach()) < best:
+                best, best_state = float(loss), {k: v.detach().clone() for k, v in params.state_dict().items()}
+            loss.backward()
+            opt.step()
+            curve.append(float(loss.detach()))
+            bar.advance(1)
+        with torch.no_grad():
+            final = float(_loss(predict_db(pairs, idx, params, floor), target, cfg))
+        if final < best:
+            best, best_state = final, {k: v.detach().clone() for k, v in params.state_dict().items()}
+        return best, best_state, curve
+
+    total = len(STARTS) * cfg.start_iterations + cfg.iterations
+    with progress.task(f"rf-fit ({label})", total=total) as bar:
+        tried = []
+        for start in STARTS:
+            params = new(start)
+            loss, state, curve = run(params, cfg.start_iterations, bar)
+            tried.append((loss, start, state, curve))
+        loss, start, state, curve0 = min(tried, key=lambda t: t[0])
+        params = new(start)
+        params.load_state_dict(state)
+        with torch.no_grad():
+            initial = float((predict_db(pairs, idx, params, floor) - target).abs().mean())
+        _, state, curve1 = run(params, cfg.iterations, bar)
+        params.load_state_dict(state)
+    with torch.no_grad():
+        mae = float((predict_db(pairs, idx, params, floor) - target).abs().mean())
+    return PhysicalFitResult(params, mae, initial, np.asarray(curve0 + curve1, dtype=np.float64), start[0],
+                             time.time() - t0,
+                             {"start_losses": {t[1][0]: t[0] for t in tried}})
+
+
+def material_index(kind: str, num_gaussians: int, labels: torch.Tensor | None, means: torch.Tensor | None = None,
+                   normals: torch.Tensor | None = None, num_segments: int = 8, seed: int = 0
+                   ) -> tuple[torch.Tensor, list[str]]:
+    """(material of each Gaussian [G] int64, material names): one per "label", one "global", or per
+    "segment" (k-means on position, scaled by the scene extent, and normal, sign-free)."""
+    if kind == "global":
+        return torch.zeros(num_gaussians, dtype=torch.int64), ["scene"]
+    if kind == "label":
+        if labels is None:
+            raise ValueError("materials per label need gaussians/labels in the scene")
+        uniq, inv = torch.unique(labels, return_inverse=True)
+        return inv, [f"label {int(u)}" for u in uniq]
+    if kind == "segment":
+        from scipy.cluster.vq import kmeans2
+        x = means.numpy()
+        extent = float(np.ptp(x, axis=0).max()) or 1.0
+        n = normals.numpy()
+        n = n * np.where(n[:, 2:3] < 0, -1.0, 1.0)       # normals are sign-free (two-sided surfels)
+        feats = np.concatenate([x / extent, 0.5 * n], 1)
+        k = max(1, min(num_segments, num_gaussians))
+        _, lab = kmeans2(feats, k, seed=seed, minit="++")
+        uniq, inv = np.unique(lab, return_inverse=True)
+        return torch.as_tensor(inv, dtype=torch.int64), [f"segment {i}" for i in range(len(uniq))]
+    raise ValueError(f"material sharing {kind!r} unknown (label, segment, global)")

@@ -1,0 +1,275 @@
+"""The physical forward model: surfel physical optics with physical materials (docs/physics.md section 8).
+
+Received complex amplitude and power for a batch of links (P_T = 1 W, path gain = power):
+
+    S_spec = sum_l j sqrt(G_T G_R) sqrt(1 - S_m^2) Gamma_m(theta_l, pol) A_l ((cos_i + cos_o) / 2)
+             * F_l(k) * V_l * exp(-j k (d_i + d_o)) / (4 pi d_i d_o)
+    P_diff = sum_l G_T G_R S_m^2 |Gamma_m(theta_l)|^2 A_l cos_i cos_o lambda^2 V_l^2 / (16 pi^3 d_i^2 d_o^2)
+    P      = g (|S_spec|^2 + P_diff)
+
+- l runs over surfel Gaussians lit from both ends (the normal flipped to face the transmitter,
+  cos_i = n.w_i > 0 and cos_o = n.w_o > 0: the receiver on the same side; no transmission here);
+  m = material of l (one per label, per segment or per scene);
+- A_l: surfel area (surfels.surfel_areas), so a plate at broadside gives 4 pi A^2 / lambda^2
+  whatever the Gaussian density; F_l(k) = exp(-0.5 k^2 q^T Sigma_w q), q = w_i + w_o, the
+  footprint factor (surfels.footprint_covariance);
+- Gamma_m(theta, pol): the co-polarised Fresnel (slab) coefficient of the material at the local
+  incidence angle (materials.co_polar_reflection; the TE share from the antennas' polarisation);
+- V_l = V_tx V_rx: the traced visibility of the surfel's mean from each antenna (frozen, with
+  one RF opacity for every Gaussian; one factor when the antennas are co-located, which is the
+  monostatic radar: the two legs share one path, and its binary lit/shadowed state);
+- g: a system gain (1 unless fitted: the level is physical).
+The phase of each term is fixed by geometry and the material: no free phase per Gaussian.
+
+Everything that depends on geometry alone is computed once (`build_pairs`); `PhysicalModel.power`
+is then O(pairs x frequencies) and differentiable in the material parameters.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from rfir_stages.rf_fit.antennas import AntennaPattern
+from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider
+from rfir_stages.rf_fit.render import LinkSet
+
+from .materials import C0, co_polar_reflection, fresnel, permittivity
+from .surfels import footprint_covariance, surfel_areas
+
+EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
+LOG10_SIGMA = (-4.0, 7.0)   # conductivity at 1 GHz in [1e-4, 1e7] S/m (1e7: metal)
+THICKNESS_M = (1e-3, 1.0)   # slab thickness range, m
+POLARISATIONS = {"V": (0.0, 0.0, 1.0), "H": None}   # V: along +z; H: horizontal, across the link
+
+
+@dataclass
+class PairGeometry:
+    """Geometry of every (link, lit surfel) pair; P pairs, M links, K frequencies.
+
+    link, gauss [P] int64; d_i, d_o [P] m; cos_i, cos_o [P]; te_share [P] in [0, 1]; gain [P] =
+    sqrt(G_T G_R); vis [P] = V_tx V_rx; qsq [P] m^2 = q^T Sigma_w q; area [P] m^2; freq_hz [K]."""
+
+    num_links: int
+    link: torch.Tensor
+    gauss: torch.Tensor
+    d_i: torch.Tensor
+    d_o: torch.Tensor
+    cos_i: torch.Tensor
+    cos_o: torch.Tensor
+    te_share: torch.Tensor
+    gain: torch.Tensor
+    vis: torch.Tensor
+    qsq: torch.Tensor
+    area: torch.Tensor
+    freq_hz: torch.Tensor
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.link.numel())
+
+
+@dataclass
+class PairSettings:
+    """visibility: trace V (False: every lit surfel sees both antennas). opacity: the RF opacity of
+    every Gaussian for the traced V. margin_m: occluders closer than this in front of a surfel are
+    ignored (a surface does not shadow itself). colocated_tol_m: Tx and Rx closer than this are one
+    radar (one visibility factor). polarisation: "V" or "H". link_chunk: links per geometry block."""
+
+    visibility: bool = True
+    opacity: float = 0.9
+    margin_m: float = 0.01
+    t_stop: float = 1e-4
+    colocated_tol_m: float = 0.01
+    polarisation: str = "V"
+    link_chunk: int = 64
+
+
+def _te_share(w_i: torch.Tensor, n: torch.Tensor, pol: str) -> torch.Tensor:
+    """Squared projection of the wave's polarisation (transverse to w_i) on the TE direction n x w_i."""
+    e_te = torch.linalg.cross(n, w_i, dim=-1)
+    s = e_te.norm(dim=-1)
+    e_te = e_te / s.clamp(min=1e-12)[..., None]
+    if pol == "V":
+        p = torch.tensor(POLARISATIONS["V"], dtype=w_i.dtype).expand_as(w_i)
+    else:  # horizontal: z x w_i
+        z = torch.zeros_like(w_i)
+        z[..., 2] = 1.0
+        p = torch.linalg.cross(z, w_i, dim=-1)
+    p = p - (p * w_i).sum(-1, keepdim=True) * w_i        # transverse part
+    pn = p.norm(dim=-1)
+    te = ((p * e_te).sum(-1) / pn.clamp(min=1e-12)) ** 2
+    # normal incidence (no plane of incidence) or polarisation along the ray: TE and TM agree there
+    return torch.where((s < 1e-9) | (pn < 1e-9), torch.full_like(te, 0.5), te.clamp(0.0, 1.0))
+
+
+def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
+                provider: OcclusionProvider | None, settings: PairSettings = PairSettings(),
+                areas_m2: torch.Tensor | None = None) -> PairGeometry:
+    """Trace once and keep the geometry of every lit (link, surfel) pair (see PairGeometry)."""
+    with torch.no_grad():
+        area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) \
+            if areas_m2 is None else areas_m2.double()
+        sigma_w = footprint_covariance(geom.log_scales, geom.rotations, geom.normals, area)
+        parts = []
+        for a in range(0, links.num, settings.link_chunk):
+            b = min(links.num, a + settings.link_chunk)
+            parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, sigma_w, settings))
+        cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+        vis = torch.ones_like(cat["d_i"])
+        if settings.visibility and provider is not None and cat["link"].numel():
+            op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
+            v_tx = provider.segment_transmittance(links.tx_m[cat["link"]], cat["gauss"], settings.margin_m, op,
+                                                  settings.t_stop)
+            colocated = bool(((links.tx_m - links.rx_m).norm(dim=-1) < settings.colocated_tol_m).all())
+            vis = v_tx if colocated else v_tx * provider.segment_transmittance(
+                links.rx_m[cat["link"]], cat["gauss"], settings.margin_m, op, settings.t_stop)
+        keep = vis > 1e-6
+        cat = {k: v[keep] for k, v in cat.items()}
+        return PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
+                            cat["te"], cat["gain"], vis[keep], cat["qsq"], area[cat["gauss"]],
+                            links.freq_hz.double())
+
+
+def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, sigma_w, settings: PairSettings) -> dict:
+    """Lit pairs of links a..b-1 (dense over Gaussians, then filtered)."""
+    tx, rx = links.tx_m[a:b], links.rx_m[a:b]
+    to_tx = tx[:, None] - geom.means[None]          # [m, G, 3]
+    d_i = to_tx.norm(dim=-1)
+    w_i = to_tx / d_i[..., None]
+    to_rx = rx[:, None] - geom.means[None]
+    d_o = to_rx.norm(dim=-1)
+    w_o = to_rx / d_o[..., None]
+    n0 = geom.normals[None].expand_as(w_i)
+    side = torch.where((w_i * n0).sum(-1) >= 0, 1.0, -1.0)
+    n = n0 * side[..., None]                          # two-sided: the normal faces the transmitter
+    cos_i = (w_i * n).sum(-1)
+    cos_o = (w_o * n).sum(-1)
+    lit = (cos_i > 1e-6) & (cos_o > 1e-6)
+    m_idx, g_idx = lit.nonzero(as_tuple=True)
+    wi, wo, nn_ = w_i[m_idx, g_idx], w_o[m_idx, g_idx], n[m_idx, g_idx]
+    q = wi + wo
+    qsq = torch.einsum("pi,pij,pj->p", q, sigma_w[g_idx], q)
+    g_t = tx_ant.gain(-wi, links.tx_axis[a:b][m_idx])
+    g_r = rx_ant.gain(-wo, links.rx_axis[a:b][m_idx])
+    return {"link": m_idx + a, "gauss": g_idx, "d_i": d_i[m_idx, g_idx], "d_o": d_o[m_idx, g_idx],
+            "cos_i": cos_i[m_idx, g_idx], "cos_o": cos_o[m_idx, g_idx], "te": _te_share(wi, nn_, settings.polarisation),
+            "gain": torch.sqrt(g_t * g_r), "qsq": qsq}
+
+
+def _sigmoid_range(theta: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
+    return lo + (hi - lo) * torch.sigmoid(theta)
+
+
+def _logit_range(value: float, lo: float, hi: float) -> float:
+    p = min(max((value - lo) / (hi - lo), 1e-6), 1 - 1e-6)
+    return math.log(p / (1 - p))
+
+
+@dataclass
+class MaterialValues:
+    """Physical values of N materials: eps_r [N], sigma at 1 GHz [N] S/m, conductivity exponent d,
+    scattering coefficient S [N] in [0, 1), thickness [N] m (None: half-spaces)."""
+
+    eps_r: torch.Tensor
+    sigma_1ghz: torch.Tensor
+    sigma_exponent: float
+    scattering: torch.Tensor
+    thickness_m: torch.Tensor | None
+
+    def eta(self, freq_hz: torch.Tensor) -> torch.Tensor:
+        """Complex relative permittivity [N, K]: eps_r - j sigma(f) / (eps_0 omega), sigma = sigma_1GHz f^d."""
+        f = freq_hz.double()[None]
+        sigma = self.sigma_1ghz[:, None] * (f / 1e9) ** self.sigma_exponent
+        return permittivity(self.eps_r[:, None], sigma, f)
+
+    def normal_reflection(self, freq_hz: torch.Tensor) -> torch.Tensor:
+        """R_TE at normal incidence [N, K] (|Gamma| as a radio engineer reads it)."""
+        k0 = 2 * math.pi * freq_hz.double()[None] / C0
+        th = None if self.thickness_m is None else self.thickness_m[:, None]
+        return fresnel(self.eta(freq_hz), 1.0, k0, th)[0]
+
+
+class MaterialParams(nn.Module):
+    """Learnable materials with parametrisations that keep every value physical.
+
+    eps_r = 1 + (EPS_R_MAX - 1) sigmoid(t_eps); log10 sigma_1GHz in LOG10_SIGMA via a sigmoid;
+    S = sigmoid(t_s); thickness log-uniform in THICKNESS_M via a sigmoid (or half-spaces);
+    gain_db: a system gain in dB (learned only when asked)."""
+
+    def __init__(self, num_materials: int, *, eps_r: float = 3.0, sigma_1ghz: float = 0.01, scattering: float = 0.1,
+                 thickness_m: float | None = 0.05, sigma_exponent: float = 1.0):
+        super().__init__()
+        full = lambda v: nn.Parameter(torch.full((num_materials,), float(v), dtype=torch.float64))  # noqa: E731
+        self.t_eps = full(_logit_range(eps_r, 1.0, EPS_R_MAX))
+        self.t_sig = full(_logit_range(math.log10(sigma_1ghz), *LOG10_SIGMA))
+        self.t_s = full(_logit_range(scattering, 0.0, 1.0))
+        self.half_space = thickness_m is None
+        lo, hi = (math.log(x) for x in THICKNESS_M)
+        self.t_th = full(_logit_range(math.log(thickness_m or 0.05), lo, hi))
+        self.gain_db = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.sigma_exponent = float(sigma_exponent)
+
+    @property
+    def num(self) -> int:
+        return int(self.t_eps.numel())
+
+    def values(self) -> MaterialValues:
+        lo, hi = (math.log(x) for x in THICKNESS_M)
+        return MaterialValues(
+            eps_r=_sigmoid_range(self.t_eps, 1.0, EPS_R_MAX),
+            sigma_1ghz=10 ** _sigmoid_range(self.t_sig, *LOG10_SIGMA),
+            sigma_exponent=self.sigma_exponent,
+            scattering=torch.sigmoid(self.t_s),
+            thickness_m=None if self.half_space else torch.exp(_sigmoid_range(self.t_th, lo, hi)))
+
+    def set_values(self, index: int, *, eps_r=None, sigma_1ghz=None, scattering=None, thickness_m=None) -> None:
+        """Set material `index` (a start of the fit or a prior)."""
+        with torch.no_grad():
+            if eps_r is not None:
+                self.t_eps[index] = _logit_range(float(eps_r), 1.0, EPS_R_MAX)
+            if sigma_1ghz is not None:
+                self.t_sig[index] = _logit_range(math.log10(max(float(sigma_1ghz), 1e-12)), *LOG10_SIGMA)
+            if scattering is not None:
+                self.t_s[index] = _logit_range(float(scattering), 0.0, 1.0)
+            if thickness_m is not None and not self.half_space:
+                lo, hi = (math.log(x) for x in THICKNESS_M)
+                self.t_th[index] = _logit_range(math.log(float(thickness_m)), lo, hi)
+
+
+def scattered_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
+                    gain_db: torch.Tensor | float = 0.0, freq_hz: torch.Tensor | None = None) -> torch.Tensor:
+    """Received power [M, K] (P_T = 1 W; path gain) of the model in the module docstring.
+
+    material_of_gaussian [G] int64: the material of each Gaussian. freq_hz [K] (default: the
+    frequencies the pairs were built for; only the phase, the footprint and Gamma depend on it)."""
+    f = pairs.freq_hz if freq_hz is None else freq_hz.double()
+    k0 = 2 * math.pi * f / C0                                      # [K]
+    mat = material_of_gaussian[pairs.gauss]                        # [P]
+    eta = mats.eta(f)[mat]                                         # [P, K]
+    th = None if mats.thickness_m is None else mats.thickness_m[mat][:, None]
+    r_te, r_tm = fresnel(eta, pairs.cos_i[:, None], k0[None], th)
+    gamma = co_polar_reflection(r_te, r_tm, pairs.te_share[:, None])   # [P, K]
+    s = mats.scattering[mat]
+    base = pairs.gain * pairs.vis * pairs.area / (4 * math.pi * pairs.d_i * pairs.d_o)   # [P]
+    spec_amp = base * 0.5 * (pairs.cos_i + pairs.cos_o) * torch.sqrt(1.0 - s**2)
+    foot = torch.exp(-0.5 * pairs.qsq[:, None] * k0[None] ** 2)
+    phase = torch.exp(-1j * (pairs.d_i + pairs.d_o)[:, None] * k0[None])
+    terms = 1j * (spec_amp[:, None] * foot) * gamma * phase
+    field = torch.zeros((pairs.num_links, f.numel()), dtype=torch.complex128).index_add(0, pairs.link, terms)
+    lam = C0 / f                                                   # [K] m
+    # G_T G_R V^2 S^2 |Gamma|^2 A cos_i cos_o lambda^2 / (16 pi^3 d_i^2 d_o^2) = base^2 S^2 |Gamma|^2 cos_i cos_o
+    # lambda^2 / (pi A)
+    diff_terms = (base**2 * s**2 * pairs.cos_i * pairs.cos_o / (math.pi * pairs.area))[:, None] \
+        * gamma.abs() ** 2 * lam[None] ** 2
+    diffuse = torch.zeros((pairs.num_links, f.numel()), dtype=torch.float64).index_add(0, pairs.link, diff_terms)
+    return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
+
+
+def gaussians_normal_reflection(material_of_gaussian: torch.Tensor, mats: MaterialValues,
+                                freq_hz: torch.Tensor) -> np.ndarray:
+    """R_TE at normal incidence per Gaussian [G, K] (attribute maps and the rf/gamma_* datasets)."""
+    return mats.normal_reflection(freq_hz)[material_of_gaussian].detach().numpy()

@@ -1,0 +1,132 @@
+"""The surfel physical-optics model against closed forms and the PO simulator (docs/physics.md section 8)."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rfir_cli.physics.closed_forms import C0, plate_rcs_broadside_m2
+from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
+from rfir_stages.model.materials import fresnel, itu_law, permittivity
+from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
+from rfir_stages.model.surfels import surfel_areas
+from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
+
+from .helpers import ISO, monostatic, plate_mesh, rcs_dbsm, surfels
+
+PEC_LIKE = dict(eps_r=1.0, sigma_1ghz=1e7, scattering=1e-9, thickness_m=None)
+
+
+def _power(geom, links, material=PEC_LIKE, settings=PairSettings(visibility=False), provider=None):
+    pairs = build_pairs(geom, links, ISO, ISO, provider, settings)
+    mats = MaterialParams(1, **material).values()
+    return scattered_power(pairs, torch.zeros(geom.num, dtype=torch.int64), mats).detach().numpy()
+
+
+@pytest.mark.parametrize("spacing_m", [0.02, 0.045])
+@pytest.mark.parametrize("freq_hz", [2.4e9, 5.8e9])
+def test_plate_broadside_and_sinc_lobes_whatever_the_spacing(spacing_m, freq_hz):
+    a, r = 0.3, 200.0                                     # far field: 2 a^2 / lambda < 3.5 m
+    geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), a, a), spacing_m)
+    lam = C0 / freq_hz
+    # monostatic, the phase runs twice across the plate: sigma = (4 pi A^2 / lambda^2) cos^2 sinc^2(k a sin theta)
+    # (sinc x = sin x / x). Broadside, the main lobe's flank and the first two sidelobe peaks:
+    # k a sin theta = 0.5 pi, 1.43 pi, 2.46 pi
+    angles = np.array([0.0] + [math.degrees(math.asin(x * lam / (2 * a))) for x in (0.5, 1.43, 2.46)])
+    _, links = monostatic(angles, r, freq_hz)
+    sigma_db = rcs_dbsm(_power(geom, links)[:, 0], r, freq_hz)
+    th = np.radians(angles)
+    closed = plate_rcs_broadside_m2(a * a, freq_hz) * np.cos(th) ** 2 * np.sinc(2 * a / lam * np.sin(th)) ** 2
+    assert abs(sigma_db[0] - 10 * np.log10(closed[0])) < 1.0
+    np.testing.assert_allclose(sigma_db[1:], 10 * np.log10(closed[1:]), atol=1.5)
+
+
+def test_a_second_layer_of_surfels_does_not_change_the_level():
+    geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), 0.3, 0.3), 0.03)
+    double = FrozenGeometry(*(torch.cat([t, t]) for t in (geom.means + 0.0, geom.log_scales, geom.rotations,
+                                                         geom.normals)))
+    double.means[geom.num:, 1] += 0.004                   # the same surface, tiled twice
+    one = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals).sum()
+    two = surfel_areas(double.means, double.log_scales, double.rotations, double.normals).sum()
+    assert float(two / one) == pytest.approx(1.0, abs=0.05)
+    _, links = monostatic([0.0], 50.0, 2.4e9)
+    p1, p2 = _power(geom, links)[0, 0], _power(double, links)[0, 0]
+    assert abs(10 * np.log10(p2 / p1)) < 0.5
+
+
+def test_large_plane_gives_the_image_source_with_its_phase():
+    f = 2.4e9
+    lam, k = C0 / f, 2 * math.pi * f / C0
+    geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), 4.0, 4.0), lam / 4)
+    pos, links = monostatic([0.0], 1.0, f)
+    pairs = build_pairs(geom, links, ISO, ISO, None, PairSettings(visibility=False))
+    mats = MaterialParams(1, **PEC_LIKE).values()
+    # the complex field: scattered_power's coherent sum, rebuilt from the same pairs
+    r_te, r_tm = fresnel(mats.eta(pairs.freq_hz)[0][None], pairs.cos_i[:, None])
+    base = pairs.gain * pairs.vis * pairs.area * 0.5 * (pairs.cos_i + pairs.cos_o) / (4 * math.pi * pairs.d_i * pairs.d_o)
+    field = (1j * base[:, None] * torch.exp(-0.5 * pairs.qsq[:, None] * k**2) * r_te
+             * torch.exp(-1j * k * (pairs.d_i + pairs.d_o))[:, None]).sum().item()
+    d_img = 2.0
+    image = -1.0 * lam * np.exp(-1j * k * d_img) / (4 * math.pi * d_img)   # Gamma = -1
+    assert abs(20 * np.log10(abs(field) / abs(image))) < 1.0     # edge diffraction ripple of a finite plate
+    assert abs(np.degrees(np.angle(field / image))) < 5.0
+    power = scattered_power(pairs, torch.zeros(geom.num, dtype=torch.int64), mats).item()
+    assert power == pytest.approx(abs(field) ** 2, rel=1e-5)   # sigma = 1e7 S/m: |Gamma| = 1 - 2e-5
+
+
+def test_diffuse_term_conserves_energy_over_the_hemisphere():
+    """A small Lambertian patch: the power an isotropic aperture lambda^2 / (4 pi) collects, integrated
+    over all receiver directions, equals S^2 |Gamma|^2 times the power incident on the patch."""
+    f, s_coef = 2.4e9, 0.6
+    lam = C0 / f
+    geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), 0.01, 0.01), 0.01)
+    tx = torch.tensor([[2.0, 0.0, 0.0]], dtype=torch.float64)
+    th = np.radians(np.arange(0.25, 90, 0.5))
+    ph = np.radians(np.arange(0.25, 360, 0.5))
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    big_r = 5.0
+    rx = np.stack([big_r * np.cos(T), big_r * np.sin(T) * np.cos(P), big_r * np.sin(T) * np.sin(P)], -1).reshape(-1, 3)
+    from rfir_stages.rf_fit.render import LinkSet
+    m = len(rx)
+    links = LinkSet(tx.expand(m, 3).contiguous(), torch.as_tensor(rx), torch.tensor([f], dtype=torch.float64),
+                    torch.zeros(m, 3, dtype=torch.float64), torch.zeros(m, 3, dtype=torch.float64))
+    pairs = build_pairs(geom, links, ISO, ISO, None, PairSettings(visibility=False))
+    mat = dict(eps_r=4.0, sigma_1ghz=1e-4, scattering=s_coef, thickness_m=None)
+    vals = MaterialParams(1, **mat).values()
+    idx = torch.zeros(geom.num, dtype=torch.int64)
+    total = scattered_power(pairs, idx, vals).detach().numpy()[:, 0]
+    no_diffuse = scattered_power(pairs, idx, MaterialParams(1, **{**mat, "scattering": 1e-9}).values()).detach().numpy()[:, 0]
+    coherent_share = 1 - s_coef**2
+    diffuse = total - no_diffuse * coherent_share          # the coherent part scales with 1 - S^2
+    d_omega = (np.radians(0.5) ** 2 * np.sin(T)).reshape(-1)
+    collected = (diffuse * big_r**2 * d_omega).sum() * 4 * math.pi / lam**2
+    area = float(surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals).sum())
+    gamma0 = abs(fresnel(4.0, 1.0)[0].item())
+    incident = area / (4 * math.pi * 2.0**2)
+    assert collected == pytest.approx(s_coef**2 * gamma0**2 * incident, rel=0.03)
+
+
+def test_materials_recovered_from_physical_optics_data():
+    """A metal plate and a wooden board (ITU laws, slabs), monostatic RCS from the PO solver: the fit
+    finds each one's normal-incidence |Gamma| within 0.1 and calls the metal a metal."""
+    from rfir_stages.po import channel_from_amplitude, po_scattered_field
+    v1, f1 = plate_mesh((0.1, -0.2, 0), (0, 1, 0), (0, 0, 1), 0.2, 0.2)
+    n2 = np.array([-1.0, 1.0, 0.0]) / math.sqrt(2)
+    v2, f2 = plate_mesh((0, 0.2, 0), n2, (0, 0, 1), 0.25, 0.25)
+    verts, faces = np.concatenate([v1, v2]), np.concatenate([f1, f2 + 4])
+    names, thick, labels = np.array(["metal"] * 2 + ["wood"] * 2), np.array([0.003] * 2 + [0.03] * 2), np.array([0, 0, 1, 1])
+    freqs, r = np.array([2.4e9]), 3.0
+    pos, links = monostatic(np.arange(-90, 91, 3.0), r, freqs)
+    s = po_scattered_field(verts, faces, names, pos, pos, freqs, near_field=True, face_thickness=thick)
+    target = 20 * np.log10(np.abs(channel_from_amplitude(s, freqs, np.full(len(pos), r), np.full(len(pos), r))))
+    geom, g = surfels(verts, faces, 0.025, labels=labels)
+    pairs = build_pairs(geom, links, ISO, ISO, make_provider("auto", geom), PairSettings())
+    idx, mat_names = material_index("label", geom.num, torch.as_tensor(g["gaussians/labels"]))
+    res = fit_materials(pairs, idx, len(mat_names), target, PhysicalFitConfig(iterations=150, start_iterations=40))
+    fitted = res.params.values().normal_reflection(torch.as_tensor(freqs)).abs().detach().numpy()[:, 0]
+    k0 = 2 * math.pi * freqs / C0
+    truth = [abs(fresnel(permittivity(*itu_law(n, freqs), freqs), 1.0, k0, t)[0].item())
+             for n, t in (("metal", 0.003), ("wood", 0.03))]
+    assert fitted[0] > 0.9
+    np.testing.assert_allclose(fitted, truth, atol=0.1)
+    assert res.train_mae_db < 1.5
