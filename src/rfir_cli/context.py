@@ -17,6 +17,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgres
 
 from .config import resolve_config, to_toml
 from .errors import ConfigError, RfirError
+from .progress import LineProgress
 
 T = TypeVar("T")
 console = Console()
@@ -63,27 +64,41 @@ def options(ctx: typer.Context) -> GlobalOptions:
 
 
 class RichReporter:
-    """A `rfir_cli.progress.Progress` backed by rich progress bars (quiet when verbosity < 0)."""
+    """The CLI's `rfir_cli.progress.Progress`: rich bars on a terminal, plain lines otherwise.
 
-    def __init__(self, verbosity: int = 0):
+    Quiet when verbosity < 0. Without a terminal (output piped to a log), a rich bar prints
+    nothing until it ends, so a long fit looks hung; there `LineProgress` prints step, loss and
+    ETA at least every `line_interval_s` instead.
+    """
+
+    def __init__(self, verbosity: int = 0, line_interval_s: float = 30.0):
         self.verbosity = verbosity
+        self._lines = None if err_console.is_terminal or verbosity < 0 else LineProgress(interval_s=line_interval_s)
         self._bars = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console,
-                                  disable=verbosity < 0, transient=False)
+                                  TimeElapsedColumn(), TimeRemainingColumn(), TextColumn("{task.fields[loss]}"),
+                                  console=err_console, disable=verbosity < 0 or self._lines is not None,
+                                  transient=False)
 
     def __enter__(self):
-        self._bars.__enter__()
+        (self._lines or self._bars).__enter__()
         return self
 
     def __exit__(self, *exc):
-        return self._bars.__exit__(*exc)
+        return (self._lines or self._bars).__exit__(*exc)
 
     def task(self, description: str, total: float | None = None):
+        if self._lines is not None:
+            return self._lines.task(description, total)
         return _RichTask(self._bars, description, total)
 
     def log(self, message: str) -> None:
-        if self.verbosity >= 0:
-            self._bars.console.print(message)
+        """Stage messages are plain text: no markup or emoji codes ("[m]", ":A:") to swallow."""
+        if self.verbosity < 0:
+            return
+        if self._lines is not None:
+            self._lines.log(message)
+        else:
+            self._bars.console.print(message, markup=False, emoji=False, highlight=False, soft_wrap=True)
 
 
 class _RichTask:
@@ -91,7 +106,7 @@ class _RichTask:
         self._bars, self._description, self._total = bars, description, total
 
     def __enter__(self):
-        self._id = self._bars.add_task(self._description, total=self._total)
+        self._id = self._bars.add_task(self._description, total=self._total, loss="")
         return self
 
     def __exit__(self, *exc):
@@ -103,8 +118,10 @@ class _RichTask:
     def advance(self, amount: float = 1) -> None:
         self._bars.advance(self._id, amount)
 
-    def update(self, *, total: float | None = None, description: str | None = None) -> None:
-        self._bars.update(self._id, total=total, description=description)
+    def update(self, *, total: float | None = None, description: str | None = None,
+               loss: float | None = None) -> None:
+        fields = {} if loss is None else {"loss": f"loss {loss:.4g}"}
+        self._bars.update(self._id, total=total, description=description, **fields)
 
 
 def run_guarded(ctx: typer.Context, work: Callable[[], T]) -> T:
