@@ -20,7 +20,7 @@ import torch
 
 from rfir_cli.progress import NullProgress
 
-from .physical import MaterialParams, PairGeometry, scattered_power
+from .physical import AggregatedPairs, MaterialParams
 
 # (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
 STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, 1e6, 0.1, 0.01),
@@ -53,12 +53,9 @@ class PhysicalFitResult:
     extra: dict = field(default_factory=dict)
 
 
-def predict_db(pairs: PairGeometry, material_of_gaussian: torch.Tensor, params: MaterialParams,
-               floor_power: float = 0.0) -> torch.Tensor:
+def predict_db(agg: AggregatedPairs, params: MaterialParams, floor_power: float = 0.0) -> torch.Tensor:
     """Predicted path gain [M, K] dB (power + floor_power in the logarithm)."""
-    gain = params.gain_db
-    power = scattered_power(pairs, material_of_gaussian, params.values(), gain)
-    return 10 * torch.log10(power + floor_power)
+    return 10 * torch.log10(agg.power(params.values(), params.gain_db) + floor_power)
 
 
 def _loss(pred_db, target, cfg: PhysicalFitConfig):
@@ -67,14 +64,14 @@ def _loss(pred_db, target, cfg: PhysicalFitConfig):
     return ((pred_db - target) ** 2).mean()
 
 
-def fit_materials(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int, target_db: np.ndarray,
-                  cfg: PhysicalFitConfig, progress=None, label: str = "physical") -> PhysicalFitResult:
-    """Fit `num_materials` materials so that the predicted path gain [M, K] dB matches target_db."""
+def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig,
+                  progress=None, label: str = "physical") -> PhysicalFitResult:
+    """Fit `num_materials` materials (the N of `agg`) so that the predicted path gain [M, K] dB matches
+    target_db."""
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
     floor = float(10 ** ((float(target.min()) - FLOOR_BELOW_DB) / 10))
-    idx = torch.as_tensor(material_of_gaussian, dtype=torch.int64)
 
     def new(start) -> MaterialParams:
         _, eps, sig, s, th = start
@@ -90,15 +87,15 @@ def fit_materials(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_m
         best, best_state, curve = math.inf, None, []
         for _ in range(steps):
             opt.zero_grad()
-            loss = _loss(predict_db(pairs, idx, params, floor), target, cfg)
+            loss = _loss(predict_db(agg, params, floor), target, cfg)
             if float(loss.detach()) < best:
-                best, best_state = float(loss), {k: v.detach().clone() for k, v in params.state_dict().items()}
+                best, best_state = float(loss.detach()), {k: v.detach().clone() for k, v in params.state_dict().items()}
             loss.backward()
             opt.step()
             curve.append(float(loss.detach()))
             bar.advance(1)
         with torch.no_grad():
-            final = float(_loss(predict_db(pairs, idx, params, floor), target, cfg))
+            final = float(_loss(predict_db(agg, params, floor), target, cfg))
         if final < best:
             best, best_state = final, {k: v.detach().clone() for k, v in params.state_dict().items()}
         return best, best_state, curve
@@ -114,11 +111,11 @@ def fit_materials(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_m
         params = new(start)
         params.load_state_dict(state)
         with torch.no_grad():
-            initial = float((predict_db(pairs, idx, params, floor) - target).abs().mean())
+            initial = float((predict_db(agg, params, floor) - target).abs().mean())
         _, state, curve1 = run(params, cfg.iterations, bar)
         params.load_state_dict(state)
     with torch.no_grad():
-        mae = float((predict_db(pairs, idx, params, floor) - target).abs().mean())
+        mae = float((predict_db(agg, params, floor) - target).abs().mean())
     return PhysicalFitResult(params, mae, initial, np.asarray(curve0 + curve1, dtype=np.float64), start[0],
                              time.time() - t0,
                              {"start_losses": {t[1][0]: t[0] for t in tried}})

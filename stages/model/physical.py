@@ -71,6 +71,17 @@ class PairGeometry:
     def num_pairs(self) -> int:
         return int(self.link.numel())
 
+    def select_links(self, rows) -> "PairGeometry":
+        """The pairs of links `rows` (renumbered 0..len(rows)-1 in that order)."""
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
+        new_id[rows] = torch.arange(rows.numel())
+        keep = new_id[self.link] >= 0
+        pick = lambda t: t[keep]  # noqa: E731
+        return PairGeometry(int(rows.numel()), new_id[self.link][keep], pick(self.gauss), pick(self.d_i),
+                            pick(self.d_o), pick(self.cos_i), pick(self.cos_o), pick(self.te_share), pick(self.gain),
+                            pick(self.vis), pick(self.qsq), pick(self.area), self.freq_hz)
+
 
 @dataclass
 class PairSettings:
@@ -273,3 +284,77 @@ def gaussians_normal_reflection(material_of_gaussian: torch.Tensor, mats: Materi
                                 freq_hz: torch.Tensor) -> np.ndarray:
     """R_TE at normal incidence per Gaussian [G, K] (attribute maps and the rf/gamma_* datasets)."""
     return mats.normal_reflection(freq_hz)[material_of_gaussian].detach().numpy()
+
+
+ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
+
+
+@dataclass
+class AggregatedPairs:
+    """The pairs summed per (link, material, incidence-angle node) once, for fast fits with few materials.
+
+    Gamma depends on a pair only through its material and incidence angle. With Gamma linear in the
+    angle between nodes theta_j = j * 90 / (ANGLE_NODES - 1) degrees, every pair's geometric factor
+    is split between its two neighbouring nodes, and the sums
+        A_te[m, n, j, k] = sum_p c_p(k) te_p w_pj,  A_tm[...] = sum_p c_p(k) (1 - te_p) w_pj,
+        D[m, n, j, :] = sum_p d_p w_pj (te_p^2, (1 - te_p)^2, te_p (1 - te_p))
+    (c_p the complex specular factor without Gamma and sqrt(1 - S^2), d_p the diffuse factor without
+    S^2 |Gamma|^2 lambda^2) make a fit step cost links x materials x nodes instead of pairs.
+    The result equals `scattered_power` with Gamma interpolated linearly in angle (|Gamma|^2 too, for
+    the diffuse part, |te R_TE - (1 - te) R_TM|^2 expanded in the three te moments): tests/model compare
+    the two."""
+
+    a_te: torch.Tensor      # [M, N, J, K] complex
+    a_tm: torch.Tensor      # [M, N, J, K] complex
+    diffuse: torch.Tensor   # [M, N, J, 3] real
+    freq_hz: torch.Tensor   # [K]
+
+    @staticmethod
+    def build(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int,
+              chunk: int = 1 << 20) -> "AggregatedPairs":
+        m, n, j, k = pairs.num_links, num_materials, ANGLE_NODES, int(pairs.freq_hz.numel())
+        k0 = 2 * math.pi * pairs.freq_hz / C0
+        a_te = torch.zeros(m * n * j, k, dtype=torch.complex128)
+        a_tm = torch.zeros_like(a_te)
+        diff = torch.zeros(m * n * j, 3, dtype=torch.float64)
+        step = math.radians(90.0) / (j - 1)
+        with torch.no_grad():
+            for a in range(0, pairs.num_pairs, chunk):
+                sl = slice(a, min(pairs.num_pairs, a + chunk))
+                cos_i, cos_o = pairs.cos_i[sl], pairs.cos_o[sl]
+                base = pairs.gain[sl] * pairs.vis[sl] * pairs.area[sl] / (4 * math.pi * pairs.d_i[sl] * pairs.d_o[sl])
+                c = (1j * base * 0.5 * (cos_i + cos_o))[:, None] \
+                    * torch.exp(-0.5 * pairs.qsq[sl][:, None] * k0[None] ** 2) \
+                    * torch.exp(-1j * (pairs.d_i[sl] + pairs.d_o[sl])[:, None] * k0[None])
+                d = base**2 * cos_i * cos_o / (math.pi * pairs.area[sl])
+                pos = torch.arccos(cos_i.clamp(0.0, 1.0)) / step
+                lo = pos.floor().long().clamp(0, j - 2)
+                w_hi = (pos - lo).clamp(0.0, 1.0)
+                te = pairs.te_share[sl]
+                cell = (pairs.link[sl] * n + material_of_gaussian[pairs.gauss[sl]]) * j + lo
+                for node, w in ((cell, 1.0 - w_hi), (cell + 1, w_hi)):
+                    a_te.index_add_(0, node, c * (te * w)[:, None])
+                    a_tm.index_add_(0, node, c * ((1.0 - te) * w)[:, None])
+                    diff.index_add_(0, node, (d * w)[:, None] * torch.stack([te**2, (1 - te) ** 2, te * (1 - te)], 1))
+        return AggregatedPairs(a_te.reshape(m, n, j, k), a_tm.reshape(m, n, j, k), diff.reshape(m, n, j, 3),
+                               pairs.freq_hz)
+
+    def select_links(self, rows) -> "AggregatedPairs":
+        r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz)
+
+    def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
+        """Received power [M, K] (P_T = 1 W) for materials `mats` (N of them)."""
+        f = self.freq_hz
+        k0 = 2 * math.pi * f / C0
+        nodes = torch.cos(torch.linspace(0.0, math.pi / 2, ANGLE_NODES, dtype=torch.float64))   # [J]
+        th = None if mats.thickness_m is None else mats.thickness_m[:, None, None]
+        r_te, r_tm = fresnel(mats.eta(f)[:, None, :], nodes[None, :, None], k0[None, None], th)   # [N, J, K]
+        spec = torch.sqrt(1.0 - mats.scattering**2).to(torch.complex128)[:, None, None]
+        field = torch.einsum("mnjk,njk->mk", self.a_te, r_te * spec) - torch.einsum("mnjk,njk->mk", self.a_tm, r_tm * spec)
+        # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
+        moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
+        g2 = torch.einsum("mnjt,njkt->mnjk", self.diffuse, moments)
+        lam2 = (C0 / f) ** 2
+        diffuse = torch.einsum("mnjk,n->mk", g2, mats.scattering**2) * lam2[None]
+        return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)

@@ -23,7 +23,8 @@ from rfir_cli.errors import ConfigError, StageError
 from rfir_cli.physics.closed_forms import rcs_from_path_gain
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
-from rfir_stages.rf_fit.antennas import AntennaPattern
+from rfir_stages.model.artifact import is_physical_model
+from rfir_stages.rf_fit.antennas import AntennaPattern, antenna_from_attrs
 from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_from_artifact, make_links, radar_links,
                                       scene_centre)
 from rfir_stages.rf_fit.occlusion import make_provider
@@ -64,7 +65,7 @@ def load_model(rf) -> tuple[Materials, np.ndarray, np.ndarray, AntennaPattern, R
         mats.diffuse_roughness = torch.as_tensor(np.asarray(model["diffuse_roughness"], np.float64))
     freqs = np.asarray(rf["rf/freq_hz"], np.float64)
     s_tx = np.asarray(model.get("s_tx_db", np.zeros(len(freqs))), np.float64)
-    ant = AntennaPattern(str(attrs.get("antenna_kind", "isotropic")), hpbw_deg=float(attrs.get("antenna_hpbw_deg", 40.0)))
+    ant = antenna_from_attrs(attrs)
     kw = {}
     for f in RenderSettings.__dataclass_fields__:
         if f"render.{f}" in attrs:
@@ -94,6 +95,10 @@ def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto
     if is_wideband_model(rf):  # docs/physics.md section 7: any frequency inside the fitted band (predict/wideband.py)
         return predict_wideband_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
                                    progress=progress, render_overrides=render_overrides)
+    if is_physical_model(rf):  # docs/physics.md section 8: any frequency (rfir_stages.model.predict)
+        from rfir_stages.model.predict import predict_physical_db
+        return predict_physical_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
+                                   progress=progress)
     progress = progress or NullProgress()
     mats, f_fit, s_tx, ant, settings = load_model(rf)
     for key, value in (render_overrides or {}).items():
@@ -148,6 +153,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         tx, rx = np.asarray(meas["tx_pos"]), np.asarray(meas["rx_pos"])
         asp, rng = np.asarray(meas["aspect_rad"]), np.asarray(meas["range_m"])
         f_all = np.asarray(meas["freq_hz"], np.float64)
+        # a physical model predicts any measured frequency that is asked for; others only fitted ones
         want = fitted if freqs_hz is None else np.asarray(freqs_hz, np.float64)
         cols = np.flatnonzero([np.any(np.abs(want - f) <= 1e-6 * f) for f in f_all])
         if cols.size == 0:

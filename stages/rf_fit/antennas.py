@@ -80,6 +80,11 @@ class AntennaPattern:
         return out
 
 
+def antenna_from_attrs(attrs: dict) -> AntennaPattern:
+    """The pattern recorded by `AntennaPattern.describe` in an artifact's model attributes."""
+    return AntennaPattern(str(attrs.get("antenna_kind", "isotropic")), hpbw_deg=float(attrs.get("antenna_hpbw_deg", 40.0)))
+
+
 def from_table_file(path: str | Path) -> AntennaPattern:
     """Read a tabulated pattern: CSV with header `theta_deg,gain_dbi` (angle off boresight, ascending)."""
     path = Path(path)

@@ -28,11 +28,13 @@ from .unseen import fill_unseen, unseen_mask
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
 from .params import RFParams
+from .physical_stage import PhysicalSetup, material_table, physical_artifact_fields, physical_config, sharing_candidates
 from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
 from .splits import split_rows, validation_rows
 from .wideband_stage import is_wideband_request, run_wideband
 
+MODELS = ("auto", "free", "physical")
 SCATTERING = ("auto", "coherent", "incoherent")
 SHARING = ("auto", "gaussian", "label", "global")
 SHARING_AUTO = ("gaussian", "global")   # the candidates of sharing = "auto" (RCS fits)
@@ -59,6 +61,8 @@ class RfFitResult:
     occlusion: str
     timings_s: dict = field(default_factory=dict)
     scattering: dict = field(default_factory=dict)   # requested / selected model, validation MAEs
+    materials: list = field(default_factory=list)    # physical model: one dict per fitted material
+    warnings: list = field(default_factory=list)
 
 
 def settings_from_config(cfg: dict) -> tuple[RenderSettings, FitConfig]:
@@ -129,30 +133,48 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     ant = resolve_antenna(str(config.get("antenna", "auto")), float(config.get("horn_hpbw_deg", 40.0)),
                           str(config.get("antenna_table", "")), sim_attrs, task)
 
+    model_kind = str(config.get("model", "auto"))
+    if model_kind not in MODELS:
+        raise ConfigError(f"rf_fit.model = {model_kind!r}: expected one of {', '.join(MODELS)}")
+    labels = scene.get("gaussians/labels")
+    labels = None if labels is None else torch.as_tensor(np.asarray(labels))
+    phys_cfg, pair_settings, phys_table = physical_config(config, render_cfg)
+    phys_sharings = sharing_candidates(phys_table, labels is not None) if model_kind != "free" else []
     t0 = time.time()
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
         if render_cfg.visibility else None
     progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
-                 f"occlusion {getattr(provider, 'name', 'off')}")
-    with progress.task("trace (cache)", total=1) as bar:
-        cache = build_cache(geom, links, ant, ant, provider, render_cfg)
-        bar.advance(1)
+                 f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, model {model_kind}")
+    cache = physical = None
+    if model_kind != "physical":
+        with progress.task("trace (cache)", total=1) as bar:
+            cache = build_cache(geom, links, ant, ant, provider, render_cfg)
+            bar.advance(1)
+    if phys_sharings:
+        with progress.task("trace (physical pairs)", total=1) as bar:
+            physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed)
+            bar.advance(1)
     trace_s = time.time() - t0
 
-    labels = scene.get("gaussians/labels")
-    labels = None if labels is None else torch.as_tensor(np.asarray(labels))
-    candidates = [(m, s) for m in (("coherent", "incoherent") if mode == "auto" else (mode,))
-                  for s in (SHARING_AUTO if fit_cfg.sharing == "auto" else (fit_cfg.sharing,))]
+    candidates = [] if model_kind == "physical" else \
+        [(m, s) for m in (("coherent", "incoherent") if mode == "auto" else (mode,))
+         for s in (SHARING_AUTO if fit_cfg.sharing == "auto" else (fit_cfg.sharing,))]
+    candidates += [("physical", s) for s in phys_sharings]
     scattering = {"requested": mode, "selected": candidates[0][0], "sharing_requested": sharing_requested,
-                  "sharing_selected": candidates[0][1]}
+                  "sharing_selected": candidates[0][1], "model_requested": model_kind}
     t_sel = time.time()
     if len(candidates) > 1:
         asp, rng = meas.get("aspect_rad"), meas.get("range_m")
         val, how = validation_rows(protocol, None if asp is None else np.degrees(np.asarray(asp)[rows]),
                                    None if rng is None else np.asarray(rng)[rows])
         scattering.update(_select_model(geom, links, target, val, how, ant, provider, render_cfg, candidates,
-                                        labels, fit_cfg, progress))
+                                        labels, fit_cfg, progress, physical, phys_cfg))
     select_s = time.time() - t_sel
+    scattering["model_selected"] = "physical" if scattering["selected"] == "physical" else "free"
+    if scattering["selected"] == "physical":
+        return _run_physical(physical, scattering, target, phys_cfg, pair_settings, scene, meas, task, freqs, rows,
+                             ant, protocol, scene_path, measurements_path, out_path, config_toml, seed, progress,
+                             t_start, trace_s, select_s, geom.num)
     fit_cfg.sharing = scattering["sharing_selected"]
     index = RFParams.sharing_index(fit_cfg.sharing, geom.num, labels)
     params = _new_params(index, len(freqs), fit_cfg, coherent=scattering["selected"] == "coherent")
@@ -197,12 +219,13 @@ def _subset(links: LinkSet, idx: np.ndarray) -> LinkSet:
 
 def _select_model(geom, links: LinkSet, target: np.ndarray, val: np.ndarray, how: str, ant, provider,
                   render_cfg: RenderSettings, candidates: list[tuple[str, str]], labels: torch.Tensor | None,
-                  fit_cfg: FitConfig, progress) -> dict:
+                  fit_cfg: FitConfig, progress, physical: PhysicalSetup | None = None, phys_cfg=None) -> dict:
     """The (scattering, sharing) candidate that predicts the validation rows `val` best after the same
     fit on the rest: scattering "coherent" (coherent sum + diffuse term) or "incoherent" (the diffuse
     term alone); sharing "gaussian" (a material per Gaussian) or "global" (one for the scene), say.
     `val`: training rows held out here, shaped like the protocol's test by splits.validation_rows; the
-    test split is never looked at. Fewer than 10 training links: the first candidate.
+    test split is never looked at. Fewer than 10 training links: the first candidate. Candidates
+    ("physical", sharing) fit the physical model (physical_stage.py) on the same rows.
     Returns {"selected", "sharing_selected", "validation_links", "validation", "val_mae_<...>_db"}."""
     m = links.num
     if m < 10 or len(val) == 0 or len(val) == m:
@@ -210,17 +233,23 @@ def _select_model(geom, links: LinkSet, target: np.ndarray, val: np.ndarray, how
                      f"(got {m}); using {' / '.join(candidates[0])}")
         return {"why": "too few training links to validate"}
     fit_rows = np.setdiff1d(np.arange(m), val)
-    cache_fit = build_cache(geom, _subset(links, fit_rows), ant, ant, provider, render_cfg)
-    cache_val = build_cache(geom, _subset(links, val), ant, ant, provider, render_cfg)
+    cache_fit = cache_val = None
     out = {"validation_links": int(len(val)), "validation": how}
     several_sharings = len({s for _, s in candidates}) > 1
     scores = {}
     for mode, sharing in candidates:
-        index = RFParams.sharing_index(sharing, geom.num, labels)
-        params = _new_params(index, target.shape[1], fit_cfg, coherent=mode == "coherent")
-        fit(cache_fit, target[fit_rows], params, fit_cfg, progress=progress)
-        with torch.no_grad():
-            pred = predict_db(cache_val, params).numpy()
+        if mode == "physical":
+            res = physical.fit(sharing, fit_rows, target[fit_rows], phys_cfg, progress)
+            pred = physical.predict_db(sharing, val, res.params)
+        else:
+            if cache_fit is None:
+                cache_fit = build_cache(geom, _subset(links, fit_rows), ant, ant, provider, render_cfg)
+                cache_val = build_cache(geom, _subset(links, val), ant, ant, provider, render_cfg)
+            index = RFParams.sharing_index(sharing, geom.num, labels)
+            params = _new_params(index, target.shape[1], fit_cfg, coherent=mode == "coherent")
+            fit(cache_fit, target[fit_rows], params, fit_cfg, progress=progress)
+            with torch.no_grad():
+                pred = predict_db(cache_val, params).numpy()
         scores[mode, sharing] = mae_db(pred, target[val])
         out[f"val_mae_{mode}_{sharing}_db" if several_sharings else f"val_mae_{mode}_db"] = scores[mode, sharing]
     out["selected"], out["sharing_selected"] = min(candidates, key=scores.get)
@@ -241,17 +270,14 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
                    "renderer": "rfir_stages.rf_fit.render (PHYSICS.md steps 1-4)"}
     model_attrs.update(ant.describe())
     model_attrs.update({f"render.{k}": getattr(render_cfg, k) for k in RENDER_KEYS + ("visibility_opacity",)})
-    training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr,
-                      "sharing": fit_cfg.sharing, "learn": ",".join(fit_cfg.learn), "seed": fit_cfg.seed,
-                      "train_mae_db": result.train_mae_db, "initial_mae_db": result.initial_mae_db,
-                      "wall_time_s": result.wall_time_s, "trace_time_s": trace_s,
-                      "resumed_at": result.resumed_at, "measurements": str(meas.path),
-                      "split": protocol, "split_protocol": describe_split(protocol),
-                      "unseen_filled": int(result.extra.get("unseen_filled", 0))}
-    training_attrs.update({f"scattering_{k}": v for k, v in (scattering or {"selected": "coherent"}).items()})
-    attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
-    if "label_names" in scene.attrs:
-        attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)
+    training_attrs = _training_attrs(meas, protocol, rows, scattering, fit_cfg.seed)
+    training_attrs.update({"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr,
+                           "sharing": fit_cfg.sharing, "learn": ",".join(fit_cfg.learn),
+                           "train_mae_db": result.train_mae_db, "initial_mae_db": result.initial_mae_db,
+                           "wall_time_s": result.wall_time_s, "trace_time_s": trace_s,
+                           "resumed_at": result.resumed_at,
+                           "unseen_filled": int(result.extra.get("unseen_filled", 0))})
+    attrs = _root_attrs(scene, meas, task)
     model = {"s_tx_db": result.s_tx_db, "@attrs": model_attrs}
     if result.diffuse is not None:  # the incoherent term (docs/rf-model.md "Diffuse term")
         model.update(diffuse_abs=result.diffuse, diffuse_roughness=result.diffuse_roughness)
@@ -259,3 +285,70 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
             "training": {"loss_curve": result.loss_curve, "train_rows": np.asarray(rows, dtype=np.int64),
                          "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
+
+
+def _run_physical(physical: PhysicalSetup, scattering: dict, target: np.ndarray, phys_cfg, pair_settings, scene, meas,
+                  task: str, freqs: np.ndarray, rows: np.ndarray, ant, protocol: str, scene_path: Path,
+                  measurements_path: Path, out_path: Path, config_toml: str, seed: int, progress, t_start: float,
+                  trace_s: float, select_s: float, num_gaussians: int) -> RfFitResult:
+    """Refit the selected physical candidate on every training link and write the rf artifact."""
+    sharing = scattering["sharing_selected"]
+    result = physical.fit(sharing, None, target, phys_cfg, progress)
+    _, _, names = physical.for_sharing(sharing)
+    table = material_table(result, names, freqs)
+    warnings = []
+    unseen = physical.unseen_materials(sharing)
+    if unseen:
+        warnings.append(f"no training link sees {', '.join(unseen)}: kept at the starting material "
+                        f"({result.start}); predictions there are not fitted")
+    for row in table:   # a value at the edge of its range: the data ask for something the model cannot be
+        if row["eps_r"] > 0.98 * 25.0 or row["thickness_m"] > 0.98:
+            warnings.append(f"{row['material']}: eps_r {row['eps_r']:.1f} / thickness {row['thickness_m']:.2f} m "
+                            "ran to the bound of its range")
+    for w in warnings:
+        progress.log(f"warning: {w}")
+    data, model_attrs = physical_artifact_fields(physical, sharing, result, freqs, pair_settings)
+    data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
+    data["rf/freq_hz"] = np.asarray(freqs, dtype=np.float64)
+    model_attrs.update(ant.describe())
+    training_attrs = _training_attrs(meas, protocol, rows, scattering, seed)
+    training_attrs.update({"loss": phys_cfg.loss, "iterations": phys_cfg.iterations, "lr": phys_cfg.lr,
+                           "sharing": sharing, "train_mae_db": result.train_mae_db,
+                           "initial_mae_db": result.initial_mae_db, "wall_time_s": time.time() - t_start,
+                           "fit_time_s": result.wall_time_s, "trace_time_s": trace_s, "select_time_s": select_s,
+                           "start_material": result.start, "warnings": "; ".join(warnings)})
+    prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
+    prov.add_input(scene_path)
+    prov.add_input(measurements_path)
+    prov.wall_time_s = time.time() - t_start
+    prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s,
+                  "fit_time_s": result.wall_time_s, "scattering_selection_time_s": select_s}
+    free = {"model": {"@attrs": model_attrs},
+            "training": {"loss_curve": result.loss_curve, "train_rows": np.asarray(rows, dtype=np.int64),
+                         "@attrs": training_attrs}}
+    write_artifact(out_path, "rf", data, attrs=_root_attrs(scene, meas, task), provenance=prov, free=free)
+    progress.log("rf-fit: materials " + "; ".join(
+        f"{r['material']}: eps_r {r['eps_r']:.2f}, sigma {r['sigma_s_per_m']:.3g} S/m, S {r['scattering']:.2f}, "
+        f"d {r['thickness_m'] * 1e3:.1f} mm, |Gamma(0)| {r['gamma_normal_abs'][0]:.2f}" for r in table[:12])
+        + (f" (+{len(table) - 12} more)" if len(table) > 12 else ""))
+    wall = time.time() - t_start
+    return RfFitResult(out_path, num_gaussians, int(len(rows)), freqs.tolist(), result.train_mae_db,
+                       result.initial_mae_db, phys_cfg.iterations, wall, trace_s,
+                       "off" if not pair_settings.visibility else "traced",
+                       {"trace": trace_s, "select": select_s, "fit": result.wall_time_s, "total": wall}, scattering,
+                       table, warnings)
+
+
+def _root_attrs(scene, meas, task: str) -> dict:
+    attrs = {"task": task, "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
+    if "label_names" in scene.attrs:
+        attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)
+    return attrs
+
+
+def _training_attrs(meas, protocol: str, rows: np.ndarray, scattering: dict | None, seed: int) -> dict:
+    """Training attributes every rf artifact records (split, measurements, model selection)."""
+    out = {"measurements": str(meas.path), "split": protocol, "split_protocol": describe_split(protocol),
+           "seed": seed, "num_train_rows": int(len(rows))}
+    out.update({f"scattering_{k}": v for k, v in (scattering or {"selected": "coherent"}).items()})
+    return out

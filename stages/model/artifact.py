@@ -1,0 +1,85 @@
+"""The physical model in an `rf` artifact: one writer (`physical_fields`) and one loader (`load_physical`).
+
+Datasets (schema: rfir_cli.schema, kind "rf"; N materials, G Gaussians, F fitted frequencies):
+- material/index [G] int: material of each Gaussian;
+- material/area_m2 [G]: surfel area A_l (surfels.surfel_areas, kept so prediction uses the same);
+- material/eps_r, material/sigma_1ghz_s_per_m, material/scattering, material/thickness_m [N]
+  (thickness 0: a half-space);
+- material/gamma_normal_abs [N, F]: |R_TE| at normal incidence at each fitted frequency;
+- rf/gamma_abs, rf/gamma_phase_rad [G]: each Gaussian's material's normal-incidence coefficient at
+  the first fitted frequency (what attribute maps show); rf/opacity [G]: the RF opacity of the
+  traced visibility; rf/roughness [G]: 1 (no lobe exponent in this model).
+Attributes of group model: family = "physical", sigma_exponent, polarisation, gain_db,
+material_names, and the PairSettings (pairs.*).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from .physical import MaterialValues, PairSettings
+
+FAMILY = "physical"
+
+
+def is_physical_model(rf) -> bool:
+    return str(rf.free.get("model@attrs", {}).get("family", "")) == FAMILY
+
+
+def physical_fields(mats: MaterialValues, material_of_gaussian: torch.Tensor, areas_m2: torch.Tensor,
+                    freqs_hz: np.ndarray, settings: PairSettings, names: list[str], gain_db: float
+                    ) -> tuple[dict, dict]:
+    """(datasets, model attributes) of a fitted physical model (see the module docstring)."""
+    idx = np.asarray(material_of_gaussian, dtype=np.int64)
+    f = torch.as_tensor(np.asarray(freqs_hz, dtype=np.float64))
+    r_normal = mats.normal_reflection(f).detach().numpy()                      # [N, F]
+    th = mats.thickness_m
+    data = {
+        "material/index": idx,
+        "material/area_m2": np.asarray(areas_m2, dtype=np.float64),
+        "material/eps_r": mats.eps_r.detach().numpy().copy(),
+        "material/sigma_1ghz_s_per_m": mats.sigma_1ghz.detach().numpy().copy(),
+        "material/scattering": mats.scattering.detach().numpy().copy(),
+        "material/thickness_m": np.zeros(len(names)) if th is None else th.detach().numpy().copy(),
+        "material/gamma_normal_abs": np.abs(r_normal),
+        "rf/opacity": np.full(len(idx), settings.opacity),
+        "rf/roughness": np.ones(len(idx)),
+        "rf/gamma_abs": np.abs(r_normal[idx, 0]),
+        "rf/gamma_phase_rad": np.angle(r_normal[idx, 0]),
+    }
+    attrs = {"family": FAMILY, "sigma_exponent": mats.sigma_exponent, "gain_db": float(gain_db),
+             "material_names": np.asarray(names, dtype=object),
+             "model_doc": "surfel physical optics with physical materials (docs/physics.md section 8)"}
+    attrs.update({f"pairs.{fl.name}": getattr(settings, fl.name) for fl in fields(PairSettings)})
+    return data, attrs
+
+
+@dataclass
+class PhysicalModel:
+    """A loaded physical model: materials, each Gaussian's material [G], areas [G] m^2, settings."""
+
+    mats: MaterialValues
+    material_of_gaussian: torch.Tensor
+    areas_m2: torch.Tensor
+    settings: PairSettings
+    gain_db: float
+    names: list
+
+
+def load_physical(rf) -> PhysicalModel:
+    """The physical model of an `rf` artifact written with `physical_fields`."""
+    attrs = rf.free.get("model@attrs", {})
+    t = lambda k: torch.as_tensor(np.asarray(rf[k], dtype=np.float64))  # noqa: E731
+    th = t("material/thickness_m")
+    mats = MaterialValues(t("material/eps_r"), t("material/sigma_1ghz_s_per_m"), float(attrs.get("sigma_exponent", 1.0)),
+                          t("material/scattering"), None if bool((th <= 0).all()) else th.clamp(min=1e-6))
+    defaults = PairSettings()
+    kw = {fl.name: type(getattr(defaults, fl.name))(attrs[f"pairs.{fl.name}"])     # bool, int, float or str
+          for fl in fields(PairSettings) if f"pairs.{fl.name}" in attrs}
+    names = [str(s) for s in np.atleast_1d(attrs.get("material_names", []))]
+    gain = float(attrs.get("gain_db", 0.0))
+    return PhysicalModel(mats, torch.as_tensor(np.asarray(rf["material/index"], dtype=np.int64)),
+                         t("material/area_m2"), PairSettings(**kw), gain if math.isfinite(gain) else 0.0, names)

@@ -1,0 +1,114 @@
+"""`rfir rf-fit` with the physical model, `rfir predict rcs` at a frequency never fitted, and `rfir check`."""
+import math
+
+import numpy as np
+import pytest
+
+from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_stages.geom import write_scene_artifact
+from rfir_stages.geom.from_mesh import gaussians_from_mesh
+from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity
+from rfir_stages.po import channel_from_amplitude, po_scattered_field
+from rfir_stages.rf_fit.links import radar_links
+from rfir_stages.simulate.scenes import box
+
+from .helpers import DEG
+
+
+def _po_measurements(path, verts, faces, names, thickness, freqs, aspects_deg):
+    """Monostatic RCS of a mesh from the PO solver (isotropic antennas), turntable convention, 3 m."""
+    centre = 0.5 * (verts.min(0) + verts.max(0))
+    tx, rx, asp, rng = radar_links(np.asarray(aspects_deg) * DEG, np.array([3.0]), centre)
+    mid = 0.5 * (tx + rx)
+    s = po_scattered_field(verts, faces, names, mid, mid, freqs, near_field=True, face_thickness=thickness,
+                           ref_point=tuple(centre))
+    r = np.linalg.norm(mid - centre, axis=1)
+    pg = 20 * np.log10(np.abs(channel_from_amplitude(s, freqs, r, r)))
+    lam = C0 / np.asarray(freqs)
+    rcs = pg + 10 * np.log10((4 * math.pi) ** 3 * r[:, None] ** 4 / lam[None] ** 2)
+    data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.asarray(freqs, float), "path_gain_db": pg, "rcs_dbsm": rcs,
+            "aspect_rad": asp, "range_m": rng, "split": (np.arange(len(asp)) % 2).astype(np.int64),
+            "scene_bounds": np.stack([verts.min(0), verts.max(0)])}
+    write_artifact(path, "measurements", data, attrs={"task": "rcs", "scene": "test"})
+    return path
+
+
+@pytest.fixture(scope="module")
+def metal_box(tmp_path_factory):
+    d = tmp_path_factory.mktemp("metal_box")
+    v, f = box((-0.08, -0.05, -0.06), (0.08, 0.05, 0.06))
+    _po_measurements(d / "meas.h5", v, f, np.array(["metal"] * len(f)), np.full(len(f), 0.003),
+                     [2.4e9, 5.8e9], np.arange(0, 360, 4.0))
+    fields = gaussians_from_mesh(v, f, 0.012, labels=np.zeros(len(f), dtype=np.int64))
+    write_scene_artifact(d / "scene.h5", fields)
+    return d
+
+
+def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, tmp_path):
+    from rfir_stages.predict.rcs import run_rcs
+    from rfir_stages.rf_fit import run
+
+    d = metal_box
+    cfg = {"model": "physical", "antenna": "isotropic", "freqs_hz": [2.4e9], "checkpoint_every": 0,
+           "physical": {"sharing": "global", "iterations": 120, "start_iterations": 30}}
+    res = run(d / "scene.h5", d / "meas.h5", tmp_path / "rf.h5", cfg)
+    assert res.scattering["model_selected"] == "physical"
+    assert res.materials[0]["gamma_normal_abs"][0] > 0.9                 # metal recognised as metal
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert validate_artifact(tmp_path / "rf.h5") == []                  # `rfir check` passes
+    assert np.all(np.asarray(rf["rf/gamma_abs"]) > 0.9)                 # attribute maps show the fitted value
+    assert rf.free["model@attrs"]["family"] == "physical"
+    # fitted at 2.4 GHz only; predicted at 5.8 GHz on the odd aspects, against the PO data there
+    out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=d / "meas.h5",
+                  freqs_hz=[5.8e9], results_path=tmp_path / "r.json")
+    assert out.freqs_hz == [5.8e9]
+    assert out.metrics["mae_db"] < 3.0, out.metrics
+    assert res.train_mae_db < 2.0
+
+
+def test_model_auto_offers_both_families_and_records_the_choice(metal_box, tmp_path):
+    from rfir_stages.rf_fit import run
+
+    cfg = {"model": "auto", "antenna": "isotropic", "freqs_hz": [2.4e9], "checkpoint_every": 0, "iterations": 30,
+           "visibility": False, "physical": {"sharing": "global", "iterations": 60, "start_iterations": 20}}
+    res = run(metal_box / "scene.h5", metal_box / "meas.h5", tmp_path / "rf.h5", cfg)
+    keys = {k for k in res.scattering if k.startswith("val_mae_")}
+    assert "val_mae_physical_global_db" in keys and any("coherent" in k for k in keys), res.scattering
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert rf.free["training@attrs"]["scattering_model_selected"] == res.scattering["model_selected"]
+
+
+def test_bad_physical_settings_are_config_errors(metal_box, tmp_path):
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit import run
+
+    for cfg, msg in (({"model": "physics"}, "rf_fit.model"),
+                     ({"model": "physical", "physical": {"sharing": "brick"}}, "rf_fit.physical.sharing"),
+                     ({"model": "physical", "physical": {"polarisation": "X"}}, "polarisation")):
+        with pytest.raises(ConfigError, match=msg):
+            run(metal_box / "scene.h5", metal_box / "meas.h5", tmp_path / "rf.h5", {"antenna": "isotropic", **cfg})
+    assert not (tmp_path / "rf.h5").exists()
+
+
+def test_truth_material_reproduces_the_po_simulator(metal_box):
+    """No fitting: the surfel model with the simulator's material against the simulator's data."""
+    import torch
+
+    from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
+    from rfir_stages.rf_fit.antennas import AntennaPattern
+    from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
+    from rfir_stages.rf_fit.occlusion import make_provider
+
+    scene, meas = read_artifact(metal_box / "scene.h5", "scene"), read_artifact(metal_box / "meas.h5", "measurements")
+    geom = geometry_from_artifact(scene)
+    freqs = np.asarray(meas["freq_hz"])
+    links = make_links(meas["tx_pos"], meas["rx_pos"], freqs, scene_centre(geom), "rcs")
+    iso = AntennaPattern("isotropic")
+    pairs = build_pairs(geom, links, iso, iso, make_provider("auto", geom), PairSettings())
+    eps, sig = itu_law("metal", 1e9)
+    mats = MaterialParams(1, eps_r=1.0, sigma_1ghz=1e7, scattering=1e-9, thickness_m=0.003, sigma_exponent=0.0)
+    pred = 10 * np.log10(scattered_power(pairs, torch.zeros(geom.num, dtype=torch.int64), mats.values()).detach().numpy())
+    err = np.abs(pred - np.asarray(meas["path_gain_db"]))
+    assert np.median(err) < 1.5, np.median(err, axis=0)
+    k0 = 2 * math.pi * 2.4e9 / C0
+    assert abs(fresnel(permittivity(eps, sig, 2.4e9), 1.0, k0, 0.003)[0].item()) > 0.999
