@@ -122,7 +122,8 @@ def test_materials_recovered_from_physical_optics_data():
     geom, g = surfels(verts, faces, 0.025, labels=labels)
     pairs = build_pairs(geom, links, ISO, ISO, make_provider("auto", geom), PairSettings())
     idx, mat_names = material_index("label", geom.num, torch.as_tensor(g["gaussians/labels"]))
-    res = fit_materials(AggregatedPairs.build(pairs, idx, len(mat_names)), len(mat_names), target, PhysicalFitConfig(iterations=150, start_iterations=40))
+    agg = AggregatedPairs.build(pairs, idx, len(mat_names))
+    res = fit_materials(agg, len(mat_names), target, PhysicalFitConfig(iterations=150, start_iterations=40))
     fitted = res.params.values().normal_reflection(torch.as_tensor(freqs)).abs().detach().numpy()[:, 0]
     k0 = 2 * math.pi * freqs / C0
     truth = [abs(fresnel(permittivity(*itu_law(n, freqs), freqs), 1.0, k0, t)[0].item())
