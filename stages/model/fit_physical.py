@@ -7,7 +7,9 @@ predicts nothing (a plate seen edge-on) gives a large but finite loss, never -30
 The loss over eps_r, sigma and thickness has several minima (a thin slab's reflection oscillates
 with thickness; metal and a dense dielectric can look alike at one angle), so the fit starts from a
 few physical materials (`STARTS`), runs each a short while with every material at that start, and
-continues from the best. The state with the lowest training loss is kept (not the last step).
+continues from the best; then each material alone may switch to another start when that lowers the
+loss (a metal object beside wooden ones), with a short refit after each round of switches. The
+state with the lowest training loss is kept (not the last step).
 """
 from __future__ import annotations
 
@@ -26,6 +28,31 @@ from .physical import AggregatedPairs, MaterialParams
 STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, 1e6, 0.1, 0.01),
           ("thick dielectric", 6.0, 0.05, 0.1, 0.2))
 FLOOR_BELOW_DB = 30.0
+SWITCH_ROUNDS = 2
+
+
+def _switch_starts(params: MaterialParams, loss_now) -> bool:
+    """Greedy: for each material, the start (of STARTS) that lowers the loss most when that material
+    alone is reset to it; keep every switch that helps. Returns whether any material switched."""
+    switched = False
+    with torch.no_grad():
+        best = loss_now()
+        for i in range(params.num):
+            keep = [p[i].clone() for p in (params.t_eps, params.t_sig, params.t_s, params.t_th)]
+            choice = None
+            for start in STARTS:
+                _, eps, sig, s, th = start
+                params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
+                trial = loss_now()
+                if trial < best - 1e-9:
+                    best, choice = trial, start
+            for p, v in zip((params.t_eps, params.t_sig, params.t_s, params.t_th), keep):
+                p[i] = v
+            if choice is not None:
+                _, eps, sig, s, th = choice
+                params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
+                switched = True
+    return switched
 
 
 @dataclass
@@ -100,7 +127,7 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
             best, best_state = final, {k: v.detach().clone() for k, v in params.state_dict().items()}
         return best, best_state, curve
 
-    total = len(STARTS) * cfg.start_iterations + cfg.iterations
+    total = (len(STARTS) + SWITCH_ROUNDS) * cfg.start_iterations + cfg.iterations
     with progress.task(f"rf-fit ({label})", total=total) as bar:
         tried = []
         for start in STARTS:
@@ -110,6 +137,12 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
         loss, start, state, curve0 = min(tried, key=lambda t: t[0])
         params = new(start)
         params.load_state_dict(state)
+        for _ in range(SWITCH_ROUNDS):   # one material at a time may prefer another start (metal beside wood)
+            if not _switch_starts(params, lambda: float(_loss(predict_db(agg, params, floor), target, cfg))):
+                break
+            _, state, more = run(params, cfg.start_iterations, bar)
+            params.load_state_dict(state)
+            curve0 = curve0 + more
         with torch.no_grad():
             initial = float((predict_db(agg, params, floor) - target).abs().mean())
         _, state, curve1 = run(params, cfg.iterations, bar)

@@ -38,6 +38,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider
 from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0, co_polar_reflection, fresnel, permittivity
+from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
 from .surfels import footprint_covariance, surfel_areas
 
 EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
@@ -66,10 +67,26 @@ class PairGeometry:
     qsq: torch.Tensor
     area: torch.Tensor
     freq_hz: torch.Tensor
+    double: "DoubleBounce | None" = None    # second-order items (second_order.py), None: first order only
 
     @property
     def num_pairs(self) -> int:
         return int(self.link.numel())
+
+    def visibility_of(self, link: torch.Tensor, gauss: torch.Tensor, num_gaussians: int) -> torch.Tensor:
+        """V [I] of the (link, surfel) pairs asked for; 0 for pairs that are not lit (not in the table)."""
+        cached = self.__dict__.get("_vis_index")
+        if cached is None or cached[0] != num_gaussians:     # sorted once, looked up many times
+            key = self.link * num_gaussians + self.gauss
+            order = torch.argsort(key)
+            cached = (num_gaussians, key[order], self.vis[order])
+            self.__dict__["_vis_index"] = cached
+        _, sk, sv = cached
+        want = link * num_gaussians + gauss
+        if sk.numel() == 0:
+            return torch.zeros(want.shape, dtype=torch.float64)
+        pos = torch.searchsorted(sk, want).clamp(max=sk.numel() - 1)
+        return torch.where(sk[pos] == want, sv[pos], torch.zeros((), dtype=torch.float64))
 
     def select_links(self, rows) -> "PairGeometry":
         """The pairs of links `rows` (renumbered 0..len(rows)-1 in that order)."""
@@ -80,7 +97,8 @@ class PairGeometry:
         pick = lambda t: t[keep]  # noqa: E731
         return PairGeometry(int(rows.numel()), new_id[self.link][keep], pick(self.gauss), pick(self.d_i),
                             pick(self.d_o), pick(self.cos_i), pick(self.cos_o), pick(self.te_share), pick(self.gain),
-                            pick(self.vis), pick(self.qsq), pick(self.area), self.freq_hz)
+                            pick(self.vis), pick(self.qsq), pick(self.area), self.freq_hz,
+                            None if self.double is None else self.double.select_links(rows))
 
 
 @dataclass
@@ -88,15 +106,19 @@ class PairSettings:
     """visibility: trace V (False: every lit surfel sees both antennas). opacity: the RF opacity of
     every Gaussian for the traced V. margin_m: occluders closer than this in front of a surfel are
     ignored (a surface does not shadow itself). colocated_tol_m: Tx and Rx closer than this are one
-    radar (one visibility factor). polarisation: "V" or "H". link_chunk: links per geometry block."""
+    radar (one visibility factor). polarisation: "V" or "H". link_chunk: links per geometry block.
+    second_order: add double bounces between planar patches of at least min_patch_area_m2
+    (second_order.py; co-located antennas only)."""
 
     visibility: bool = True
     opacity: float = 0.9
-    margin_m: float = 0.01
+    margin_m: float = 0.0025
     t_stop: float = 1e-4
     colocated_tol_m: float = 0.01
     polarisation: str = "V"
     link_chunk: int = 64
+    second_order: bool = True
+    min_patch_area_m2: float = 2e-3
 
 
 def _te_share(w_i: torch.Tensor, n: torch.Tensor, pol: str) -> torch.Tensor:
@@ -119,8 +141,11 @@ def _te_share(w_i: torch.Tensor, n: torch.Tensor, pol: str) -> torch.Tensor:
 
 def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
                 provider: OcclusionProvider | None, settings: PairSettings = PairSettings(),
-                areas_m2: torch.Tensor | None = None) -> PairGeometry:
-    """Trace once and keep the geometry of every lit (link, surfel) pair (see PairGeometry)."""
+                areas_m2: torch.Tensor | None = None, patches: "Patches | None" = None,
+                labels: torch.Tensor | None = None) -> PairGeometry:
+    """Trace once and keep the geometry of every lit (link, surfel) pair (see PairGeometry), and the
+    double bounces between planar patches when settings.second_order (patches: computed from the
+    geometry, and labels when given, unless passed)."""
     with torch.no_grad():
         area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) \
             if areas_m2 is None else areas_m2.double()
@@ -140,9 +165,16 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
                 links.rx_m[cat["link"]], cat["gauss"], settings.margin_m, op, settings.t_stop)
         keep = vis > 1e-6
         cat = {k: v[keep] for k, v in cat.items()}
-        return PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
-                            cat["te"], cat["gain"], vis[keep], cat["qsq"], area[cat["gauss"]],
-                            links.freq_hz.double())
+        pairs = PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
+                             cat["te"], cat["gain"], vis[keep], cat["qsq"], area[cat["gauss"]],
+                             links.freq_hz.double())
+        if settings.second_order:
+            if patches is None:
+                patches = planar_patches(geom, area, labels, settings.min_patch_area_m2)
+            pairs.double = build_double_bounce(
+                geom, links, tx_ant, rx_ant, patches, area, sigma_w,
+                lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation, settings.colocated_tol_m)
+        return pairs
 
 
 def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, sigma_w, settings: PairSettings) -> dict:
@@ -271,6 +303,10 @@ def scattered_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
     phase = torch.exp(-1j * (pairs.d_i + pairs.d_o)[:, None] * k0[None])
     terms = 1j * (spec_amp[:, None] * foot) * gamma * phase
     field = torch.zeros((pairs.num_links, f.numel()), dtype=torch.complex128).index_add(0, pairs.link, terms)
+    if pairs.double is not None and pairs.double.num:
+        if freq_hz is not None and not torch.equal(f, pairs.double.freq_hz):
+            raise ValueError("the double bounces were built for other frequencies")
+        field = field + _double_bounce_field(pairs.double, material_of_gaussian, mats, k0)
     lam = C0 / f                                                   # [K] m
     # G_T G_R V^2 S^2 |Gamma|^2 A cos_i cos_o lambda^2 / (16 pi^3 d_i^2 d_o^2) = base^2 S^2 |Gamma|^2 cos_i cos_o
     # lambda^2 / (pi A)
@@ -280,6 +316,20 @@ def scattered_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
     return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
 
 
+def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, mats: MaterialValues,
+                         k0: torch.Tensor) -> torch.Tensor:
+    """Second-order field [M, K]: sum of coef Gamma_A Gamma_B sqrt(1 - S_A^2) sqrt(1 - S_B^2) per link."""
+    eta = mats.eta(db.freq_hz)
+    out = torch.zeros((db.num_links, db.freq_hz.numel()), dtype=torch.complex128)
+    gammas = []
+    for g, cos, te in ((db.gauss_a, db.cos_a, db.te_a), (db.gauss_b, db.cos_b, db.te_b)):
+        mat = material_of_gaussian[g]
+        th = None if mats.thickness_m is None else mats.thickness_m[mat][:, None]
+        r_te, r_tm = fresnel(eta[mat], cos[:, None], k0[None], th)
+        gammas.append(co_polar_reflection(r_te, r_tm, te[:, None]) * torch.sqrt(1.0 - mats.scattering[mat] ** 2)[:, None])
+    return out.index_add(0, db.link, db.coef * gammas[0] * gammas[1])
+
+
 def gaussians_normal_reflection(material_of_gaussian: torch.Tensor, mats: MaterialValues,
                                 freq_hz: torch.Tensor) -> np.ndarray:
     """R_TE at normal incidence per Gaussian [G, K] (attribute maps and the rf/gamma_* datasets)."""
@@ -287,6 +337,37 @@ def gaussians_normal_reflection(material_of_gaussian: torch.Tensor, mats: Materi
 
 
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
+
+
+def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: int, j: int, step: float) -> dict:
+    """Double-bounce items summed per cell (link, material A, angle node A, material B, angle node B),
+    each item split bilinearly between the four node pairs around its two incidence angles, and into
+    the four products of its TE shares (te_a te_b, te_a (1 - te_b), (1 - te_a) te_b, (1 - te_a)(1 - te_b))."""
+    ends = []
+    for g, cos, te in ((db.gauss_a, db.cos_a, db.te_a), (db.gauss_b, db.cos_b, db.te_b)):
+        pos = torch.arccos(cos.clamp(0.0, 1.0)) / step
+        lo = pos.floor().long().clamp(0, j - 2)
+        ends.append((material_of_gaussian[g], lo, (pos - lo).clamp(0.0, 1.0), te))
+    (ma, lo_a, wa, te_a), (mb, lo_b, wb, te_b) = ends
+    moments = torch.stack([te_a * te_b, te_a * (1 - te_b), (1 - te_a) * te_b, (1 - te_a) * (1 - te_b)], 1)   # [I, 4]
+    keys, weights = [], []
+    for da, w_a in ((0, 1 - wa), (1, wa)):
+        for dbb, w_b in ((0, 1 - wb), (1, wb)):
+            keys.append((((db.link * n + ma) * j + lo_a + da) * n + mb) * j + lo_b + dbb)
+            weights.append(w_a * w_b)
+    key = torch.cat(keys)
+    uniq, inv = torch.unique(key, return_inverse=True)
+    k = db.coef.shape[1]
+    sums = torch.zeros((uniq.numel(), 4, k), dtype=torch.complex128)
+    for q, w in enumerate(weights):
+        part = inv[q * db.num:(q + 1) * db.num]
+        sums.index_add_(0, part, (w[:, None] * moments)[:, :, None] * db.coef[:, None, :])
+    node_b, rest = uniq % j, uniq // j
+    mat_b, rest = rest % n, rest // n
+    node_a, rest = rest % j, rest // j
+    mat_a, link = rest % n, rest // n
+    return {"link": link, "mat_a": mat_a, "node_a": node_a, "mat_b": mat_b, "node_b": node_b,
+            "c_tt": sums[:, 0], "c_tm": sums[:, 1], "c_mt": sums[:, 2], "c_mm": sums[:, 3]}
 
 
 @dataclass
@@ -308,6 +389,7 @@ class AggregatedPairs:
     a_tm: torch.Tensor      # [M, N, J, K] complex
     diffuse: torch.Tensor   # [M, N, J, 3] real
     freq_hz: torch.Tensor   # [K]
+    double: dict | None = None   # second order in cells: link, mat_a/b, node_a/b [C]; c_tt, c_tm, c_mt, c_mm [C, K]
 
     @staticmethod
     def build(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int,
@@ -336,12 +418,22 @@ class AggregatedPairs:
                     a_te.index_add_(0, node, c * (te * w)[:, None])
                     a_tm.index_add_(0, node, c * ((1.0 - te) * w)[:, None])
                     diff.index_add_(0, node, (d * w)[:, None] * torch.stack([te**2, (1 - te) ** 2, te * (1 - te)], 1))
+        double = None if pairs.double is None or not pairs.double.num else \
+            _aggregate_double(pairs.double, material_of_gaussian, n, j, step)
         return AggregatedPairs(a_te.reshape(m, n, j, k), a_tm.reshape(m, n, j, k), diff.reshape(m, n, j, 3),
-                               pairs.freq_hz)
+                               pairs.freq_hz, double)
 
     def select_links(self, rows) -> "AggregatedPairs":
+        """The aggregated sums of links `rows` (renumbered 0..len(rows)-1)."""
         r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz)
+        double = None
+        if self.double is not None:
+            new_id = torch.full((self.a_te.shape[0],), -1, dtype=torch.int64)
+            new_id[r] = torch.arange(r.numel())
+            keep = new_id[self.double["link"]] >= 0
+            double = {key: v[keep] for key, v in self.double.items()}
+            double["link"] = new_id[self.double["link"]][keep]
+        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz, double)
 
     def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
         """Received power [M, K] (P_T = 1 W) for materials `mats` (N of them)."""
@@ -352,6 +444,14 @@ class AggregatedPairs:
         r_te, r_tm = fresnel(mats.eta(f)[:, None, :], nodes[None, :, None], k0[None, None], th)   # [N, J, K]
         spec = torch.sqrt(1.0 - mats.scattering**2).to(torch.complex128)[:, None, None]
         field = torch.einsum("mnjk,njk->mk", self.a_te, r_te * spec) - torch.einsum("mnjk,njk->mk", self.a_tm, r_tm * spec)
+        if self.double is not None:
+            # cells (link, material A, node A, material B, node B): sum over the four TE/TM products
+            d = self.double
+            ga = r_te * spec, r_tm * spec                            # [N, J, K] each, with sqrt(1 - S^2)
+            ca, cb = (d["mat_a"], d["node_a"]), (d["mat_b"], d["node_b"])
+            product = d["c_tt"] * ga[0][ca] * ga[0][cb] - d["c_tm"] * ga[0][ca] * ga[1][cb] \
+                - d["c_mt"] * ga[1][ca] * ga[0][cb] + d["c_mm"] * ga[1][ca] * ga[1][cb]
+            field = field.index_add(0, d["link"], product)
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
         moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
         g2 = torch.einsum("mnjt,njkt->mnjk", self.diffuse, moments)

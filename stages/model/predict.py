@@ -17,6 +17,7 @@ from rfir_stages.rf_fit.occlusion import make_provider
 
 from .artifact import load_physical
 from .physical import build_pairs, scattered_power
+from .second_order import planar_patches
 
 FLOOR_DB = -250.0
 VALID_GHZ = (0.1, 100.0)
@@ -36,11 +37,14 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
     geom = geometry_from_artifact(rf)
     centre = scene_centre(geom)
     provider = make_provider(occlusion, geom) if model.settings.visibility else None
+    labels = rf.get("gaussians/labels")
+    patches = planar_patches(geom, model.areas_m2, None if labels is None else torch.as_tensor(np.asarray(labels)),
+                             model.settings.min_patch_area_m2) if model.settings.second_order else None
     out = np.zeros((len(tx), len(freqs)))
     with progress.task("predict (physical)", total=len(tx)) as bar, torch.no_grad():
         for a in range(0, len(tx), chunk_links):
             links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
-            pairs = build_pairs(geom, links, ant, ant, provider, model.settings, model.areas_m2)
+            pairs = build_pairs(geom, links, ant, ant, provider, model.settings, model.areas_m2, patches)
             power = scattered_power(pairs, model.material_of_gaussian, model.mats, model.gain_db)
             out[a:a + chunk_links] = 10 * np.log10(power.numpy() + 1e-300)
             bar.advance(links.num)

@@ -35,8 +35,10 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
                                 loss=str(config.get("loss", "db_mse")) if config.get("loss") != "paper" else "db_mse",
                                 huber_db=float(config.get("huber_db", 1.0)))
     pairs = PairSettings(visibility=bool(render_cfg.visibility), opacity=float(render_cfg.visibility_opacity),
-                         margin_m=float(render_cfg.self_shadow_margin_m), t_stop=float(render_cfg.t_stop),
-                         colocated_tol_m=float(render_cfg.colocated_tol_m), polarisation=pol)
+                         margin_m=float(table.get("self_shadow_margin_m", 0.0025)), t_stop=float(render_cfg.t_stop),
+                         colocated_tol_m=float(render_cfg.colocated_tol_m), polarisation=pol,
+                         second_order=bool(table.get("second_order", True)),
+                         min_patch_area_m2=float(table.get("min_patch_area_m2", 2e-3)))
     return fit_cfg, pairs, table
 
 
@@ -68,7 +70,7 @@ class PhysicalSetup:
     def trace(geom, links, ant, provider, settings: PairSettings, labels, table: dict, seed: int) -> "PhysicalSetup":
         t0 = time.time()
         areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-        pairs = build_pairs(geom, links, ant, ant, provider, settings, areas)
+        pairs = build_pairs(geom, links, ant, ant, provider, settings, areas, labels=labels)
         return PhysicalSetup(geom, labels, pairs, areas, int(table.get("num_segments", 8)), seed, time.time() - t0)
 
     def for_sharing(self, sharing: str):

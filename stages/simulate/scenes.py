@@ -15,6 +15,7 @@ Mesh conventions
 """
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 ROOM_SCENES = ("classroom", "empty")
-OBJECT_SCENES = ("lego", "car", "h-target", "plate")
+OBJECT_SCENES = ("lego", "car", "h-target", "plate", "trio")
 SCENES = ROOM_SCENES + OBJECT_SCENES
 
 
@@ -312,6 +313,25 @@ def h_target(width=0.5, depth=0.2, height=0.6, bar=0.12) -> SceneSpec:
     return SceneSpec("h-target", "object", b.objects, _bounds(b.objects), info={"size_m": [w, d, h]})
 
 
+def trio() -> SceneSpec:
+    """Three objects of different ITU materials on one turntable, about 0.5 x 0.5 x 0.3 m: a metal
+    dihedral (two 0.2 x 0.25 m plates, 3 mm, meeting at 90 degrees: a double-bounce flash at its
+    bisector), a wooden block (0.16 x 0.10 x 0.12 m) and a glass pane (0.25 x 0.25 m, 6 mm), each
+    its own label, so that materials can be recovered per object."""
+    b = _Builder()
+    t = 0.003
+    dihedral = boxes([((0.05, 0.05, -0.125), (0.05 + 0.2, 0.05 + t, 0.125)),
+                      ((0.05, 0.05, -0.125), (0.05 + t, 0.05 + 0.2, 0.125))])
+    b.add("dihedral", dihedral, "metal", "metal", (0.72, 0.73, 0.75), t)
+    b.add("block", box((-0.25, 0.05, -0.06), (-0.09, 0.15, 0.06)), "wood", "wood", (0.60, 0.42, 0.25), 0.1)
+    pane = rotate_z(np.asarray(box((-0.003, -0.125, -0.125), (0.003, 0.125, 0.125))[0]), math.radians(30.0))
+    b.add("pane", (pane + np.array([-0.1, -0.15, 0.0]), box((0, 0, 0), (1, 1, 1))[1]), "glass", "glass",
+          (0.75, 0.85, 0.9), 0.006)
+    _centre_objects(b.objects)
+    return SceneSpec("trio", "object", b.objects, _bounds(b.objects),
+                     info={"materials": {"dihedral": "metal", "block": "wood", "pane": "glass"}})
+
+
 CAR_LENGTH_M = 0.45  # the low-poly car, scaled to a model car that fits inside 2 m range
 
 
@@ -380,7 +400,7 @@ def car(length_m: float = CAR_LENGTH_M) -> SceneSpec:
                                                                    "length_m": length_m})
 
 
-_BUILDERS = {"classroom": classroom, "lego": lego, "car": car, "h-target": h_target, "plate": plate,
+_BUILDERS = {"classroom": classroom, "lego": lego, "car": car, "h-target": h_target, "plate": plate, "trio": trio,
              "empty": empty, "ground-plate": ground_plate}
 
 

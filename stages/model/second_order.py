@@ -1,0 +1,273 @@
+"""Second-order (double-bounce) specular terms by images over planar patches (docs/physics.md section 8).
+
+A dihedral's flash is a double bounce: Tx -> plane A -> surfel m of plane B -> Rx. With the image
+Tx_A of the transmitter in plane A, the second bounce is the surfel physical optics of B lit by
+Tx_A, times A's reflection coefficient:
+
+    S_2 = sum_(A, m in B) j sqrt(G_T G_R) Gamma_A(theta_A) Gamma_B(theta_B) A_m ((cos_i' + cos_o) / 2)
+          * F_m(k) * V * exp(-j k (d_i' + d_o)) / (4 pi d_i' d_o)
+
+d_i' = |Tx_A - x_m| (the length of Tx -> A -> m), cos_i' = n_B . w_i' with w_i' toward Tx_A, theta_A
+the incidence angle at the crossing point c of the segment Tx_A -> x_m with plane A. A term exists
+only when c lies on patch A (within its surfels' reach: a hard aperture, A's edge diffraction is
+left out), Tx and m are on the same side of A, Tx_A and Rx on the same side of B, and both legs
+are lit: V = V(Tx -> the surfel of A nearest c) V(Rx -> m), looked up in the first-order pairs.
+That lookup makes the term exact for co-located antennas (monostatic radar); links with
+separated antennas get no second order here (rooms need per-leg tracing).
+
+Planar patches: surfels joined when neighbours (within `join_factor` spacings), with normals within
+`PARALLEL_COS` and on the same plane; patches smaller than `min_patch_area_m2` carry no double
+bounce (a bounce off a patch much smaller than a wavelength is weak and is not specular). Pairs of
+patches are kept when they can form a corner reflector (`dihedral_partners`): that bounds the cost
+on objects with many faces, and leaves out double bounces between patches far apart or at
+shallow angles (weak for a co-located radar).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from rfir_stages.rf_fit.antennas import AntennaPattern
+from rfir_stages.rf_fit.occlusion import FrozenGeometry
+from rfir_stages.rf_fit.render import LinkSet
+
+from .materials import C0
+
+PARALLEL_COS = 0.98     # normals this close belong to one plane (and such patches form no dihedral)
+COPLANAR_M = 0.0015     # ... when their offsets along the normal differ by less (the faces of a 3 mm sheet stay apart)
+DIHEDRAL_COS = 0.5      # patches whose normals are 60-120 degrees apart can form a corner reflector
+
+
+@dataclass
+class Patches:
+    """Planar patches: id [G] (-1: in no patch used for double bounces), normal [P, 3], point [P, 3],
+    area [P] m^2, members: list of surfel index arrays."""
+
+    id: np.ndarray
+    normal: np.ndarray
+    point: np.ndarray
+    area: np.ndarray
+    members: list
+
+
+def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None = None,
+                   min_patch_area_m2: float = 2e-3, join_factor: float = 1.6) -> Patches:
+    """Group surfels into planar patches (union-find over neighbour pairs on one plane, one label)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    x = geom.means.numpy()
+    n = geom.normals.numpy()
+    a = areas_m2.numpy()
+    g = len(x)
+    if g == 0:
+        return Patches(np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
+    radius = join_factor * 2.0 * float(np.median(np.sqrt(a)))
+    pairs = cKDTree(x).query_pairs(radius, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    same = np.abs((n[i] * n[j]).sum(1)) >= PARALLEL_COS
+    same &= np.abs((n[i] * (x[j] - x[i])).sum(1)) < COPLANAR_M
+    if labels is not None:
+        lab = labels.numpy()
+        same &= lab[i] == lab[j]
+    i, j = i[same], j[same]
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(g, g))
+    _, comp = connected_components(graph, directed=False)
+    ids = np.full(g, -1)
+    normals, points, areas, members = [], [], [], []
+    for c in np.unique(comp):
+        idx = np.flatnonzero(comp == c)
+        area = float(a[idx].sum())
+        if area < min_patch_area_m2:
+            continue
+        w = a[idx] / area
+        nn = n[idx] * np.sign((n[idx] * n[idx[0]]).sum(1))[:, None]
+        nrm = (w[:, None] * nn).sum(0)
+        ids[idx] = len(normals)
+        normals.append(nrm / np.linalg.norm(nrm))
+        points.append((w[:, None] * x[idx]).sum(0))
+        areas.append(area)
+        members.append(idx)
+    return Patches(ids, np.asarray(normals).reshape(-1, 3), np.asarray(points).reshape(-1, 3), np.asarray(areas),
+                   members)
+
+
+@dataclass
+class DoubleBounce:
+    """Double-bounce terms: I items (link, first patch A, surfel m of B). Gamma enters per step.
+
+    link [I]; gauss_a [I] (the surfel of A nearest the crossing: its material), gauss_b [I] (m);
+    cos_a, cos_b [I] incidence cosines at A and B; te_a, te_b [I] TE shares; coef [I, K] complex:
+    everything but the two reflection coefficients and the sqrt(1 - S^2) factors."""
+
+    num_links: int
+    link: torch.Tensor
+    gauss_a: torch.Tensor
+    gauss_b: torch.Tensor
+    cos_a: torch.Tensor
+    cos_b: torch.Tensor
+    te_a: torch.Tensor
+    te_b: torch.Tensor
+    coef: torch.Tensor
+    freq_hz: torch.Tensor
+
+    @property
+    def num(self) -> int:
+        return int(self.link.numel())
+
+    def select_links(self, rows) -> "DoubleBounce":
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
+        new_id[rows] = torch.arange(rows.numel())
+        keep = new_id[self.link] >= 0
+        return DoubleBounce(int(rows.numel()), new_id[self.link][keep], self.gauss_a[keep], self.gauss_b[keep],
+                            self.cos_a[keep], self.cos_b[keep], self.te_a[keep], self.te_b[keep], self.coef[keep],
+                            self.freq_hz)
+
+
+def empty_double_bounce(num_links: int, freq_hz: torch.Tensor) -> DoubleBounce:
+    z = torch.zeros(0, dtype=torch.int64)
+    f = torch.zeros(0, dtype=torch.float64)
+    return DoubleBounce(num_links, z, z, z, f, f, f, f, torch.zeros((0, int(freq_hz.numel())), dtype=torch.complex128),
+                        freq_hz.double())
+
+
+def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
+                        patches: Patches, areas_m2: torch.Tensor, sigma_w: torch.Tensor, vis_lookup,
+                        polarisation: str = "V", colocated_tol_m: float = 0.01) -> DoubleBounce:
+    """Double-bounce items of every link (see the module docstring).
+
+    vis_lookup(link [I], gauss [I]) -> V [I]: visibility of a surfel from the link's antenna (the
+    first-order pairs'; 0 where the surfel is not lit)."""
+    from scipy.spatial import cKDTree
+
+    from .physical import _te_share
+
+    freq = links.freq_hz.double()
+    k0 = 2 * math.pi * freq / C0
+    colocated = ((links.tx_m - links.rx_m).norm(dim=-1) < colocated_tol_m).numpy()
+    if patches.area.size < 2 or not colocated.any():
+        return empty_double_bounce(links.num, freq)
+    x = geom.means.numpy()
+    trees = [cKDTree(x[m]) for m in patches.members]
+    reach = [float(np.sqrt(areas_m2.numpy()[m].max())) for m in patches.members]
+    radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
+    parts = []
+    for pa, partners in enumerate(dihedral_partners(patches, radius)):
+        if not partners:
+            continue
+        na, pa_pt = patches.normal[pa], patches.point[pa]
+        mb = np.concatenate([patches.members[pb] for pb in partners])
+        xb = x[mb]                                                        # [B, 3]
+        side_b = (xb - pa_pt) @ na                                        # B's surfels relative to plane A
+        item = _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, trees[pa], patches.members[pa],
+                           reach[pa], vis_lookup, tx_ant, rx_ant, sigma_w, areas_m2, k0, polarisation, _te_share,
+                           patches.point[pa], radius[pa])
+        if item is not None:
+            parts.append(item)
+    if not parts:
+        return empty_double_bounce(links.num, freq)
+    cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+    return DoubleBounce(links.num, cat["link"], cat["ga"], cat["gb"], cat["cos_a"], cat["cos_b"], cat["te_a"],
+                        cat["te_b"], cat["coef"], freq)
+
+
+def dihedral_partners(patches: Patches, radius: np.ndarray) -> list[list[int]]:
+    """For each patch A, the patches B that can form a dihedral with it: normals between 60 and 120
+    degrees apart (the monostatic double bounce is a corner reflector's; nearly parallel planes
+    return nothing to a co-located radar) and a gap between them no larger than the larger patch."""
+    n, c = patches.normal, patches.point
+    size = np.sqrt(patches.area)
+    out = []
+    for a in range(len(n)):
+        cos = np.abs(n @ n[a])
+        gap = np.linalg.norm(c - c[a], axis=1) - radius - radius[a]
+        ok = (cos <= DIHEDRAL_COS) & (gap <= np.maximum(size, size[a]))
+        ok[a] = False
+        out.append(np.flatnonzero(ok).tolist())
+    return out
+
+
+def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, members_a, reach_a, vis_lookup,
+                tx_ant, rx_ant, sigma_w, areas_m2, k0, polarisation, te_share, centre_a, radius_a):
+    """Items of the double bounces off patch A, then one of the surfels mb of its partners, for every
+    co-located link."""
+    tx = links.tx_m.numpy()
+    rx = links.rx_m.numpy()
+    side_tx = (tx - pa_pt) @ na                                           # [M]
+    ok_link = colocated & (np.abs(side_tx) > 1e-9)
+    ml = np.flatnonzero(ok_link)
+    if ml.size == 0:
+        return None
+    tx_img = tx[ml] - 2.0 * side_tx[ml, None] * na[None]                  # [M', 3]
+    # every (link, m of B): same side of A as Tx
+    same_side = np.sign(side_tx[ml])[:, None] == np.sign(side_b)[None]    # [M', B]
+    li, bi = np.nonzero(same_side)
+    if li.size == 0:
+        return None
+    src = tx_img[li]
+    xm = xb[bi]
+    d = xm - src
+    denom = d @ na
+    t = ((pa_pt - src) @ na) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
+    c = src + t[:, None] * d                                              # crossing with plane A
+    valid = (t > 0) & (t < 1) & (np.linalg.norm(c - centre_a, axis=1) <= radius_a + reach_a)  # near A at all
+    li, bi, c = li[valid], bi[valid], c[valid]
+    k_near = min(4, len(members_a))
+    dist, near = tree_a.query(c, k=k_near)
+    dist, near = dist.reshape(len(c), k_near), near.reshape(len(c), k_near)
+    valid = dist[:, 0] < reach_a
+    li, bi, c, near, dist = li[valid], bi[valid], c[valid], near[valid], dist[valid]
+    if li.size == 0:
+        return None
+    link = ml[li]
+    lt = torch.as_tensor(link)
+    # the lit surfel of A nearest the crossing (a thin plate's far face is close by, and shadowed)
+    v_near = torch.stack([vis_lookup(lt, torch.as_tensor(members_a[near[:, q]])) for q in range(k_near)], 1)
+    v_near = torch.where(torch.as_tensor(dist) < reach_a, v_near, torch.zeros_like(v_near))
+    v_a, pick = v_near.max(1)
+    ga = members_a[near[np.arange(len(near)), pick.numpy()]]
+    gb = mb[bi]
+    v = v_a * vis_lookup(lt, torch.as_tensor(gb))
+    keep = (v > 1e-6).numpy()
+    if not keep.any():
+        return None
+    link, ga, gb, c, v = link[keep], ga[keep], gb[keep], c[keep], v[keep]
+    src = torch.as_tensor(tx[link] - 2.0 * ((tx[link] - pa_pt) @ na)[:, None] * na[None])
+    xm = geom.means[torch.as_tensor(gb)]
+    nb = geom.normals[torch.as_tensor(gb)]
+    to_src = src - xm
+    d_i = to_src.norm(dim=-1)
+    w_i = to_src / d_i[:, None]
+    to_rx = torch.as_tensor(rx[link]) - xm
+    d_o = to_rx.norm(dim=-1)
+    w_o = to_rx / d_o[:, None]
+    nb = nb * torch.where((w_i * nb).sum(-1, keepdim=True) >= 0, 1.0, -1.0)
+    cos_b = (w_i * nb).sum(-1)
+    cos_o = (w_o * nb).sum(-1)
+    ok = (cos_b > 1e-6) & (cos_o > 1e-6)
+    if not bool(ok.any()):
+        return None
+    sel = ok.numpy()
+    link, ga, gb, c, v = link[sel], ga[sel], gb[sel], c[sel], v[torch.as_tensor(sel)]
+    xm, nb, w_i, w_o, d_i, d_o, cos_b, cos_o = (q[ok] for q in (xm, nb, w_i, w_o, d_i, d_o, cos_b, cos_o))
+    tx_t = torch.as_tensor(tx[link])
+    to_c = torch.as_tensor(c) - tx_t
+    u_c = to_c / to_c.norm(dim=-1, keepdim=True)                          # Tx -> crossing point
+    na_t = torch.as_tensor(na)
+    na_t = na_t[None] * torch.where((u_c @ na_t)[:, None] < 0, 1.0, -1.0)  # facing the transmitter
+    cos_a = -(u_c * na_t).sum(-1)
+    g_t = tx_ant.gain(u_c, links.tx_axis[torch.as_tensor(link)])
+    g_r = rx_ant.gain(-w_o, links.rx_axis[torch.as_tensor(link)])
+    q = w_i + w_o
+    qsq = torch.einsum("pi,pij,pj->p", q, sigma_w[torch.as_tensor(gb)], q)
+    amp = torch.sqrt(g_t * g_r) * v * areas_m2[torch.as_tensor(gb)] * 0.5 * (cos_b + cos_o) / (4 * math.pi * d_i * d_o)
+    coef = (1j * amp)[:, None] * torch.exp(-0.5 * qsq[:, None] * k0[None] ** 2) \
+        * torch.exp(-1j * (d_i + d_o)[:, None] * k0[None])
+    return {"link": torch.as_tensor(link), "ga": torch.as_tensor(ga), "gb": torch.as_tensor(gb),
+            "cos_a": cos_a, "cos_b": cos_b, "te_a": te_share(-u_c, na_t, polarisation),
+            "te_b": te_share(w_i, nb, polarisation), "coef": coef}
