@@ -21,7 +21,7 @@ The returned complex amplitude `s` [m] is the square root of an RCS with a phase
 Conversions: `sigma = |s|^2` (m^2, `po_rcs`); the isotropic-antenna channel (P_T = 1 W, Friis
 normalisation, `h_LoS = lambda exp(-j k d) / (4 pi d)`) is
 `h = lambda * s * exp(-j k (R_t + R_r)) / ((4 pi)^1.5 R_t R_r)` (`channel_from_amplitude`), so
-`|h|^2 = lambda^2 sigma / ((4 pi)^3 R_t^2 R_r^2)` (PHYSICS.md item 5); multiply by
+`|h|^2 = lambda^2 sigma / ((4 pi)^3 R_t^2 R_r^2)` (docs/physics.md section 5.2); multiply by
 sqrt(G_T G_R) of the antenna pattern for horns.
 
 Physics (first order)

@@ -2,7 +2,7 @@
 
 a = sigmoid(theta_a) in (0, 1); R = 1 + softplus(theta_R) >= 1; |Gamma| = sigmoid(theta_g) in
 (0, 1); angle(Gamma) = theta_phi (free, wrapped when written). Per frequency k a system gain
-s_tx_db[k] [dB] scales the received power: it is |S_tx(f)|^2 of PHYSICS.md step 1, the
+s_tx_db[k] [dB] scales the received power: it is |S_tx(f)|^2 of docs/physics.md section 4.1, the
 transmitted signal, learned because the model's absolute level depends on the Gaussian density
 (docs/rf-model.md).
 

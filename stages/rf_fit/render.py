@@ -1,4 +1,4 @@
-"""The RF renderer: S(f) = sum_l c_l for a batch of links (PHYSICS.md steps 1-4).
+"""The RF renderer: S(f) = sum_l c_l for a batch of links (docs/physics.md sections 4-5).
 
 c_l = Gamma_l F(w_o, w_i, n_l; R_l) cos(theta_i) sqrt(G_T(u_l) A_l / (4 pi d_l^2)) V_l
       * a_l Tbar_l sqrt(G_R(w_l)) exp(-j k (d_l + r_l)) / (sqrt(4 pi) r_l)          (P_T = 1 W)
@@ -13,7 +13,7 @@ Transmittances from the hit tables, with RF opacities, alpha = min(a_m G_m, 0.99
 - Tbar_l = (sum_w G_l(w) T_l(w) dOmega + w_c T_c) / (sum_w G_l(w) dOmega + w_c): the receiver's
   grid rays w (grid.py) that meet l, T_l(w) the transmittance of ray w in front of l, plus the ray
   through l's mean (transmittance T_c) with the weight w_c of `center_ray_cells` grid cells.
-  That extra node is our addition to PHYSICS.md: a Gaussian smaller than a grid cell may meet no
+  That extra node is our addition to docs/physics.md section 5.1: a Gaussian smaller than a grid cell may meet no
   grid ray at all, and with it Tbar stays defined and the 1 vs 0.5 degree results agree.
 - Self-shadowing margin: occluders less than `self_shadow_margin_m` in front of the target are
   ignored (surfels of one surface overlap; a surface does not shadow itself).
@@ -56,7 +56,7 @@ class Materials:
     """RF attributes per Gaussian: opacity a [G] in [0, 1], roughness R [G] >= 1, gamma [G] complex.
 
     Optional incoherent term (docs/rf-model.md "Diffuse term"): diffuse [G] in [0, 1] and
-    diffuse_roughness [G] >= 1, or None (the coherent model of PHYSICS.md alone)."""
+    diffuse_roughness [G] >= 1, or None (the coherent model of docs/physics.md sections 4-5 alone)."""
 
     opacity: torch.Tensor
     roughness: torch.Tensor
@@ -77,7 +77,7 @@ class RenderSettings:
     (exact, costly: O(hits) per step); False: V and Tbar are traced once with the RF opacity
     `visibility_opacity` and frozen (the a_l factor of c_l is still learned), with early ray
     termination below transmittance `t_stop`.
-    path_loss / phase (ablations, PHYSICS.md's "without path-loss/phase terms"): False drops each
+    path_loss / phase (ablations, the paper's "without path-loss/phase terms", docs/physics.md section 10): False drops each
     Gaussian's own 1 / (d r) spreading (link means instead) / its exp(-j k (d + r)) phase (all in phase).
     """
 

@@ -98,7 +98,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     sharing_requested = fit_cfg.sharing
     if fit_cfg.sharing == "auto" and (task == "rssi" or is_wideband_request(task, config)):
         fit_cfg.sharing = "gaussian"   # the choice by validation is made for narrowband RCS fits only
-    if task == "rssi":  # the LoS/NLoS model (PHYSICS.md step 6): stages/rf_fit/rssi_fit.py
+    if task == "rssi":  # the LoS/NLoS model (docs/physics.md section 6): stages/rf_fit/rssi_fit.py
         from .rssi_fit import run_rssi
         if resume:
             raise ConfigError("--resume: RSSI fits write no checkpoints yet")
@@ -113,7 +113,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         raise ConfigError(f"rf_fit.scattering = {mode!r} needs rf_fit.diffuse = true (the incoherent term)")
     protocol = str(config.get("split", "data"))
     rows, _ = split_rows(meas, protocol, str(measurements_path))
-    if is_wideband_request(task, config):  # PHYSICS.md step 7: stages/rf_fit/wideband_stage.py
+    if is_wideband_request(task, config):  # docs/physics.md section 7: stages/rf_fit/wideband_stage.py
         return run_wideband(scene, meas, geom, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg,
                             rows=rows, seed=seed, config_toml=config_toml, progress=progress, t_start=t_start)
     cols = pick_freqs(meas["freq_hz"], config.get("freqs_hz"), str(measurements_path))
@@ -267,7 +267,7 @@ def _write(out_path, scene, meas, task, freqs, rows, result: FitResult, ant, ren
         "rf/gamma_phase_rad": result.gamma_phase_rad, "rf/freq_hz": np.asarray(freqs, dtype=np.float64),
     })
     model_attrs = {"s_tx_db_doc": "system gain |S_tx(f)|^2 per rf/freq_hz [dB], added to 10 log10 |S|^2",
-                   "renderer": "rfir_stages.rf_fit.render (PHYSICS.md steps 1-4)"}
+                   "renderer": "rfir_stages.rf_fit.render (docs/physics.md sections 4-5)"}
     model_attrs.update(ant.describe())
     model_attrs.update({f"render.{k}": getattr(render_cfg, k) for k in RENDER_KEYS + ("visibility_opacity",)})
     training_attrs = _training_attrs(meas, protocol, rows, scattering, fit_cfg.seed)

@@ -27,16 +27,6 @@ WORK_LOG = [re.compile(p, re.IGNORECASE) for p in (
 )]
 
 OLD_SPEC = "PHYSICS" + ".md"  # spelled in two parts so that this file does not cite it
-# Files another change is editing at the moment; they still cite the old note and are to be migrated
-# to docs/physics.md sections. Remove an entry once its file is migrated.
-OLD_SPEC_ALLOWED_FILES = {
-    "stages/rf_fit/render.py",
-    "stages/rf_fit/stage.py",
-    "stages/rf_fit/params.py",
-    "stages/rf_fit/fit.py",
-}
-OLD_SPEC_ALLOWED_DIRS = ("stages/model/", "stages/po/")
-
 CITATION = re.compile(r"docs/physics\.md,? sections? (\d+(?:\.\d+)?(?:(?:-|, | and )\d+(?:\.\d+)?)*)")
 HEADING = re.compile(r"^#{2,4} (\d+(?:\.\d+)?)\.? ", re.MULTILINE)
 
@@ -96,16 +86,9 @@ def test_patterns_catch_what_they_are_for():
     assert not any(p.search("a successful fit, possession of data") for p in WORK_LOG)
 
 
-def _allowed_old_spec(rel: str) -> bool:
-    return rel in OLD_SPEC_ALLOWED_FILES or rel.startswith(OLD_SPEC_ALLOWED_DIRS)
-
-
 def test_no_file_cites_the_old_design_note():
     bad = []
     for path in _project_files(SOURCE_SUFFIXES):
-        rel = _rel(path)
-        if _allowed_old_spec(rel):
-            continue
         bad += [hit for hit in _offending_lines(path, [re.compile(re.escape(OLD_SPEC))])]
     assert not bad, f"cite docs/physics.md sections instead of {OLD_SPEC}:\n" + "\n".join(bad)
 
