@@ -59,8 +59,8 @@ def _switch_starts(params: MaterialParams, loss_now) -> bool:
 class PhysicalFitConfig:
     """[rf_fit.physical] settings (configs/rf_fit.toml documents each)."""
 
-    iterations: int = 300
-    start_iterations: int = 60
+    iterations: int = 200
+    start_iterations: int = 40
     lr: float = 0.05
     loss: str = "db_mse"
     huber_db: float = 1.0
@@ -155,8 +155,8 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
 
 
 def material_index(kind: str, num_gaussians: int, labels: torch.Tensor | None, means: torch.Tensor | None = None,
-                   normals: torch.Tensor | None = None, num_segments: int = 8, seed: int = 0
-                   ) -> tuple[torch.Tensor, list[str]]:
+                   normals: torch.Tensor | None = None, num_segments: int = 8, seed: int = 0,
+                   label_names: list[str] | None = None) -> tuple[torch.Tensor, list[str]]:
     """(material of each Gaussian [G] int64, material names): one per "label", one "global", or per
     "segment" (k-means on position, scaled by the scene extent, and normal, sign-free)."""
     if kind == "global":
@@ -165,7 +165,8 @@ def material_index(kind: str, num_gaussians: int, labels: torch.Tensor | None, m
         if labels is None:
             raise ValueError("materials per label need gaussians/labels in the scene")
         uniq, inv = torch.unique(labels, return_inverse=True)
-        return inv, [f"label {int(u)}" for u in uniq]
+        named = lambda u: label_names[u] if label_names is not None and 0 <= u < len(label_names) else f"label {u}"  # noqa: E731
+        return inv, [named(int(u)) for u in uniq]
     if kind == "segment":
         from scipy.cluster.vq import kmeans2
         x = means.numpy()

@@ -337,12 +337,16 @@ def gaussians_normal_reflection(material_of_gaussian: torch.Tensor, mats: Materi
 
 
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
+DOUBLE_NODES = 19  # ... of its double bounces: 5 degree steps (two angles per item: fewer cells)
+DOUBLE_CULL_REL = 0.01  # per link, the weakest double-bounce cells carrying 1 % of its sum of magnitudes are dropped
 
 
-def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: int, j: int, step: float) -> dict:
+def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: int, j: int, step: float,
+                      cull_rel: float) -> dict:
     """Double-bounce items summed per cell (link, material A, angle node A, material B, angle node B),
     each item split bilinearly between the four node pairs around its two incidence angles, and into
-    the four products of its TE shares (te_a te_b, te_a (1 - te_b), (1 - te_a) te_b, (1 - te_a)(1 - te_b))."""
+    the four products of its TE shares (te_a te_b, te_a (1 - te_b), (1 - te_a) te_b, (1 - te_a)(1 - te_b)).
+    Per link the weakest cells carrying `cull_rel` of its sum of magnitudes are dropped (cost)."""
     ends = []
     for g, cos, te in ((db.gauss_a, db.cos_a, db.te_a), (db.gauss_b, db.cos_b, db.te_b)):
         pos = torch.arccos(cos.clamp(0.0, 1.0)) / step
@@ -366,8 +370,25 @@ def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: i
     mat_b, rest = rest % n, rest // n
     node_a, rest = rest % j, rest // j
     mat_a, link = rest % n, rest // n
-    return {"link": link, "mat_a": mat_a, "node_a": node_a, "mat_b": mat_b, "node_b": node_b,
-            "c_tt": sums[:, 0], "c_tm": sums[:, 1], "c_mt": sums[:, 2], "c_mm": sums[:, 3]}
+    keep = _strong_cells(link, sums.abs().sum(1).max(1).values, cull_rel)
+    sums = sums[keep]
+    return {"link": link[keep], "mat_a": mat_a[keep], "node_a": node_a[keep], "mat_b": mat_b[keep],
+            "node_b": node_b[keep], "c_tt": sums[:, 0], "c_tm": sums[:, 1], "c_mt": sums[:, 2], "c_mm": sums[:, 3]}
+
+
+def _strong_cells(link: torch.Tensor, mag: torch.Tensor, rel: float) -> torch.Tensor:
+    """[C] bool: per link, all cells but the weakest ones whose magnitudes sum to at most `rel` of the
+    link's total (|Gamma| <= 1, so the dropped field is at most rel times the link's sum of magnitudes)."""
+    order = torch.argsort(link.double() * (mag.max() * 2 + 1) + mag)      # by link, then magnitude ascending
+    l_sorted, m_sorted = link[order], mag[order]
+    cum = torch.cumsum(m_sorted, 0)
+    first = torch.searchsorted(l_sorted, l_sorted)                          # start of each link's run
+    before = torch.where(first > 0, cum[(first - 1).clamp(min=0)], torch.zeros_like(cum))
+    total = torch.zeros(int(link.max()) + 1, dtype=mag.dtype).index_add(0, link, mag)
+    keep_sorted = (cum - before) > rel * total[l_sorted]
+    keep = torch.zeros_like(keep_sorted)
+    keep[order] = keep_sorted
+    return keep
 
 
 @dataclass
@@ -393,7 +414,7 @@ class AggregatedPairs:
 
     @staticmethod
     def build(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int,
-              chunk: int = 1 << 20) -> "AggregatedPairs":
+              chunk: int = 1 << 20, double_cull_rel: float = DOUBLE_CULL_REL) -> "AggregatedPairs":
         m, n, j, k = pairs.num_links, num_materials, ANGLE_NODES, int(pairs.freq_hz.numel())
         k0 = 2 * math.pi * pairs.freq_hz / C0
         a_te = torch.zeros(m * n * j, k, dtype=torch.complex128)
@@ -419,7 +440,8 @@ class AggregatedPairs:
                     a_tm.index_add_(0, node, c * ((1.0 - te) * w)[:, None])
                     diff.index_add_(0, node, (d * w)[:, None] * torch.stack([te**2, (1 - te) ** 2, te * (1 - te)], 1))
         double = None if pairs.double is None or not pairs.double.num else \
-            _aggregate_double(pairs.double, material_of_gaussian, n, j, step)
+            _aggregate_double(pairs.double, material_of_gaussian, n, DOUBLE_NODES, math.radians(90.0) / (DOUBLE_NODES - 1),
+                              double_cull_rel)
         return AggregatedPairs(a_te.reshape(m, n, j, k), a_tm.reshape(m, n, j, k), diff.reshape(m, n, j, 3),
                                pairs.freq_hz, double)
 
@@ -447,10 +469,15 @@ class AggregatedPairs:
         if self.double is not None:
             # cells (link, material A, node A, material B, node B): sum over the four TE/TM products
             d = self.double
-            ga = r_te * spec, r_tm * spec                            # [N, J, K] each, with sqrt(1 - S^2)
-            ca, cb = (d["mat_a"], d["node_a"]), (d["mat_b"], d["node_b"])
-            product = d["c_tt"] * ga[0][ca] * ga[0][cb] - d["c_tm"] * ga[0][ca] * ga[1][cb] \
-                - d["c_mt"] * ga[1][ca] * ga[0][cb] + d["c_mm"] * ga[1][ca] * ga[1][cb]
+            nodes2 = torch.cos(torch.linspace(0.0, math.pi / 2, DOUBLE_NODES, dtype=torch.float64))
+            d_te, d_tm = fresnel(mats.eta(f)[:, None, :], nodes2[None, :, None], k0[None, None], th)   # [N, J2, K]
+            kk = f.numel()
+            te_flat = (d_te * spec).reshape(-1, kk)                  # [N * J2, K], with sqrt(1 - S^2)
+            tm_flat = (d_tm * spec).reshape(-1, kk)
+            ua, ub = d["mat_a"] * DOUBLE_NODES + d["node_a"], d["mat_b"] * DOUBLE_NODES + d["node_b"]
+            a_te, a_tm = te_flat.index_select(0, ua), tm_flat.index_select(0, ua)   # index_select: cheap backward
+            b_te, b_tm = te_flat.index_select(0, ub), tm_flat.index_select(0, ub)
+            product = d["c_tt"] * a_te * b_te - d["c_tm"] * a_te * b_tm - d["c_mt"] * a_tm * b_te + d["c_mm"] * a_tm * b_tm
             field = field.index_add(0, d["link"], product)
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
         moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]

@@ -64,19 +64,22 @@ class PhysicalSetup:
     num_segments: int
     seed: int
     trace_s: float
+    label_names: list | None = None
     aggregated: dict = field(default_factory=dict)    # sharing -> (AggregatedPairs, index [G], names)
 
     @staticmethod
-    def trace(geom, links, ant, provider, settings: PairSettings, labels, table: dict, seed: int) -> "PhysicalSetup":
+    def trace(geom, links, ant, provider, settings: PairSettings, labels, table: dict, seed: int,
+              label_names: list | None = None) -> "PhysicalSetup":
         t0 = time.time()
         areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
         pairs = build_pairs(geom, links, ant, ant, provider, settings, areas, labels=labels)
-        return PhysicalSetup(geom, labels, pairs, areas, int(table.get("num_segments", 8)), seed, time.time() - t0)
+        return PhysicalSetup(geom, labels, pairs, areas, int(table.get("num_segments", 8)), seed, time.time() - t0,
+                             label_names)
 
     def for_sharing(self, sharing: str):
         if sharing not in self.aggregated:
             idx, names = material_index(sharing, self.geom.num, self.labels, self.geom.means, self.geom.normals,
-                                        self.num_segments, self.seed)
+                                        self.num_segments, self.seed, self.label_names)
             self.aggregated[sharing] = (AggregatedPairs.build(self.pairs, idx, len(names)), idx, names)
         return self.aggregated[sharing]
 

@@ -152,7 +152,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
             bar.advance(1)
     if phys_sharings:
         with progress.task("trace (physical pairs)", total=1) as bar:
-            physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed)
+            names = [str(n) for n in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
+            physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed, names)
             bar.advance(1)
     trace_s = time.time() - t0
 

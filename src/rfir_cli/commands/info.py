@@ -31,8 +31,28 @@ def info(
         from ..artifacts import describe_artifact
 
         _show(describe_artifact(artifact))
+        _show_materials(artifact)
 
     run_guarded(ctx, work)
+
+
+def _show_materials(path: str) -> None:
+    """The fitted materials of a physical rf model (datasets material/*), one row each."""
+    from ..artifacts import read_artifact
+
+    art = read_artifact(path)
+    if art.kind != "rf" or art.get("material/eps_r") is None:
+        return
+    names = [str(n) for n in art.free.get("model@attrs", {}).get("material_names", [])]
+    freqs = art["rf/freq_hz"]
+    gam = art["material/gamma_normal_abs"]
+    table = Table("material", "eps_r", "sigma(1 GHz) S/m", "S", "thickness mm",
+                  *[f"|Gamma(0)| {f / 1e9:g} GHz" for f in freqs], box=None, pad_edge=False, title="fitted materials")
+    for i in range(len(art["material/eps_r"])):
+        table.add_row(names[i] if i < len(names) else str(i), f"{art['material/eps_r'][i]:.2f}",
+                      f"{art['material/sigma_1ghz_s_per_m'][i]:.3g}", f"{art['material/scattering'][i]:.2f}",
+                      f"{1e3 * art['material/thickness_m'][i]:.1f}", *[f"{g:.2f}" for g in gam[i]])
+    console.print(table)
 
 
 def _show(summary: dict) -> None:
