@@ -176,7 +176,7 @@ def test_scattering_auto_picks_the_model_that_made_the_data(tmp_path, coherent):
     write_scene_artifact(scene, fields)
     meas = _scattering_measurements(tmp_path / "m.h5", fields, coherent)
     res = run(scene, meas, tmp_path / "rf.h5", {"visibility": False, "iterations": 60, "checkpoint_every": 0,
-                                                "scattering": "auto"})
+                                                "scattering": "auto", "model": "free"})   # within the free family
     want = "coherent" if coherent else "incoherent"
     assert res.scattering["selected"] == want, res.scattering
     assert res.scattering["validation_links"] == 4
@@ -196,7 +196,7 @@ def test_sharing_auto_picks_one_material_when_the_data_have_one(tmp_path, unifor
     write_scene_artifact(scene, fields)
     meas = _scattering_measurements(tmp_path / "m.h5", fields, True, uniform=uniform)
     res = run(scene, meas, tmp_path / "rf.h5", {"visibility": False, "iterations": 60, "checkpoint_every": 0,
-                                                "scattering": "coherent", "sharing": "auto"})
+                                                "scattering": "coherent", "sharing": "auto", "model": "free"})
     want = "global" if uniform else "gaussian"
     assert res.scattering["sharing_selected"] == want, res.scattering
     assert {"val_mae_coherent_gaussian_db", "val_mae_coherent_global_db"} <= set(res.scattering)
