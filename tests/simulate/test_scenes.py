@@ -75,6 +75,18 @@ def test_objects_are_centred_and_sized():
     np.testing.assert_allclose(lego.bounds[0] + lego.bounds[1], 0, atol=1e-12)
 
 
+def test_trio_has_three_materials_and_a_closed_dihedral_corner():
+    trio = build_scene("trio")
+    assert [(o.name, o.radio_material) for o in trio.objects] == [("dihedral", "metal"), ("block", "wood"),
+                                                                   ("pane", "glass")]
+    np.testing.assert_allclose(trio.bounds[0] + trio.bounds[1], 0, atol=1e-12)
+    sheets = trio.objects[0].vertices
+    # the two sheets meet along one vertical edge: both reach the same corner x = y = min
+    lo = sheets.min(0)
+    assert np.any(np.all(np.isclose(sheets[:, :2], lo[:2]), axis=1))
+    assert trio.objects[0].thickness_m == pytest.approx(0.003) and trio.objects[2].thickness_m == pytest.approx(0.006)
+
+
 def test_car_from_sionna():
     pytest.importorskip("sionna.rt")
     car = build_scene("car")
