@@ -26,4 +26,11 @@ echo "== 5/5 predict rcs: the odd aspects, beside the nearest-aspect and interpo
 $RFIR predict rcs "$OUT/rf.h5" -o "$OUT/predictions.h5" --measurements "$OUT/lego/measurements.h5" \
     --plots "$OUT/plots" --results "$OUT/results.json"
 
+echo "== 5b/5 the physical model alone: one material for the object (eps_r, sigma, slab thickness, S) and its RCS"
+$RFIR --set rf_fit.model=physical --set rf_fit.physical.sharing=global rf-fit "$OUT/scene.h5" \
+    "$OUT/lego/measurements.h5" -o "$OUT/rf_physical.h5"
+$RFIR info "$OUT/rf_physical.h5" | sed -n '/fitted materials/,$p'
+$RFIR predict rcs "$OUT/rf_physical.h5" -o "$OUT/predictions_physical.h5" --measurements "$OUT/lego/measurements.h5" \
+    --plots "$OUT/plots_physical" --results "$OUT/results_physical.json"
+
 echo "demo finished: artifacts in $OUT/, plots in $OUT/plots/, metrics in $OUT/results.json"
