@@ -1,4 +1,4 @@
-"""A reduced calibration data set (rendered once per session) and one SfM run shared by the tests.
+"""A reduced calibration data set (rendered once per pytest run) and one SfM run shared by the tests.
 
 14 views of a small textured object (three boxes, ~0.3 m) on two rings spanning 150 degrees, at
 640 x 480: the smallest set that registers reliably. Rendering takes ~20 s and SfM ~10 s on 2 cores.
