@@ -120,6 +120,7 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
             loss.backward()
             opt.step()
             curve.append(float(loss.detach()))
+            bar.update(loss=curve[-1])   # shown beside the bar, and in the plain lines of a log
             bar.advance(1)
         with torch.no_grad():
             final = float(_loss(predict_db(agg, params, floor), target, cfg))

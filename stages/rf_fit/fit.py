@@ -153,6 +153,7 @@ def fit(cache: RenderCache, meas_db: np.ndarray, params: RFParams, cfg: FitConfi
                     exposure += theta.grad.abs()
             opt.step()
             curve.append(float(loss.detach()))
+            bar.update(loss=curve[-1])   # shown beside the bar, and in the plain lines of a log
             bar.advance(1)
             if checkpoint is not None and cfg.checkpoint_every > 0 and (it + 1) % cfg.checkpoint_every == 0:
                 _save(checkpoint, params, opt, it + 1, curve, key)
