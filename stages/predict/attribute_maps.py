@@ -79,7 +79,7 @@ def render_attribute_maps(means, log_scales, rotations, rf_opacity, attributes: 
 
 
 def plot_attribute_maps(path: Path, maps: dict[str, np.ndarray], title: str) -> Path:
-    """One PNG, one panel per map (viridis; angle maps in a cyclic colour map)."""
+    """One PNG, one panel per map (viridis; angle maps in a cyclic colour map; |Gamma| and S on 0..1)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -88,8 +88,9 @@ def plot_attribute_maps(path: Path, maps: dict[str, np.ndarray], title: str) -> 
     fig, axes = plt.subplots(1, len(maps), figsize=(3.6 * len(maps), 3.2))
     for ax, (name, img) in zip(np.atleast_1d(axes), maps.items()):
         cyclic = "angle" in name
-        im = ax.imshow(img, cmap="twilight" if cyclic else "viridis",
-                       vmin=-math.pi if cyclic else None, vmax=math.pi if cyclic else None)
+        unit = name.startswith("|Gamma|") or name.startswith("scattering S")   # coefficients in [0, 1]
+        lo, hi = (-math.pi, math.pi) if cyclic else (0.0, 1.0) if unit else (None, None)
+        im = ax.imshow(img, cmap="twilight" if cyclic else "viridis", vmin=lo, vmax=hi)
         ax.set_title(name, fontsize=10)
         ax.set_xticks([])
         ax.set_yticks([])

@@ -262,8 +262,15 @@ def _plots(folder: Path, rf, asp, rng, freqs, rcs, meas_rcs, split) -> list:
                                            rcs[sel, k], m, s, title, polar))
     a0 = float(asp[0])
     view = -np.array([math.cos(-a0), math.sin(-a0), 0.0])
-    attributes = {"|Gamma|": np.asarray(rf["rf/gamma_abs"]), "angle(Gamma) [rad]": np.asarray(rf["rf/gamma_phase_rad"]),
-                  "roughness R": np.asarray(rf["rf/roughness"]), "RF opacity a": np.asarray(rf["rf/opacity"])}
+    if is_physical_model(rf):   # the fitted materials: |Gamma| at normal incidence, S, which material
+        index = np.asarray(rf["material/index"])
+        attributes = {"|Gamma| at normal incidence": np.asarray(rf["rf/gamma_abs"]),
+                      "scattering S": np.asarray(rf["material/scattering"])[index],
+                      "material": index.astype(np.float64), "RF opacity a": np.asarray(rf["rf/opacity"])}
+    else:
+        attributes = {"|Gamma|": np.asarray(rf["rf/gamma_abs"]),
+                      "angle(Gamma) [rad]": np.asarray(rf["rf/gamma_phase_rad"]),
+                      "roughness R": np.asarray(rf["rf/roughness"]), "RF opacity a": np.asarray(rf["rf/opacity"])}
     paths.append(attribute_views(folder / "attributes.png", np.asarray(rf["gaussians/means"]), attributes, view))
     # the paper's attribute maps: rendered through the tracer from the radar at the first aspect
     means = np.asarray(rf["gaussians/means"])
