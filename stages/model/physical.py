@@ -330,12 +330,6 @@ def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, m
     return out.index_add(0, db.link, db.coef * gammas[0] * gammas[1])
 
 
-def gaussians_normal_reflection(material_of_gaussian: torch.Tensor, mats: MaterialValues,
-                                freq_hz: torch.Tensor) -> np.ndarray:
-    """R_TE at normal incidence per Gaussian [G, K] (attribute maps and the rf/gamma_* datasets)."""
-    return mats.normal_reflection(freq_hz)[material_of_gaussian].detach().numpy()
-
-
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
 DOUBLE_NODES = 19  # ... of its double bounces: 5 degree steps (two angles per item: fewer cells)
 DOUBLE_CULL_REL = 0.01  # per link, the weakest double-bounce cells carrying 1 % of its sum of magnitudes are dropped

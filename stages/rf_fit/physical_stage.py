@@ -16,6 +16,7 @@ from rfir_cli.errors import ConfigError
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
 from rfir_stages.model.physical import POLARISATIONS, AggregatedPairs, PairSettings, build_pairs
+from rfir_stages.model.predict import FLOOR_DB
 from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "segment", "global")
@@ -92,8 +93,9 @@ class PhysicalSetup:
 
     def predict_db(self, sharing: str, rows: np.ndarray, params) -> np.ndarray:
         agg, _, _ = self.for_sharing(sharing)
-        with torch.no_grad():
-            return 10 * np.log10(agg.select_links(rows).power(params.values(), params.gain_db).numpy() + 1e-300)
+        with torch.no_grad():   # links that see no lit surfel score at the prediction floor, never at -3000 dB
+            power = agg.select_links(rows).power(params.values(), params.gain_db).numpy()
+        return np.maximum(10 * np.log10(np.maximum(power, 1e-300)), FLOOR_DB)
 
     def unseen_materials(self, sharing: str) -> list[str]:
         """Materials no training link sees (they keep their starting values)."""
