@@ -21,6 +21,7 @@ from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
+from rfir_stages.model.physical import EPS_R_MAX, THICKNESS_M
 
 from .antennas import resolve_antenna
 from .fit import FitConfig, FitResult, fit, mae_db, predict_db
@@ -144,7 +145,10 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
         if render_cfg.visibility else None
     progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
-                 f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, model {model_kind}")
+                 f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, model {model_kind}"
+                 + (f" (physical: polarisation {pair_settings.polarisation}, sigma ~ f^{phys_cfg.sigma_exponent:g}, "
+                    f"double bounces {'on' if pair_settings.second_order else 'off'}, "
+                    f"system gain {'fitted' if phys_cfg.fit_gain else '0 dB'})" if phys_sharings else ""))
     cache = physical = None
     if model_kind != "physical":
         with progress.task("trace (cache)", total=1) as bar:
@@ -303,7 +307,7 @@ def _run_physical(physical: PhysicalSetup, scattering: dict, target: np.ndarray,
         warnings.append(f"no training link sees {', '.join(unseen)}: kept at the starting material "
                         f"({result.start}); predictions there are not fitted")
     for row in table:   # a value at the edge of its range: the data ask for something the model cannot be
-        if row["eps_r"] > 0.98 * 25.0 or row["thickness_m"] > 0.98:
+        if row["eps_r"] > 0.98 * EPS_R_MAX or row["thickness_m"] > 0.98 * THICKNESS_M[1]:
             warnings.append(f"{row['material']}: eps_r {row['eps_r']:.1f} / thickness {row['thickness_m']:.2f} m "
                             "ran to the bound of its range")
     for w in warnings:
