@@ -6,6 +6,7 @@ kill never leaves a half-written file at the target path, nor damages an earlier
 from __future__ import annotations
 
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -115,7 +116,42 @@ def check_data(kind: str, data: Mapping[str, np.ndarray], attrs: Mapping, where:
     for key in spec.required_attrs:
         if key not in attrs:
             problems.append(f"{where}: missing required attribute '{key}' for kind '{kind}'")
+    return problems + _check_attrs(spec, attrs, where)
+
+
+def _check_attrs(spec: KindSpec, attrs: Mapping, where: str) -> list[str]:
+    """Problems of the optional root attributes of `spec` that are present (types, choices, patterns,
+    and each `table:` antenna's table attributes, of one length)."""
+    problems = []
+    for a in spec.optional_attrs:
+        if a.name not in attrs:
+            continue
+        value = attrs[a.name]
+        value = value.decode(errors="replace") if isinstance(value, bytes) else value
+        if a.dtype == "str":
+            if not isinstance(value, str):
+                problems.append(f"{where}: attribute '{a.name}' is {value!r}, expected text")
+            elif a.choices and value not in a.choices:
+                problems.append(f"{where}: attribute '{a.name}' is {value!r}, expected one of {', '.join(a.choices)}")
+            elif a.pattern and not re.fullmatch(a.pattern, value):
+                problems.append(f"{where}: attribute '{a.name}' is {value!r}, not valid ({a.doc.split(';')[0]})")
+            elif value.startswith("table:"):
+                sizes = {np.size(attrs[k]) if k in attrs else -1 for k in (f"{a.name}_table_deg", f"{a.name}_table_gain_dbi")}
+                if -1 in sizes or len(sizes) != 1 or sizes.pop() < 2:
+                    problems.append(f"{where}: attribute '{a.name}' is a table but {a.name}_table_deg / "
+                                    f"{a.name}_table_gain_dbi are missing or of different lengths")
+            continue
+        array = np.asarray(value)
+        if array.dtype.kind not in "iuf" or array.ndim != (1 if a.dtype == "float[]" else 0) \
+                or not np.all(np.isfinite(array)):
+            want = "a 1-D array of finite numbers" if a.dtype == "float[]" else "a finite number"
+            problems.append(f"{where}: attribute '{a.name}' is {_short_repr(value)}, expected {want}")
     return problems
+
+
+def _short_repr(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _in_free_group(spec: KindSpec, name: str) -> bool:

@@ -10,12 +10,14 @@ have the same size in every field of one file. Readers accept files of the same 
 
 Change history
 - 1.0.0 (2026-11-23): first release: measurements, cameras, calib, scene, rf, predictions.
+- 1.1.0 (2026-11-25): optional measurement set-up attributes of `measurements` (antenna_tx,
+  antenna_rx, their pattern tables, polarisation, power, tx_power_dbm).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.0.0"
+SCHEMA_VERSION = "1.1.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -41,6 +43,25 @@ class FieldSpec:
 
 
 @dataclass(frozen=True)
+class AttrSpec:
+    """An optional root attribute of a kind.
+
+    dtype: "str", "float" (a finite number) or "float[]" (a 1-D array of finite numbers).
+    choices: allowed values of a "str" (empty: any); pattern: a regular expression a "str" must match.
+    """
+
+    name: str
+    dtype: str
+    doc: str
+    choices: tuple = ()
+    pattern: str = ""
+
+
+_NUM = r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?"
+ANTENNA_PATTERN = rf"isotropic|dipole(:{_NUM},{_NUM},{_NUM})?|horn:{_NUM}|table:.+"
+
+
+@dataclass(frozen=True)
 class KindSpec:
     """An artifact kind: its fields, its required root attributes, and free-form groups."""
 
@@ -49,6 +70,7 @@ class KindSpec:
     fields: tuple[FieldSpec, ...]
     required_attrs: tuple[str, ...] = ()
     free_groups: tuple[str, ...] = field(default_factory=tuple)
+    optional_attrs: tuple[AttrSpec, ...] = ()
 
     def field(self, name: str) -> FieldSpec | None:
         return next((f for f in self.fields if f.name == name), None)
@@ -94,6 +116,24 @@ _register(KindSpec(
     ),
     required_attrs=("task", "scene"),
     free_groups=("simulator",),
+    optional_attrs=(
+        AttrSpec("task", "str", "rcs (monostatic, one or a few discrete frequencies), wideband (a dense band) "
+                 "or rssi (links between placed antennas)", choices=("rcs", "wideband", "rssi")),
+        AttrSpec("antenna_tx", "str", "transmit antenna: isotropic, dipole:AX,AY,AZ (unit axis), horn:HPBW_DEG "
+                 "(cos^q horn, half-power beamwidth) or table:NAME (pattern in antenna_tx_table_*); absent: "
+                 "not stated (rf-fit assumes isotropic and says so)", pattern=ANTENNA_PATTERN),
+        AttrSpec("antenna_rx", "str", "receive antenna, as antenna_tx", pattern=ANTENNA_PATTERN),
+        AttrSpec("antenna_tx_table_deg", "float[]", "table pattern: angle off boresight [deg], rising from 0"),
+        AttrSpec("antenna_tx_table_gain_dbi", "float[]", "table pattern: gain [dBi] at each angle"),
+        AttrSpec("antenna_rx_table_deg", "float[]", "as antenna_tx_table_deg, receive side"),
+        AttrSpec("antenna_rx_table_gain_dbi", "float[]", "as antenna_tx_table_gain_dbi, receive side"),
+        AttrSpec("polarisation", "str", "polarisation of both antennas (V: along z, H: horizontal)",
+                 choices=("V", "H")),
+        AttrSpec("power", "str", "what the imported power column held: path_gain [dB], rcs [dBsm, converted to "
+                 "path gain by the radar equation with the antennas' boresight gains] or rssi [dBm, minus "
+                 "tx_power_dbm]", choices=("path_gain", "rcs", "rssi")),
+        AttrSpec("tx_power_dbm", "float", "transmit power [dBm] subtracted from the received power (power = rssi)"),
+    ),
 ))
 
 _register(KindSpec(

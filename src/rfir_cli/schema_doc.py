@@ -13,6 +13,11 @@ def schema_markdown() -> str:
         out += [f"### `{spec.kind}`", "", spec.doc, ""]
         if spec.required_attrs:
             out += ["Required root attributes: " + ", ".join(f"`{a}`" for a in spec.required_attrs) + ".", ""]
+        if spec.optional_attrs:
+            out += ["| root attribute | type | meaning |", "|---|---|---|"]
+            out += [f"| `{a.name}` | {a.dtype}{' (' + ', '.join(a.choices) + ')' if a.choices else ''} | {a.doc} |"
+                    for a in spec.optional_attrs]
+            out.append("")
         if spec.free_groups:
             out += ["Free-form groups: " + ", ".join(f"`{g}/`" for g in spec.free_groups) + ".", ""]
         out += ["| dataset | dtype | shape | unit | frame | required | meaning |", "|---|---|---|---|---|---|---|"]

@@ -1,15 +1,18 @@
 """`rfir import csv`: one row per link and frequency.
 
 Columns (header required, any order): tx_x, tx_y, tx_z, rx_x, rx_y, rx_z [m], freq_hz [Hz],
-power_db [dB: path gain, or received power in dBm when --tx-power-dbm is given]; optional
-phase_rad [rad], aspect_deg [deg], range_m [m], rcs_dbsm [dBsm], tx_id, rx_id, split (train/test/0/1).
-Rows sharing (tx, rx, aspect, range) form one link; every link needs every frequency.
+power_db [dB; its meaning is the set-up's `power`: path gain, RCS in dBsm or RSSI in dBm];
+optional phase_rad [rad], aspect_deg [deg], range_m [m], rcs_dbsm [dBsm], tx_id, rx_id, split
+(train/test/0/1). Rows sharing (tx, rx, aspect, range) form one link; every link needs every
+frequency. `# key = value` lines before the header, a sidecar TOML and import flags state the
+measurement set-up (meas_setup.py).
 """
 from __future__ import annotations
 
 import csv
+import io
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +21,11 @@ from rfir_cli.artifacts import write_artifact
 from rfir_cli.errors import InputFileError
 from rfir_cli.provenance import Provenance
 
+from rfir_cli.physics.closed_forms import rcs_from_path_gain
+
+from .meas_setup import MeasurementSetup, boresight_gain, header_options, resolve_setup, split_header
 from .rows import RowProblems, check_metres
+from .tasks import check_turntable, detect_task
 
 REQUIRED = ("tx_x", "tx_y", "tx_z", "rx_x", "rx_y", "rx_z", "freq_hz", "power_db")
 OPTIONAL_FLOATS = ("phase_rad", "aspect_deg", "range_m", "rcs_dbsm")
@@ -28,12 +35,13 @@ SPLIT_WORDS = {"train": 0, "0": 0, "test": 1, "1": 1, "": -1, "-1": -1}
 
 @dataclass
 class CsvImportResult:
-    """What an import wrote: the artifact path, links L, frequencies F and the task."""
+    """What an import wrote: the artifact path, links L, frequencies F, the task and lines to print."""
 
     path: Path
     links: int
     freqs: int
     task: str
+    notes: list = field(default_factory=list)
 
 
 def _number(text: str, line: int, column: str, problems: RowProblems) -> float:
@@ -48,20 +56,31 @@ def _number(text: str, line: int, column: str, problems: RowProblems) -> float:
 
 
 def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
-    """Parse and validate a links CSV. Returns the `measurements` datasets (and `task`).
+    """Parse and validate a links CSV. Returns the `measurements` datasets, the header's set-up
+    options (`options`: key -> text) and the present optional columns.
 
     Raises InputFileError naming the file and every bad row (up to a few) if anything is wrong.
     """
     path = Path(path)
     problems = RowProblems(str(path))
     try:
-        with open(path, newline="", encoding="utf-8-sig") as handle:
-            reader = csv.DictReader(handle)
-            header = [h.strip() for h in (reader.fieldnames or [])]
-            rows = list(reader)
+        text = path.read_bytes().decode("utf-8-sig")
     except FileNotFoundError:
         raise InputFileError("file not found", path=path) from None
-    except (UnicodeDecodeError, csv.Error) as exc:
+    except IsADirectoryError:
+        raise InputFileError("is a folder, expected a CSV file", path=path) from None
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"not a UTF-8 text file (byte {exc.start}: {exc.reason})", path=path) from None
+    if "\x00" in text:
+        raise InputFileError("not a text file (holds NUL bytes)", path=path)
+    comments, body = split_header(text)
+    options = header_options(comments, str(path))
+    offset = len(text.splitlines()) - len(body.splitlines())   # lines before the column header
+    try:
+        reader = csv.DictReader(io.StringIO(body, newline=""))
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        rows = list(reader)
+    except csv.Error as exc:
         raise InputFileError(f"not a readable CSV file ({exc})", path=path) from None
     missing = [c for c in REQUIRED if c not in header]
     if missing:
@@ -72,14 +91,19 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
     present = [c for c in OPTIONAL_FLOATS + OPTIONAL_INTS + ("split",) if c in header]
     records = []
     for index, raw in enumerate(rows):
-        line = index + 2  # header is line 1
+        line = offset + index + 2  # the column header is line offset + 1
+        if None in raw or any(v is None for v in raw.values()):
+            problems.add(f"line {line}: {len(header) + len(raw.get(None) or [])} values for {len(header)} columns"
+                         if None in raw else f"line {line}: fewer values than the {len(header)} columns")
+            continue
         row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
         rec = {c: _number(row[c], line, c, problems) for c in REQUIRED + tuple(c for c in OPTIONAL_FLOATS if c in present)}
         for c in OPTIONAL_INTS:
             if c in present:
                 value = _number(row[c], line, c, problems)
-                if math.isfinite(value) and value != int(value):
+                if math.isfinite(value) and (value != int(value) or abs(value) >= 2**62):
                     problems.add(f"line {line}, column {c}: {row[c]!r} is not an integer")
+                    value = math.nan
                 rec[c] = value
         if "split" in present:
             word = row["split"].lower()
@@ -88,9 +112,12 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
             rec["split"] = SPLIT_WORDS.get(word, -1)
         if math.isfinite(rec["freq_hz"]) and rec["freq_hz"] < 1e6:
             problems.add(f"line {line}, column freq_hz: {rec['freq_hz']:g} Hz is below 1 MHz: give Hz, not GHz or MHz")
+        rec["_line"] = line
         records.append((line, rec))
     problems.raise_if_any()
-    return _assemble(path, records, present, problems, position_scale)
+    out = _assemble(path, records, present, problems, position_scale)
+    out.update(options=options, present=present)
+    return out
 
 
 def _link_key(rec: dict) -> tuple:
@@ -153,30 +180,59 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
             data[c] = np.array([int(r[c]) for r in ordered], dtype=np.int64)
     if "split" in present:
         data["split"] = np.array([r["split"] for r in ordered], dtype=np.int64)
-    task = "rcs" if ("rcs_dbsm" in present or "aspect_deg" in present) else "rssi"
-    if task == "rcs" and n_freqs > 1:
-        task = "wideband"
-    return {"data": data, "task": task}
+    return {"data": data, "lines": np.array([r["_line"] for r in ordered], dtype=np.int64)}
 
 
 def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx_power_dbm: float | None = None,
-               position_scale: float = 1.0, config_toml: str = "") -> CsvImportResult:
+               position_scale: float = 1.0, config_toml: str = "", antenna: str | None = None,
+               antenna_tx: str | None = None, antenna_rx: str | None = None, polarisation: str | None = None,
+               power: str | None = None, task: str | None = None) -> CsvImportResult:
     """Validate a links CSV and write a `measurements` artifact (nothing is written on any error).
 
-    tx_power_dbm: when given, power_db is read as received power in dBm and converted to path gain.
+    The set-up (antenna..power, tx_power_dbm) comes from the flags given here, else the sidecar
+    TOML, else the CSV's `# key = value` lines (meas_setup.py). power "rssi": power_db is received
+    power in dBm, converted to path gain; "rcs": power_db is RCS in dBsm, converted to path gain
+    by the radar equation with the antennas' boresight gains (needs range_m).
     position_scale: multiply coordinates and ranges by this (0.001 for millimetres).
+    task: "rcs", "wideband" or "rssi" instead of the detected one (tasks.detect_task).
     """
+    path = Path(path)
     parsed = read_links_csv(path, position_scale)
-    data = parsed["data"]
-    if tx_power_dbm is not None:
-        data["path_gain_db"] = data["path_gain_db"] - tx_power_dbm
-        if "channel" in data:
-            data["channel"] = data["channel"] * 10.0 ** (-tx_power_dbm / 20.0)
+    data, present = parsed["data"], parsed["present"]
+    setup = resolve_setup(path, parsed["options"], {
+        "antenna": antenna, "antenna_tx": antenna_tx, "antenna_rx": antenna_rx, "polarisation": polarisation,
+        "power": power, "tx_power_dbm": tx_power_dbm})
+    _apply_power(path, data, setup)
+    task_name, task_rule = detect_task(present + (["rcs_dbsm"] if setup.power == "rcs" else []), data["freq_hz"],
+                                       task, str(path))
+    if "aspect_deg" in present:
+        check_turntable(data, parsed["lines"], str(path))
     prov = Provenance(stage="import", config_toml=config_toml,
-                      extra={"format": "csv", "tx_power_dbm": tx_power_dbm, "position_scale": position_scale})
+                      extra={"format": "csv", "position_scale": position_scale, "setup_origin": setup.origin})
     prov.add_input(path)
-    attrs = {"task": parsed["task"], "scene": scene}
-    if tx_power_dbm is not None:
-        attrs["tx_power_dbm"] = float(tx_power_dbm)
+    attrs = {"task": task_name, "scene": scene, **setup.attrs}
     target = write_artifact(out, "measurements", data, attrs=attrs, provenance=prov)
-    return CsvImportResult(target, data["tx_pos"].shape[0], data["freq_hz"].size, parsed["task"])
+    return CsvImportResult(target, data["tx_pos"].shape[0], data["freq_hz"].size, task_name,
+                           notes=[f"task {task_name}: {task_rule}", "set-up: " + setup.describe()])
+
+
+def _apply_power(path: Path, data: dict, setup: MeasurementSetup) -> None:
+    """Turn the power_db column (held in data["path_gain_db"]) into path gain by the set-up's `power`."""
+    if setup.power == "rssi":
+        p_tx = setup.attrs["tx_power_dbm"]
+        data["path_gain_db"] = data["path_gain_db"] - p_tx
+        if "channel" in data:
+            data["channel"] = data["channel"] * 10.0 ** (-p_tx / 20.0)
+    elif setup.power == "rcs":
+        if "rcs_dbsm" in data:
+            raise InputFileError("power = rcs reads power_db as RCS, but the file also has an rcs_dbsm column",
+                                 path=path)
+        if "range_m" not in data:
+            raise InputFileError("power = rcs needs a range_m column (the radar equation needs the range)", path=path)
+        gain = boresight_gain(setup.attrs, "antenna_tx") * boresight_gain(setup.attrs, "antenna_rx")
+        # path gain [dB] = sigma [dBsm] - 10 log10 of the radar equation's sigma per unit path gain
+        per_unit = rcs_from_path_gain(1.0, data["range_m"][:, None], data["freq_hz"][None], gain, 1.0)
+        data["rcs_dbsm"] = data["path_gain_db"].copy()
+        data["path_gain_db"] = data["rcs_dbsm"] - 10.0 * np.log10(per_unit)
+        if "channel" in data:
+            data["channel"] = 10.0 ** (data["path_gain_db"] / 20.0) * np.exp(1j * np.angle(data["channel"]))

@@ -116,6 +116,7 @@ def import_nerf2_ble(folder: str | Path, out: str | Path, *, freq_hz: float = 2.
                       extra={"format": "nerf2-ble", "gateways": names, "dropped_links": int((rssi <= MISSING_DBM).sum())})
     for name in ("gateway_position.yml", "tx_pos.csv", "gateway_rssi.csv"):
         prov.add_input(folder / name)
-    target = write_artifact(out, "measurements", data, attrs={"task": "rssi", "scene": scene, "tx_power_dbm": tx_power_dbm},
+    target = write_artifact(out, "measurements", data, attrs={"task": "rssi", "scene": scene, "power": "rssi",
+                                                                  "tx_power_dbm": float(tx_power_dbm)},
                             provenance=prov)
     return CsvImportResult(target, int(t_idx.size), 1, "rssi")

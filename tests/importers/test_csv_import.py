@@ -35,7 +35,7 @@ def test_links_and_frequencies_are_gridded(tmp_path):
 
 def test_optional_columns_phase_rcs_split(tmp_path):
     header = HEADER + ",phase_rad,aspect_deg,range_m,rcs_dbsm,split"
-    lines = ["0,-3,0,0,-3,0,2.4e9,-70,0.5,0,3,-10,train", "0,-3,0,0,-3,0,2.4e9,-71,0.5,90,3,-12,test"]
+    lines = ["3,0,0,3,0,0,2.4e9,-70,0.5,0,3,-10,train", "0,-3,0,0,-3,0,2.4e9,-71,0.5,90,3,-12,test"]
     art = read_artifact(import_csv(write(tmp_path, lines, header), tmp_path / "r.h5", tx_power_dbm=10).path)
     assert art.attrs["task"] == "rcs"
     np.testing.assert_allclose(art["aspect_rad"], [0, np.pi / 2])

@@ -21,6 +21,8 @@ Scale = Annotated[float, typer.Option("--position-scale", help="Multiply coordin
 
 
 def _report(result) -> None:
+    for note in result.notes:
+        console.print(note, highlight=False, markup=False, soft_wrap=True)
     console.print(f"[green]wrote[/green] {result.path}: {result.links} links x {result.freqs} frequencies, "
                   f"task {result.task}", highlight=False)
 
@@ -32,15 +34,29 @@ def import_csv_command(
     out: Out,
     scene: Annotated[str, typer.Option("--scene", help="Scene name recorded in the artifact.")] = "imported",
     tx_power_dbm: Annotated[Optional[float], typer.Option(
-        "--tx-power-dbm", help="Read power_db as received dBm and subtract this transmit power.")] = None,
+        "--tx-power-dbm", help="Transmit power in dBm: power_db is received dBm (power = rssi).")] = None,
     position_scale: Scale = 1.0,
+    antenna: Annotated[Optional[str], typer.Option(
+        "--antenna", help="Both antennas: isotropic, dipole[:AX,AY,AZ], horn:HPBW_DEG or table:FILE.")] = None,
+    antenna_tx: Annotated[Optional[str], typer.Option("--antenna-tx", help="Transmit antenna (as --antenna).")] = None,
+    antenna_rx: Annotated[Optional[str], typer.Option("--antenna-rx", help="Receive antenna (as --antenna).")] = None,
+    polarisation: Annotated[Optional[str], typer.Option("--polarisation", help="V or H.")] = None,
+    power: Annotated[Optional[str], typer.Option(
+        "--power", help="What power_db holds: path_gain (dB), rcs (dBsm) or rssi (dBm, with --tx-power-dbm).")] = None,
+    task: Annotated[Optional[str], typer.Option(
+        "--task", help="rcs, wideband or rssi instead of the detected task (rule in docs/artifacts.md).")] = None,
 ) -> None:
-    """Import links from a CSV file (see docs/artifacts.md for the columns)."""
+    """Import links from a CSV file (columns and set-up options: docs/artifacts.md).
+
+    The set-up comes from these flags, else a TOML beside the CSV (same stem), else '# key = value'
+    lines at the top of the CSV."""
     from rfir_stages.importers import import_csv
 
     opts = options(ctx)
     result = run_guarded(ctx, lambda: import_csv(file, out, scene=scene, tx_power_dbm=tx_power_dbm,
-                                                 position_scale=position_scale, config_toml=opts.config_toml()))
+                                                 position_scale=position_scale, config_toml=opts.config_toml(),
+                                                 antenna=antenna, antenna_tx=antenna_tx, antenna_rx=antenna_rx,
+                                                 polarisation=polarisation, power=power, task=task))
     _report(result)
 
 
