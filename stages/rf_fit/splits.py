@@ -122,3 +122,41 @@ def validation_rows(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nd
             near = ranges[np.argmin(np.abs(ranges - float(arg)))]
             return np.flatnonzero(np.abs(rng - near) < 1e-6), f"the training rows at {near:g} m"
     return np.arange(5, m, 10) if m > 5 else np.arange(0, m, 10), "every 10th training row"
+
+
+MIN_VALIDATION_LINKS = 50   # fewer held-out links than this decide a model by noise
+KFOLD_MAX_LINKS = 120       # k-fold (several fits per candidate) only up to this many training links
+KFOLDS = 3
+
+
+def validation_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.ndarray | None,
+                     min_links: int = MIN_VALIDATION_LINKS) -> tuple[list[np.ndarray], str]:
+    """Folds of training rows to hold out when choosing between models: each candidate is fitted on
+    the rest of each fold and scored on the fold; the scores pool every fold's links.
+
+    One fold (validation_rows) when it holds >= min_links links. Otherwise, shaped like the
+    protocol's test: "range:R": each training range in turn (leave-one-range-out); "sector:A:B":
+    a larger share next to the sector (up to a third of the training rows); "data" / "every-N":
+    KFOLDS interleaved folds covering every training row when there are at most KFOLD_MAX_LINKS of
+    them (the fits are cheap there), else every third row. Returns (folds, description); the
+    caller warns when the folds still hold fewer than min_links links."""
+    val, how = validation_rows(protocol, aspect_deg, range_m)
+    m = len(aspect_deg) if aspect_deg is not None else len(range_m) if range_m is not None else 0
+    if len(val) >= min_links or m < 10:
+        return [val], how
+    name, _, arg = protocol.partition(":")
+    if name == "range" and range_m is not None:
+        rng = np.round(np.asarray(range_m, np.float64), 6)
+        ranges = np.unique(rng)
+        if ranges.size >= 2:
+            return [np.flatnonzero(rng == r) for r in ranges], f"each training range in turn ({ranges.size} folds)"
+        return [val], how
+    if name == "sector" and aspect_deg is not None:
+        a, b = (float(x) % 360.0 for x in arg.split(":"))
+        deg = np.mod(np.asarray(aspect_deg, np.float64), 360.0)
+        gap = np.minimum(np.mod(deg - b, 360.0), np.mod(a - deg, 360.0))
+        n = min(min_links, m // 3)
+        return [np.sort(np.argsort(gap, kind="stable")[:n])], f"the {n} training rows next to the sector"
+    if m <= KFOLD_MAX_LINKS:
+        return [np.arange(j, m, KFOLDS) for j in range(KFOLDS)], f"{KFOLDS}-fold, interleaved training rows"
+    return [np.arange(1, m, 3)], "every 3rd training row"
