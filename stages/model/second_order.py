@@ -54,8 +54,10 @@ class Patches:
 
 
 def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None = None,
-                   min_patch_area_m2: float = 2e-3, join_factor: float = 1.6) -> Patches:
-    """Group surfels into planar patches (union-find over neighbour pairs on one plane, one label)."""
+                   min_patch_area_m2: float = 2e-3, join_factor: float = 1.6,
+                   coplanar_m: float = COPLANAR_M) -> Patches:
+    """Group surfels into planar patches (union-find over neighbour pairs on one plane, one label);
+    coplanar_m: the largest offset along the normal between neighbours of one plane."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -70,7 +72,7 @@ def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.T
     pairs = cKDTree(x).query_pairs(radius, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
     same = np.abs((n[i] * n[j]).sum(1)) >= PARALLEL_COS
-    same &= np.abs((n[i] * (x[j] - x[i])).sum(1)) < COPLANAR_M
+    same &= np.abs((n[i] * (x[j] - x[i])).sum(1)) < coplanar_m
     if labels is not None:
         lab = labels.numpy()
         same &= lab[i] == lab[j]

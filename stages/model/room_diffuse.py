@@ -1,0 +1,131 @@
+"""Diffuse scattering in rooms, summed in power over cells of surfels (docs/physics.md sections 8.8 and 9).
+
+The Lambertian term of section 8.8 for every link and every lit cell:
+
+    P_diff = sum_c G_T G_R S_m^2 |Gamma_m(theta_c)|^2 A_c cos(theta_i) cos(theta_o) lambda^2 V_c / (16 pi^3 d_i^2 d_o^2)
+
+Diffuse power varies slowly over a surface, so the surfels of each patch are grouped into cells of
+about `cell_m` (a voxel grid on the patch): each cell has the summed area, the area-weighted centre
+and the patch's normal, and its visibility V_c = V_tx V_rx is traced to the cell's surfel nearest that
+centre. |Gamma|^2 is the mean of |R_TE|^2 and |R_TM|^2 (the diffuse part has no definite
+polarisation). Everything but the materials is summed once into per-(link, material, angle node)
+weights, so a fit step costs M x materials x nodes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .materials import C0, fresnel
+from .room_paths import PatchSet
+
+NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees; |Gamma|^2 is linear between them
+
+
+@dataclass
+class DiffuseCells:
+    """centre [C, 3], normal [C, 3], area [C] m^2, material [C] int64, anchor [C] surfel used for visibility."""
+
+    centre: np.ndarray
+    normal: np.ndarray
+    area: np.ndarray
+    material: np.ndarray
+    anchor: np.ndarray
+
+
+def diffuse_cells(means: np.ndarray, areas_m2: np.ndarray, patches: PatchSet, material_of_patch: np.ndarray,
+                  cell_m: float) -> DiffuseCells:
+    """Group each patch's surfels into cells of about cell_m (a voxel grid)."""
+    p = patches.surfel_patch
+    vox = np.floor(means / cell_m).astype(np.int64)
+    key = np.concatenate([p[:, None], vox], 1)
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    c = len(uniq)
+    area = np.bincount(inv, weights=areas_m2, minlength=c)
+    centre = np.stack([np.bincount(inv, weights=areas_m2 * means[:, i], minlength=c) for i in range(3)], 1)
+    centre /= np.maximum(area, 1e-30)[:, None]
+    dist = np.linalg.norm(means - centre[inv], axis=1)
+    order = np.lexsort((dist, inv))
+    first = order[np.unique(inv[order], return_index=True)[1]]
+    patch = uniq[:, 0]
+    return DiffuseCells(centre, patches.normal[patch], area, material_of_patch[patch], first)
+
+
+@dataclass
+class DiffuseTerms:
+    """weight [M, N, NODES]: sum over cells of material n of the geometric factor, spread on the nodes."""
+
+    weight: torch.Tensor
+    freq_hz: torch.Tensor
+
+    def select_links(self, rows) -> "DiffuseTerms":
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        return DiffuseTerms(self.weight[rows], self.freq_hz[rows])
+
+    def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
+              scattering: torch.Tensor) -> torch.Tensor:
+        """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (one frequency) or [N, M], thickness [N], S [N]."""
+        cos = torch.cos(torch.deg2rad(torch.linspace(0.0, 90.0, NODES, dtype=torch.float64)))
+        if eta_of_material.shape[1] == 1:
+            k0 = 2 * math.pi * self.freq_hz[:1] / C0
+            th = None if thickness_m is None else thickness_m[:, None]
+            r_te, r_tm = fresnel(eta_of_material, cos[None], k0[None], th)                    # [N, NODES]
+            g2 = 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None]
+            return (self.weight * g2[None]).sum((1, 2))
+        k0 = 2 * math.pi * self.freq_hz / C0                                                     # [M]
+        th = None if thickness_m is None else thickness_m[:, None, None]
+        r_te, r_tm = fresnel(eta_of_material[:, :, None], cos[None, None], k0[None, :, None], th)  # [N, M, NODES]
+        g2 = 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None, None]
+        return (self.weight * g2.permute(1, 0, 2)).sum((1, 2))
+
+
+def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells, num_materials: int,
+                  provider, opacity: float, margin_m: float, t_stop: float, link_chunk: int = 256,
+                  progress_task=None) -> DiffuseTerms:
+    """The weights of DiffuseTerms for links tx_m, rx_m [M, 3] at freq_hz [M] (isotropic antennas)."""
+    tx = np.asarray(tx_m, dtype=np.float64)
+    rx = np.asarray(rx_m, dtype=np.float64)
+    m, c = len(tx), len(cells.area)
+    op = torch.full((provider.geom.num,), float(opacity), dtype=torch.float64)
+
+    def visibility(points: np.ndarray) -> np.ndarray:
+        uniq, inv = np.unique(np.round(points, 9), axis=0, return_inverse=True)
+        origins = torch.as_tensor(np.repeat(uniq, c, axis=0))
+        targets = torch.as_tensor(np.tile(cells.anchor, len(uniq)), dtype=torch.int64)
+        v = provider.segment_transmittance(origins, targets, margin_m, op, t_stop).numpy().reshape(len(uniq), c)
+        return v, inv.reshape(-1)
+
+    v_tx, i_tx = visibility(tx)
+    v_rx, i_rx = visibility(rx)
+    weight = torch.zeros(m, num_materials, NODES, dtype=torch.float64)
+    lam2 = (C0 / np.asarray(freq_hz, dtype=np.float64)) ** 2
+    step = math.radians(90.0 / (NODES - 1))
+    for lo in range(0, m, link_chunk):
+        hi = min(m, lo + link_chunk)
+        wi = tx[lo:hi, None, :] - cells.centre[None]                        # [B, C, 3]
+        wo = rx[lo:hi, None, :] - cells.centre[None]
+        di = np.linalg.norm(wi, axis=2)
+        do = np.linalg.norm(wo, axis=2)
+        ci = (wi * cells.normal[None]).sum(2) / di
+        co = (wo * cells.normal[None]).sum(2) / do
+        lit = ci * co > 0                                                      # both ends on one side
+        ci, co = np.abs(ci), np.abs(co)
+        g = (cells.area[None] * ci * co * lam2[lo:hi, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)
+             * v_tx[i_tx[lo:hi]] * v_rx[i_rx[lo:hi]] * lit)
+        theta = np.arccos(np.clip(ci, 0.0, 1.0)) / step
+        j = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
+        frac = np.clip(theta - j, 0.0, 1.0)
+        b = hi - lo
+        row = np.repeat(np.arange(b), c)
+        mat = np.tile(cells.material, b)
+        flat = weight[lo:hi].view(-1)
+        base = (row * num_materials + mat) * NODES
+        flat.index_add_(0, torch.as_tensor(base + j.ravel()), torch.as_tensor((g * (1 - frac)).ravel()))
+        flat.index_add_(0, torch.as_tensor(base + j.ravel() + 1), torch.as_tensor((g * frac).ravel()))
+        if progress_task is not None:
+            progress_task.advance(hi - lo)
+    return DiffuseTerms(weight, torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))

@@ -1,0 +1,424 @@
+"""Specular paths in rooms by the image method over planar patches of surfels (docs/physics.md section 9).
+
+For each link (Tx, Rx) the paths are: the direct path, first-order reflections off every patch and
+second-order reflections between pairs of large patches. A patch is a set of coplanar surfels of one
+label (`second_order.planar_patches`); its extent is a 2D occupancy grid rasterised from the surfels'
+footprints, so a wall with window openings reflects only where it has surfels. Every leg of every
+path is checked for the surfaces it crosses: the Gaussian tracer finds candidate patches on the
+leg, and the exact crossing point must lie on the patch. A surface is crossed once, however many
+Gaussians tile it, and applies its slab transmission coefficient (materials.slab_transmission).
+
+Everything here depends on geometry only and is computed once per link set (`trace_room_paths`);
+`RoomPaths.field` then evaluates the received complex amplitude for any material values, with the
+polarisation carried as a field vector through every interaction:
+
+    E <- C_TE (E . s) s + C_TM (E . p_in) p_out
+
+s = unit(k_in x n) (TE direction), p = k x s (the TM reference of materials.py), C the reflection
+(R, with p_out = k_out x s) or transmission (T, k unchanged) coefficient of the patch's material
+at the local incidence angle. Per path
+
+    a = sqrt(G_T G_R) (e_R . E) lambda / (4 pi L) exp(-j k L) prod_refl sqrt(1 - S^2)
+
+with E starting as the transmitter's polarisation vector e_T, L the unfolded path length, S the
+scattering coefficient of each reflecting material (the share of the field scattered diffusely).
+Shapes: M links, Q paths, I interaction slots per path (padded), P patches, G surfels.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from rfir_stages.rf_fit.occlusion import FrozenGeometry
+
+from .materials import C0, fresnel, slab_transmission
+from .second_order import planar_patches
+
+MAX_INTERACTIONS = 8      # paths crossing more surfaces than this are dropped (their power is negligible)
+LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
+FOOTPRINT_REACH = 0.75    # a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
+
+
+@dataclass
+class PatchSet:
+    """Planar patches with their extents.
+
+    normal, point, u, v [P, 3]: plane and in-plane axes; area [P] m^2; label [P] (-1: none);
+    surfel_patch [G] patch of each surfel; grid: flattened occupancy of all patches, patch p's cells at
+    grid_offset[p] + i * grid_shape[p, 1] + j for cell (i, j) of size cell_m[p] from grid_origin[p]."""
+
+    normal: np.ndarray
+    point: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    area: np.ndarray
+    label: np.ndarray
+    surfel_patch: np.ndarray
+    grid: np.ndarray
+    grid_offset: np.ndarray
+    grid_shape: np.ndarray
+    grid_origin: np.ndarray
+    cell_m: np.ndarray
+
+    @property
+    def num(self) -> int:
+        return int(len(self.area))
+
+    def contains(self, pid: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """[N] bool: point pts[n] (on patch pid[n]'s plane) lies on that patch."""
+        rel = pts - self.point[pid]
+        a = (rel * self.u[pid]).sum(1)
+        b = (rel * self.v[pid]).sum(1)
+        i = np.floor((a - self.grid_origin[pid, 0]) / self.cell_m[pid]).astype(np.int64)
+        j = np.floor((b - self.grid_origin[pid, 1]) / self.cell_m[pid]).astype(np.int64)
+        inside = (i >= 0) & (j >= 0) & (i < self.grid_shape[pid, 0]) & (j < self.grid_shape[pid, 1])
+        idx = self.grid_offset[pid] + np.clip(i, 0, None) * self.grid_shape[pid, 1] + np.clip(j, 0, None)
+        out = np.zeros(len(pid), dtype=bool)
+        out[inside] = self.grid[idx[inside]]
+        return out
+
+
+def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
+                    coplanar_m: float, max_cells: int = 40_000) -> PatchSet:
+    """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints."""
+    from scipy.spatial import cKDTree
+
+    raw = planar_patches(geom, areas_m2, labels, min_patch_area_m2=0.0, coplanar_m=coplanar_m)
+    x = geom.means.numpy()
+    a = areas_m2.detach().numpy()
+    lab = None if labels is None else labels.numpy()
+    normals, points, us, vs, label, grids, offsets, shapes, origins, cells = [], [], [], [], [], [], [], [], [], []
+    offset = 0
+    for p, idx in enumerate(raw.members):
+        n = raw.normal[p]
+        u = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        rel = x[idx] - raw.point[p]
+        uv = np.stack([rel @ u, rel @ v], 1)
+        reach = FOOTPRINT_REACH * np.sqrt(a[idx])
+        lo = uv.min(0) - reach.max()
+        hi = uv.max(0) + reach.max()
+        cell = max(0.25 * float(np.median(np.sqrt(a[idx]))), 1e-4)
+        cell = max(cell, math.sqrt(float(np.prod(hi - lo)) / max_cells))
+        shape = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
+        ci, cj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+        centres = lo + (np.stack([ci.ravel(), cj.ravel()], 1) + 0.5) * cell
+        k = min(4, len(idx))
+        d, near = cKDTree(uv).query(centres, k=k)
+        d, near = d.reshape(len(centres), k), near.reshape(len(centres), k)
+        occupied = (d <= reach[near] + 0.5 * cell).any(1)
+        normals.append(n)
+        points.append(raw.point[p])
+        us.append(u)
+        vs.append(v)
+        label.append(-1 if lab is None else int(np.bincount(lab[idx] - lab[idx].min()).argmax() + lab[idx].min()))
+        grids.append(occupied)
+        offsets.append(offset)
+        shapes.append(shape)
+        origins.append(lo)
+        cells.append(cell)
+        offset += occupied.size
+    return PatchSet(np.asarray(normals).reshape(-1, 3), np.asarray(points).reshape(-1, 3), np.asarray(us).reshape(-1, 3),
+                    np.asarray(vs).reshape(-1, 3), raw.area, np.asarray(label, dtype=np.int64), raw.id,
+                    np.concatenate(grids) if grids else np.zeros(0, bool), np.asarray(offsets, dtype=np.int64),
+                    np.asarray(shapes, dtype=np.int64).reshape(-1, 2), np.asarray(origins).reshape(-1, 2),
+                    np.asarray(cells))
+
+
+def polarisation_vectors(k: np.ndarray, pol: str) -> np.ndarray:
+    """Unit field vectors [N, 3] of an antenna radiating toward unit directions k [N, 3].
+
+    "V": theta-hat (in the vertical plane through k, pointing down at the horizon), "H": phi-hat
+    (horizontal). Straight up or down, where theta-hat is undefined, V uses +x."""
+    z = np.array([0.0, 0.0, 1.0])
+    if pol == "V":
+        e = k * (k @ z)[:, None] - z
+    else:
+        e = np.cross(z, k)
+    n = np.linalg.norm(e, axis=1, keepdims=True)
+    fallback = np.cross(k, np.cross(np.array([1.0, 0.0, 0.0]), k)) if pol == "V" else np.cross(k, [1.0, 0.0, 0.0])
+    e = np.where(n > 1e-9, e / np.maximum(n, 1e-300), fallback)
+    return e / np.linalg.norm(e, axis=1, keepdims=True).clip(1e-300)
+
+
+@dataclass
+class RoomPaths:
+    """Geometry of every specular path; Q paths, I interaction slots.
+
+    link [Q] int64; length_m [Q]; gain [Q] sqrt(G_T G_R); order [Q] (0 direct, 1, 2 reflections);
+    e_tx, e_rx [Q, 3] polarisation vectors at departure and arrival; kind [Q, I] (0 none,
+    1 reflection, 2 transmission); patch [Q, I]; cos [Q, I] |cos| of the local incidence angle;
+    s, p_in, p_out [Q, I, 3] the interaction's TE and TM reference directions; freq_hz [M]."""
+
+    num_links: int
+    link: torch.Tensor
+    length_m: torch.Tensor
+    gain: torch.Tensor
+    order: torch.Tensor
+    e_tx: torch.Tensor
+    e_rx: torch.Tensor
+    kind: torch.Tensor
+    patch: torch.Tensor
+    cos: torch.Tensor
+    s: torch.Tensor
+    p_in: torch.Tensor
+    p_out: torch.Tensor
+    freq_hz: torch.Tensor
+
+    @property
+    def num(self) -> int:
+        return int(self.link.numel())
+
+    def select_links(self, rows) -> "RoomPaths":
+        """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
+        new_id[rows] = torch.arange(rows.numel())
+        keep = new_id[self.link] >= 0
+        return RoomPaths(int(rows.numel()), new_id[self.link][keep], *(t[keep] for t in (
+            self.length_m, self.gain, self.order, self.e_tx, self.e_rx, self.kind, self.patch, self.cos, self.s,
+            self.p_in, self.p_out)), self.freq_hz[rows])
+
+    def field(self, eta_of_patch: torch.Tensor, thickness_of_patch: torch.Tensor | None,
+              scattering_of_patch: torch.Tensor) -> torch.Tensor:
+        """Received complex amplitude [M] (P_T = 1 W): the sum over each link's paths.
+
+        eta_of_patch [P, M] complex relative permittivity of each patch's material at each link's
+        frequency (or [P, 1] for one frequency); thickness_of_patch [P] m (None: half-spaces);
+        scattering_of_patch [P] S."""
+        f = self.freq_hz[self.link]                                         # [Q]
+        k0 = 2 * math.pi * f / C0
+        e = self.e_tx.to(torch.complex128)
+        amp = torch.ones(self.num, dtype=torch.complex128)
+        col = self.link if eta_of_patch.shape[1] > 1 else torch.zeros_like(self.link)
+        for i in range(self.kind.shape[1]):
+            kind = self.kind[:, i]
+            act = kind > 0
+            if not bool(act.any()):
+                continue
+            q = torch.nonzero(act).squeeze(1)
+            p = self.patch[q, i]
+            eta = eta_of_patch[p, col[q]]
+            th = None if thickness_of_patch is None else thickness_of_patch[p]
+            refl = kind[q] == 1
+            r_te, r_tm = fresnel(eta, self.cos[q, i], k0[q], th)
+            if th is None:
+                t_te = t_tm = torch.zeros_like(r_te)        # a half-space transmits nothing
+            else:
+                t_te, t_tm = slab_transmission(eta, self.cos[q, i], k0[q], th)
+            c_te = torch.where(refl, r_te, t_te)
+            c_tm = torch.where(refl, r_tm, t_tm)
+            s, pin, pout = (t[q, i].to(torch.complex128) for t in (self.s, self.p_in, self.p_out))
+            eq = e[q]
+            new = (c_te * (eq * s).sum(1))[:, None] * s + (c_tm * (eq * pin).sum(1))[:, None] * pout
+            e = e.index_put((q,), new)
+            spec = torch.where(refl, torch.sqrt((1.0 - scattering_of_patch[p] ** 2).clamp(min=0.0)),
+                               torch.ones_like(scattering_of_patch[p]))
+            amp = amp.index_put((q,), amp[q] * spec.to(torch.complex128))
+        lam = C0 / f
+        free = (lam / (4 * math.pi * self.length_m)).to(torch.complex128) * torch.exp(-1j * k0 * self.length_m)
+        a = self.gain * free * amp * (self.e_rx.to(torch.complex128) * e).sum(1)
+        return torch.zeros(self.num_links, dtype=torch.complex128).index_add(0, self.link, a)
+
+
+# ---------------------------------------------------------------------------------------------------
+# tracing the paths
+# ---------------------------------------------------------------------------------------------------
+def _mirror(x: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    return x - 2.0 * ((x - point) * normal).sum(-1, keepdims=True) * normal
+
+
+def _plane_cross(a: np.ndarray, b: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Points [N, 3] where segments a -> b cross the planes (point, normal) [N, 3] each."""
+    da = ((a - point) * normal).sum(1)
+    db = ((b - point) * normal).sum(1)
+    f = da / np.where(np.abs(da - db) > 1e-15, da - db, 1e-15)
+    return a + f[:, None] * (b - a)
+
+
+def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np.ndarray, order: int,
+                     min_m: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Specular paths Tx -> patch_1 -> ... -> patch_order -> Rx over sequences of `cand` (no patch twice in a
+    row, nor a patch and one coplanar with it).
+
+    Returns (link [N], patch sequence [N, order], reflection points [N, order, 3]). Images of the
+    transmitter are built forward; the reflection points are found backward from the receiver, and each
+    must lie on its patch with the previous vertex on the same side as the image's pre-image."""
+    out_l, out_p, out_c = [], [], []
+    nrm, pnt = patches.normal, patches.point
+    coplanar = (np.abs(nrm[cand] @ nrm[cand].T) > 0.999) & (
+        np.abs(((pnt[cand][None, :, :] - pnt[cand][:, None, :]) * nrm[cand][:, None, :]).sum(2)) < 1e-3)
+
+    def walk(seq: list[int], links: np.ndarray, images: list[np.ndarray]):
+        if len(seq) == order:
+            x = rx[links]
+            pts = []
+            for k in range(order - 1, -1, -1):
+                p = cand[seq[k]]
+                pre = images[k]                                         # the image before reflection k
+                ok = ((x - pnt[p]) @ nrm[p]) * ((pre - pnt[p]) @ nrm[p]) > min_m ** 2
+                c = _plane_cross(images[k + 1], x, np.broadcast_to(pnt[p], x.shape), np.broadcast_to(nrm[p], x.shape))
+                ok &= patches.contains(np.full(len(links), p), c)
+                links, x, images = links[ok], c[ok], [im[ok] for im in images]
+                pts = [q[ok] for q in pts]
+                pts.insert(0, x)
+                if links.size == 0:
+                    return
+            out_l.append(links)
+            out_p.append(np.broadcast_to(cand[np.asarray(seq)], (len(links), order)))
+            out_c.append(np.stack(pts, 1))
+            return
+        for j in range(len(cand)):
+            if seq and (j == seq[-1] or coplanar[seq[-1], j]):
+                continue
+            p = cand[j]
+            side = (images[-1] - pnt[p]) @ nrm[p]
+            ok = np.abs(side) > min_m
+            if not ok.any():
+                continue
+            keep = np.flatnonzero(ok)
+            imgs = [im[keep] for im in images]
+            imgs.append(_mirror(imgs[-1], pnt[p], nrm[p]))
+            walk(seq + [j], links[keep], imgs)
+
+    walk([], np.arange(len(tx)), [tx])
+    if not out_l:
+        return np.zeros(0, np.int64), np.zeros((0, order), np.int64), np.zeros((0, order, 3))
+    return np.concatenate(out_l), np.concatenate(out_p), np.concatenate(out_c)
+
+
+def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarray, skip_a: np.ndarray,
+                  skip_b: np.ndarray, chunk: int = 500_000):
+    """Surfaces crossed by the legs start -> end [N, 3], not counting patches skip_a / skip_b [N] (-1: none).
+
+    Returns (leg [C], patch [C], fraction along the leg [C]). Candidates come from the Gaussian tracer;
+    a crossing counts when the exact intersection with the patch's plane lies on the patch."""
+    legs, pids, fracs = [], [], []
+    for lo in range(0, len(start), chunk):
+        hi = min(len(start), lo + chunk)
+        a, b = start[lo:hi], end[lo:hi]
+        d = b - a
+        length = np.linalg.norm(d, axis=1).clip(1e-12)
+        hits = provider.ray_hits(torch.as_tensor(a).contiguous(), torch.as_tensor(d / length[:, None]).contiguous())
+        q, g, t = hits.query.numpy(), hits.gaussian.numpy(), hits.t_m.numpy()
+        keep = (t > LEG_MARGIN_M) & (t < length[q] - LEG_MARGIN_M)
+        q, p = q[keep], patches.surfel_patch[g[keep]]
+        keep = (p >= 0) & (p != skip_a[lo:hi][q]) & (p != skip_b[lo:hi][q])
+        pair = np.unique(np.stack([q[keep], p[keep]], 1), axis=0)
+        if len(pair) == 0:
+            continue
+        q, p = pair[:, 0], pair[:, 1]
+        n, o = patches.normal[p], patches.point[p]
+        da = ((a[q] - o) * n).sum(1)
+        db = ((b[q] - o) * n).sum(1)
+        cross = da * db < 0
+        f = da / np.where(cross, da - db, 1.0)
+        x = a[q] + f[:, None] * d[q]
+        cross &= patches.contains(p, x)
+        legs.append(q[cross] + lo)
+        pids.append(p[cross])
+        fracs.append(f[cross])
+    if not legs:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.concatenate(legs), np.concatenate(pids), np.concatenate(fracs)
+
+
+def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
+    """(cos, s, p_in, p_out) of interactions with incoming unit directions k and normals n [N, 3]."""
+    cos = np.abs((k * n).sum(1))
+    s = np.cross(k, n)
+    sn = np.linalg.norm(s, axis=1, keepdims=True)
+    # normal incidence: any direction across k is TE (TE and TM agree there up to the reference)
+    alt = np.cross(k, np.where(np.abs(k[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    s = np.where(sn > 1e-9, s / np.maximum(sn, 1e-300), alt / np.linalg.norm(alt, axis=1, keepdims=True))
+    k_out = np.where(reflect[:, None], k - 2.0 * (k * n).sum(1, keepdims=True) * n, k)
+    return cos, s, np.cross(k, s), np.cross(k_out, s)
+
+
+def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
+                     max_order: int = 2, higher_order_min_area_m2: float = 1.0, first_order_min_area_m2: float = 0.0,
+                     tx_gain=None, rx_gain=None) -> RoomPaths:
+    """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].
+
+    First-order reflections use every patch of at least first_order_min_area_m2, higher orders the
+    patches of at least higher_order_min_area_m2 (walls, floor, ceiling, large furniture).
+    tx_gain / rx_gain: callables (unit directions [N, 3]) -> linear power gain [N]; None: isotropic.
+    Paths with more than MAX_INTERACTIONS interactions are dropped."""
+    tx = np.asarray(tx_m, dtype=np.float64)
+    rx = np.asarray(rx_m, dtype=np.float64)
+    m_links = len(tx)
+    link, order, verts, refl = [np.arange(m_links)], [np.zeros(m_links, np.int64)], [], []
+    verts.append(np.stack([tx, rx], 1))                       # [N, order + 2, 3] per order
+    refl.append(np.zeros((m_links, 0), np.int64))
+    for o in range(1, max_order + 1):
+        area_min = first_order_min_area_m2 if o == 1 else higher_order_min_area_m2
+        cand = np.flatnonzero(patches.area >= area_min)
+        lo, po, co = reflection_paths(tx, rx, patches, cand, o)
+        link.append(lo)
+        order.append(np.full(len(lo), o))
+        verts.append(np.concatenate([tx[lo][:, None], co, rx[lo][:, None]], 1))
+        refl.append(po)
+    # legs of every path: (path, leg index, start, end, patches at its two ends (-1: an antenna))
+    q0 = 0
+    leg_path, leg_idx, leg_a, leg_b, skip_a, skip_b, length, k_dep, k_arr = [], [], [], [], [], [], [], [], []
+    for o, (v, r) in enumerate(zip(verts, refl)):
+        n = len(v)
+        ends = np.concatenate([np.full((n, 1), -1), r, np.full((n, 1), -1)], 1)
+        for i in range(o + 1):
+            leg_path.append(q0 + np.arange(n))
+            leg_idx.append(np.full(n, i))
+            leg_a.append(v[:, i])
+            leg_b.append(v[:, i + 1])
+            skip_a.append(ends[:, i])
+            skip_b.append(ends[:, i + 1])
+        seg = np.diff(v, axis=1)
+        length.append(np.linalg.norm(seg, axis=2).sum(1))
+        k_dep.append(seg[:, 0])
+        k_arr.append(seg[:, -1])
+        q0 += n
+    link, order = np.concatenate(link), np.concatenate(order)
+    leg_path, leg_idx = np.concatenate(leg_path), np.concatenate(leg_idx)
+    leg_a, leg_b = np.concatenate(leg_a), np.concatenate(leg_b)
+    skip_a, skip_b = np.concatenate(skip_a), np.concatenate(skip_b)
+    length = np.concatenate(length)
+    unit = lambda x: x / np.linalg.norm(x, axis=1, keepdims=True).clip(1e-12)  # noqa: E731
+    k_dep, k_arr = unit(np.concatenate(k_dep)), unit(np.concatenate(k_arr))
+    cl, cp, cf = leg_crossings(provider, patches, leg_a, leg_b, skip_a, skip_b)
+    # interactions in path order: crossings (key: leg + fraction) and reflections (key: leg + 1)
+    dirs = unit(leg_b - leg_a)
+    end = skip_b >= 0
+    ip = np.concatenate([leg_path[cl], leg_path[end]])
+    ik = np.concatenate([leg_idx[cl] + cf, leg_idx[end] + 1.0])
+    ipatch = np.concatenate([cp, skip_b[end]])
+    ikind = np.concatenate([np.full(len(cl), 2), np.ones(int(end.sum()), np.int64)])
+    idir = np.concatenate([dirs[cl], dirs[end]])
+    srt = np.lexsort((ik, ip))
+    ip, ipatch, ikind, idir = ip[srt], ipatch[srt], ikind[srt], idir[srt]
+    q_n = len(link)
+    counts = np.bincount(ip, minlength=q_n)
+    keep_path = counts <= MAX_INTERACTIONS
+    slot = np.arange(len(ip)) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = max(1, int(counts[keep_path].max()) if keep_path.any() else 1)
+    cos, s, pin, pout = _basis(idir, patches.normal[ipatch], ikind == 1)
+    kind = np.zeros((q_n, width), np.int64)
+    patch = np.zeros((q_n, width), np.int64)
+    cosm = np.ones((q_n, width))
+    sm, pim, pom = (np.zeros((q_n, width, 3)) for _ in range(3))
+    ok = keep_path[ip]
+    at = (ip[ok], slot[ok])
+    kind[at], patch[at], cosm[at] = ikind[ok], ipatch[ok], cos[ok]
+    sm[at], pim[at], pom[at] = s[ok], pin[ok], pout[ok]
+    gain = np.ones(q_n)
+    if tx_gain is not None:
+        gain = gain * np.asarray(tx_gain(k_dep), dtype=np.float64)
+    if rx_gain is not None:
+        gain = gain * np.asarray(rx_gain(-k_arr), dtype=np.float64)
+    e_tx = polarisation_vectors(k_dep, polarisation)
+    e_rx = polarisation_vectors(k_arr, polarisation)
+    t = lambda x: torch.as_tensor(np.ascontiguousarray(x[keep_path]))  # noqa: E731
+    return RoomPaths(m_links, t(link), t(length), t(np.sqrt(gain)), t(order), t(e_tx), t(e_rx), t(kind), t(patch),
+                     t(cosm), t(sm), t(pim), t(pom), torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))

@@ -1,0 +1,159 @@
+"""Room link physics (rfir_stages.model.room_paths / room_diffuse) against closed forms.
+
+- a perfect-conductor plane: direct + image path, the reflected field -(I - 2 n n^T) E (two-ray
+  interference including its nulls), for V and H polarisation;
+- a dielectric wall seen in a horizontal plane with V polarisation is pure TE: R_TE(theta) exactly;
+- a wall between the antennas: the direct path is attenuated by the slab formula T(theta), once,
+  whatever the number of Gaussians tiling the wall; a metal wall blocks it;
+- a window opening: no reflection where the wall has no surfels;
+- a metal corner: the second-order path of the image method, length and amplitude.
+"""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity, slab_transmission
+from rfir_stages.model.room_paths import build_patch_set, polarisation_vectors, trace_room_paths
+from rfir_stages.model.surfels import surfel_areas
+from rfir_stages.rf_fit.occlusion import make_provider
+
+from .helpers import plate_mesh, surfels
+
+F = 2.4e9
+LAM = C0 / F
+K = 2 * math.pi / LAM
+METAL = complex(1.0, -math.inf)   # a perfect conductor (materials.fresnel)
+
+
+def _room(meshes, spacing=0.25):
+    """Surfels, patches and a provider for a list of (vertices, faces) meshes, one label each."""
+    vs, fs, ls, off = [], [], [], 0
+    for i, (v, f) in enumerate(meshes):
+        vs.append(v)
+        fs.append(f + off)
+        ls.append(np.full(len(f), i))
+        off += len(v)
+    geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls))
+    labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    return build_patch_set(geom, areas, labels, coplanar_m=0.01), make_provider("auto", geom)
+
+
+def _field(paths, patches, eta_of_label, thickness_of_label=None, s=0.0):
+    lab = torch.as_tensor(patches.label)
+    eta = torch.as_tensor(np.asarray(eta_of_label, dtype=np.complex128))[lab][:, None]
+    th = None if thickness_of_label is None else torch.as_tensor(np.asarray(thickness_of_label, float))[lab]
+    return paths.field(eta, th, torch.full((patches.num,), float(s), dtype=torch.float64)).numpy()
+
+
+def _free(d):
+    return LAM / (4 * math.pi * d) * np.exp(-1j * K * d)
+
+
+@pytest.mark.parametrize("pol", ["V", "H"])
+def test_metal_floor_two_ray_interference_matches_the_image_method(pol):
+    floor = plate_mesh((0, 0, 0), (1, 0, 0), (0, 1, 0), 30.0, 30.0)
+    patches, prov = _room([floor], spacing=1.0)
+    x = np.linspace(1.0, 10.0, 60)
+    tx = np.tile([[0.0, 0.3, 1.5]], (len(x), 1))
+    rx = np.stack([x, np.full_like(x, -0.4), np.full_like(x, 1.0)], 1)
+    paths = trace_room_paths(tx, rx, np.full(len(x), F), patches, prov, polarisation=pol, max_order=1)
+    got = _field(paths, patches, [METAL])
+    # closed form: direct + image source, the reflected field vector -(I - 2 n n^T) e_T
+    n = np.array([0.0, 0.0, 1.0])
+    d0 = rx - tx
+    img = tx * [1, 1, -1]
+    d1 = rx - img
+    k0u = d0 / np.linalg.norm(d0, axis=1, keepdims=True)
+    k1u = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
+    k_dep = k1u * [1, 1, -1]                                     # the real ray leaves Tx downward
+    e_t = polarisation_vectors(k_dep, pol)
+    e_ref = -(e_t - 2 * (e_t @ n)[:, None] * n)
+    direct = _free(np.linalg.norm(d0, axis=1)) * (polarisation_vectors(k0u, pol) * polarisation_vectors(k0u, pol)).sum(1)
+    refl = _free(np.linalg.norm(d1, axis=1)) * (polarisation_vectors(k1u, pol) * e_ref).sum(1)
+    want = direct + refl
+    assert np.max(np.abs(20 * np.log10(np.abs(got) / np.abs(want)))) < 1e-6
+    assert np.max(np.abs(np.angle(got / want))) < 1e-6
+    assert 20 * np.log10(np.abs(want).max() / np.abs(want).min()) > 10     # the test spans interference nulls
+
+
+def test_dielectric_wall_in_a_horizontal_plane_is_pure_te():
+    wall = plate_mesh((3.0, 0, 1.5), (0, 1, 0), (0, 0, 1), 20.0, 20.0)
+    patches, prov = _room([wall], spacing=1.0)
+    y = np.linspace(-4.0, 4.0, 9)
+    tx = np.stack([np.zeros_like(y), np.zeros_like(y), np.full_like(y, 1.5)], 1)
+    rx = np.stack([np.full_like(y, 1.0), y, np.full_like(y, 1.5)], 1)
+    paths = trace_room_paths(tx, rx, np.full(len(y), F), patches, prov, polarisation="V", max_order=1)
+    eps, sig = itu_law("concrete", F)
+    eta = complex(permittivity(float(eps), float(sig), F))
+    one = paths.order == 1
+    assert int(one.sum()) == len(y)
+    got = _field(paths, patches, [eta], [0.2]) - _free(np.linalg.norm(rx - tx, axis=1))
+    img = tx.copy()
+    img[:, 0] = 6.0
+    d = np.linalg.norm(rx - img, axis=1)
+    cos = np.abs(rx[:, 0] - img[:, 0]) / d
+    r_te = fresnel(eta, cos, K, 0.2)[0].numpy()
+    want = r_te * _free(d)         # (e_T . s) (e_R . s) = 1 for V in a horizontal plane (s along +-z)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("spacing", [0.3, 0.12])
+def test_wall_between_antennas_applies_the_slab_transmission_once(spacing):
+    wall = plate_mesh((0.0, 0, 1.5), (0, 1, 0), (0, 0, 1), 6.0, 3.0)
+    patches, prov = _room([wall], spacing=spacing)
+    ang = np.radians([0.0, 20.0, 40.0])
+    tx = np.stack([np.full(3, -2.0), np.zeros(3), np.full(3, 1.5)], 1)
+    rx = np.stack([2.0 * np.cos(ang) * 0 + 2.0, 4.0 * np.tan(ang), np.full(3, 1.5)], 1)
+    paths = trace_room_paths(tx, rx, np.full(3, F), patches, prov, polarisation="V", max_order=1)
+    assert (paths.order == 0).sum() == 3 and (paths.order > 0).sum() == 0      # no reflection to the far side
+    eps, sig = itu_law("concrete", F)
+    eta = complex(permittivity(float(eps), float(sig), F))
+    got = _field(paths, patches, [eta], [0.2])
+    d = np.linalg.norm(rx - tx, axis=1)
+    cos = np.abs((rx - tx)[:, 0]) / d
+    t_te = slab_transmission(eta, cos, K, 0.2)[0].numpy()
+    np.testing.assert_allclose(got, t_te * _free(d), rtol=1e-9, atol=1e-14)
+    loss_db = -20 * np.log10(np.abs(t_te[0]))
+    assert 5.0 < loss_db < 30.0                                   # a 20 cm concrete wall costs over 5 dB
+    blocked = _field(paths, patches, [METAL], [0.2])
+    assert np.all(np.abs(blocked) < 1e-6 * np.abs(_free(d)))
+
+
+def test_no_reflection_from_an_opening_in_the_wall():
+    left = plate_mesh((0.0, -2.0, 1.5), (0, 1, 0), (0, 0, 1), 2.0, 3.0)     # a wall with a 2 m gap in the middle
+    right = plate_mesh((0.0, 2.0, 1.5), (0, 1, 0), (0, 0, 1), 2.0, 3.0)
+    patches, prov = _room([left, right], spacing=0.2)
+    y = np.array([-2.0, 0.0, 2.0])
+    tx = np.stack([np.full(3, 2.0), y, np.full(3, 1.5)], 1)
+    rx = np.stack([np.full(3, 1.0), y, np.full(3, 1.5)], 1)
+    paths = trace_room_paths(tx, rx, np.full(3, F), patches, prov, max_order=1)
+    hit = np.zeros(3, int)
+    np.add.at(hit, paths.link[paths.order == 1].numpy(), 1)
+    assert hit.tolist() == [1, 0, 1]
+
+
+def test_metal_corner_second_order_path():
+    a = plate_mesh((0.0, 2.0, 1.5), (0, 1, 0), (0, 0, 1), 4.0, 3.0)          # plane x = 0
+    b = plate_mesh((2.0, 0.0, 1.5), (1, 0, 0), (0, 0, 1), 4.0, 3.0)          # plane y = 0
+    patches, prov = _room([a, b], spacing=0.25)
+    tx = np.array([[1.0, 2.5, 1.5]])
+    rx = np.array([[2.5, 1.0, 1.5]])
+    paths = trace_room_paths(tx, rx, np.array([F]), patches, prov, polarisation="V", max_order=2)
+    # Tx -> x=0 -> y=0 -> Rx meets the walls at (0, 1.5) and (1.5, 0); the other order would need
+    # (0, -1.5), beyond the wall
+    assert sorted(paths.order.tolist()) == [0, 1, 1, 2]
+    two = (paths.order == 2).numpy()
+    img = tx * [-1, -1, 1]                                      # imaged in both planes
+    d = np.linalg.norm(rx - img)
+    np.testing.assert_allclose(paths.length_m.numpy()[two], [d], rtol=1e-12)
+    # V in a horizontal plane: TE at both walls, (-1)(-1) for metal, and e_R . e_T = 1 for V
+    lab = torch.as_tensor(patches.label)
+    eta = torch.full((2, 1), METAL, dtype=torch.complex128)[lab]
+    sel = torch.as_tensor(np.flatnonzero(two))
+    sub = type(paths)(1, paths.link[sel], *(t[sel] for t in (paths.length_m, paths.gain, paths.order, paths.e_tx,
+                      paths.e_rx, paths.kind, paths.patch, paths.cos, paths.s, paths.p_in, paths.p_out)), paths.freq_hz)
+    got = sub.field(eta, None, torch.zeros(patches.num, dtype=torch.float64)).numpy()[0]
+    np.testing.assert_allclose(got, _free(d), rtol=1e-9)
