@@ -131,8 +131,9 @@ def _assert_not_input(out: Path, inputs: list[Path]) -> None:
 
 def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_deg=None, ranges_m=None,
             freqs_hz=None, plots_dir=None, results_path=None, name: str | None = None, seed: int = 0,
-            config_toml: str = "", progress=None) -> PredictResult:
-    """Predict monostatic RCS; see the module docstring. config: the [predict] table."""
+            config_toml: str = "", progress=None, select=None) -> PredictResult:
+    """Predict monostatic RCS; see the module docstring. config: the [predict] table. select: a
+    rfir_stages.importers.select.RowSelection of measured rows (ranges, aspect intervals)."""
     progress = progress or NullProgress()
     t_start = time.time()
     rf_path, out_path = Path(rf_path), Path(out_path)
@@ -169,6 +170,9 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
             rows = rows[keep]
         if ranges_m is not None:
             rows = rows[np.any(np.abs(rng[rows, None] - np.asarray(ranges_m)[None]) < 1e-6, axis=1)]
+        if select:
+            from rfir_stages.importers.select import select_rows
+            rows, _ = select_rows(meas, select, str(measurements_path), rows)
         if rows.size == 0:
             raise StageError("no measured row matches --aspects / --ranges", path=measurements_path)
         tx, rx, asp, rng, meas_rcs, split = tx[rows], rx[rows], asp[rows], rng[rows], meas_rcs[rows], split[rows]
@@ -297,6 +301,8 @@ def _results(path: Path, name, rf, rf_path, measurements_path, result: PredictRe
         "fit": {k: (v.item() if hasattr(v, "item") else v) for k, v in training.items()},
         "predict_wall_time_s": result.wall_time_s, "predict_render_time_s": result.render_time_s,
         "num_links": result.num_links,
+        "antenna": {k: str(v) for k, v in rf.free.get("model@attrs", {}).items()
+                    if k in ("antenna_kind", "antenna_hpbw_deg", "antenna_source")},
         "model_terms": {**{k: bool(rf.free.get("model@attrs", {}).get(f"render.{k}", True)) for k in ("path_loss", "phase")},
                         "diffuse": "diffuse_abs" in rf.free.get("model", {})},
     }

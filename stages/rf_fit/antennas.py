@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ class AntennaPattern:
     hpbw_deg: float = 40.0
     table_deg: tuple = field(default_factory=tuple)
     table_gain: tuple = field(default_factory=tuple)
+    source: str = field(default="", compare=False)   # why this pattern (antenna_choice), recorded in artifacts
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -77,12 +78,75 @@ class AntennaPattern:
         out = {"antenna_kind": self.kind, "antenna_boresight_gain": self.boresight_gain}
         if self.kind == "horn":
             out["antenna_hpbw_deg"] = float(self.hpbw_deg)
+        if self.kind == "table":
+            out.update(antenna_table_deg=np.asarray(self.table_deg, float),
+                       antenna_table_gain=np.asarray(self.table_gain, float))
+        if self.source:
+            out["antenna_source"] = self.source
         return out
+
+    def text(self) -> str:
+        """The measurement set-up's spelling: isotropic, dipole:0,0,1, horn:HPBW or table."""
+        return {"horn": f"horn:{self.hpbw_deg:g}", "dipole": "dipole:0,0,1"}.get(self.kind, self.kind)
+
+    def note(self) -> str:
+        """One line for logs: 'antenna horn:40 (the simulator's)'."""
+        return f"antenna {self.text()}" + (f" ({self.source})" if self.source else "")
 
 
 def antenna_from_attrs(attrs: dict) -> AntennaPattern:
     """The pattern recorded by `AntennaPattern.describe` in an artifact's model attributes."""
-    return AntennaPattern(str(attrs.get("antenna_kind", "isotropic")), hpbw_deg=float(attrs.get("antenna_hpbw_deg", 40.0)))
+    kind = str(attrs.get("antenna_kind", "isotropic"))
+    if kind == "table":
+        return AntennaPattern("table", table_deg=tuple(np.asarray(attrs["antenna_table_deg"], float)),
+                              table_gain=tuple(np.asarray(attrs["antenna_table_gain"], float)))
+    return AntennaPattern(kind, hpbw_deg=float(attrs.get("antenna_hpbw_deg", 40.0)))
+
+
+def recorded_antenna(attrs: dict, side: str, where: str) -> AntennaPattern | None:
+    """The pattern a measurements artifact states for `side` ("antenna_tx" / "antenna_rx"), None when
+    it states none (attributes written by rfir import, rfir_stages.importers.meas_setup)."""
+    text = attrs.get(side)
+    if text is None:
+        return None
+    kind, _, arg = str(text).partition(":")
+    if kind == "horn":
+        return AntennaPattern("horn", hpbw_deg=float(arg))
+    if kind == "table":
+        gain = 10.0 ** (np.asarray(attrs[f"{side}_table_gain_dbi"], float) / 10.0)
+        return AntennaPattern("table", table_deg=tuple(np.asarray(attrs[f"{side}_table_deg"], float)),
+                              table_gain=tuple(gain))
+    if kind == "dipole" and arg and not np.allclose([float(a) for a in arg.split(",")], [0.0, 0.0, 1.0]):
+        raise ConfigError(f"{where}: {side} = {text}: rf-fit models dipoles along z only (vertical); "
+                          "re-import with dipole:0,0,1 or set rf_fit.antenna")
+    return AntennaPattern(kind)
+
+
+def antenna_choice(config: dict, meas, task: str, where: str) -> AntennaPattern:
+    """The pattern an rf fit uses, its `source` saying why (printed and recorded). rf_fit.antenna other than "auto" wins;
+    "auto": the antennas the measurements state (one pattern for both sides), else the simulator's
+    horn for simulated rcs/wideband data, else isotropic (said so)."""
+    kind = str(config.get("antenna", "auto"))
+    if kind != "auto":
+        ant = resolve_antenna(kind, float(config.get("horn_hpbw_deg", 40.0)), str(config.get("antenna_table", "")),
+                              None, task)
+        return replace(ant, source="rf_fit.antenna")
+    tx, rx = (recorded_antenna(meas.attrs, side, where) for side in ("antenna_tx", "antenna_rx"))
+    if tx is not None or rx is not None:
+        if tx != rx:
+            raise ConfigError(f"{where}: antenna_tx {meas.attrs.get('antenna_tx', 'unstated')} and antenna_rx "
+                              f"{meas.attrs.get('antenna_rx', 'unstated')} differ: rf-fit fits one pattern for both "
+                              "sides; state the same antenna for both, or set rf_fit.antenna")
+        if tx.kind == "dipole" and task in ("rcs", "wideband"):
+            raise ConfigError(f"{where}: a dipole on a monostatic radar: rf-fit points rcs antennas at the object "
+                              "(boresight), which a dipole does not have; state isotropic, horn or table")
+        return replace(tx, source="stated by the measurements")
+    simulator = meas.free.get("simulator@attrs", {})
+    if simulator:
+        ant = resolve_antenna("auto", float(config.get("horn_hpbw_deg", 40.0)), "", simulator, task)
+        return replace(ant, source="the simulator's")
+    return AntennaPattern("isotropic", source="assumed: the measurements state no antenna; state it on import "
+                                              "(docs/artifacts.md) or set rf_fit.antenna")
 
 
 def from_table_file(path: str | Path) -> AntennaPattern:

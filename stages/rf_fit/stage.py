@@ -23,7 +23,7 @@ from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 from rfir_stages.model.physical import EPS_R_MAX, THICKNESS_M
 
-from .antennas import resolve_antenna
+from .antennas import antenna_choice
 from .fit import FitConfig, FitResult, fit, mae_db, predict_db
 from .unseen import fill_unseen, unseen_mask
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
@@ -32,7 +32,7 @@ from .params import RFParams
 from .physical_stage import PhysicalSetup, material_table, physical_artifact_fields, physical_config, sharing_candidates
 from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
-from .splits import split_rows, validation_rows
+from .splits import protocol_masks, split_rows, validation_rows
 from .wideband_stage import is_wideband_request, run_wideband
 
 MODELS = ("auto", "free", "physical")
@@ -80,8 +80,9 @@ def _key(*parts) -> str:
 
 
 def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0, config_toml: str = "",
-        progress=None, checkpoint: Path | None = None, resume: bool = False) -> RfFitResult:
-    """Fit RF attributes; see the module docstring. config: the [rf_fit] table."""
+        progress=None, checkpoint: Path | None = None, resume: bool = False, select=None) -> RfFitResult:
+    """Fit RF attributes; see the module docstring. config: the [rf_fit] table. select: a
+    rfir_stages.importers.select.RowSelection of ranges / aspects narrowing the training rows."""
     progress = progress or NullProgress()
     t_start = time.time()
     scene_path, measurements_path, out_path = Path(scene_path), Path(measurements_path), Path(out_path)
@@ -94,6 +95,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     scene = read_artifact(scene_path, ("scene", "rf"))
     meas = read_artifact(measurements_path, "measurements")
     task = str(meas.attrs.get("task", ""))
+    ant = antenna_choice(config, meas, task, str(measurements_path))
+    progress.log(f"rf-fit: {ant.note()}")
     if fit_cfg.sharing not in SHARING:
         raise ConfigError(f"rf_fit.sharing = {fit_cfg.sharing!r}: expected one of {', '.join(SHARING)}")
     sharing_requested = fit_cfg.sharing
@@ -103,6 +106,9 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         from .rssi_fit import run_rssi
         if resume:
             raise ConfigError("--resume: RSSI fits write no checkpoints yet")
+        if select:
+            raise ConfigError("--range / --aspects select rows of rcs or wideband measurements, not of rssi ones")
+        config = dict(config, antenna=ant.kind)   # what the measurements state (or isotropic, said above)
         return run_rssi(scene, meas, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg, seed=seed,
                         config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)
@@ -113,7 +119,11 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     if mode != "coherent" and not fit_cfg.diffuse:
         raise ConfigError(f"rf_fit.scattering = {mode!r} needs rf_fit.diffuse = true (the incoherent term)")
     protocol = str(config.get("split", "data"))
-    rows, _ = split_rows(meas, protocol, str(measurements_path))
+    rows, test_rows = split_rows(meas, protocol, str(measurements_path))
+    if select:
+        from rfir_stages.importers.select import select_rows
+        rows, _ = select_rows(meas, select, str(measurements_path), rows)
+        progress.log(f"rf-fit: {select.describe()} keeps {len(rows)} training rows")
     if is_wideband_request(task, config):  # docs/physics.md section 7: stages/rf_fit/wideband_stage.py
         return run_wideband(scene, meas, geom, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg,
                             rows=rows, seed=seed, config_toml=config_toml, progress=progress, t_start=t_start)
@@ -130,9 +140,10 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     freqs = np.asarray(meas["freq_hz"], dtype=np.float64)[cols]
     centre = scene_centre(geom)
     links = make_links(tx, rx, freqs, centre, task)
-    sim_attrs = meas.free.get("simulator@attrs", {})
-    ant = resolve_antenna(str(config.get("antenna", "auto")), float(config.get("horn_hpbw_deg", 40.0)),
-                          str(config.get("antenna_table", "")), sim_attrs, task)
+    rng = meas.get("range_m")
+    progress.log(f"rf-fit: rows used: {len(rows)} train, {len(test_rows)} test (split {protocol}); frequencies "
+                 f"{', '.join(f'{f / 1e9:g}' for f in freqs)} GHz"
+                 + ("" if rng is None else f"; ranges {', '.join(f'{r:g}' for r in np.unique(np.round(rng[rows], 6)))} m"))
 
     model_kind = str(config.get("model", "auto"))
     if model_kind not in MODELS:
@@ -354,6 +365,9 @@ def _root_attrs(scene, meas, task: str) -> dict:
 def _training_attrs(meas, protocol: str, rows: np.ndarray, scattering: dict | None, seed: int) -> dict:
     """Training attributes every rf artifact records (split, measurements, model selection)."""
     out = {"measurements": str(meas.path), "split": protocol, "split_protocol": describe_split(protocol),
-           "seed": seed, "num_train_rows": int(len(rows))}
+           "seed": seed, "num_train_rows": int(len(rows)),
+           "num_test_rows": int(protocol_masks(meas, protocol, str(meas.path))[1].sum())}
+    if meas.get("range_m") is not None:
+        out["train_ranges_m"] = ", ".join(f"{r:g}" for r in np.unique(np.round(np.asarray(meas["range_m"])[rows], 6)))
     out.update({f"scattering_{k}": v for k, v in (scattering or {"selected": "coherent"}).items()})
     return out

@@ -25,7 +25,7 @@ from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 
-from .antennas import resolve_antenna
+from .antennas import antenna_choice
 from .links import check_positions, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
 from .params import RFParams
@@ -67,8 +67,7 @@ def run_wideband(scene, meas, geom, scene_path: Path, measurements_path: Path, o
         keep = np.linspace(0, len(rows) - 1, max_links).round().astype(int)
         rows, tx, rx, target = rows[keep], tx[keep], rx[keep], target[keep]
     links = make_links(tx, rx, freqs[:1], scene_centre(geom), task)
-    ant = resolve_antenna(str(config.get("antenna", "auto")), float(config.get("horn_hpbw_deg", 40.0)),
-                          str(config.get("antenna_table", "")), meas.free.get("simulator@attrs", {}), task)
+    ant = antenna_choice(config, meas, task, str(measurements_path))   # printed by stage.run
 
     t0 = time.time()
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \

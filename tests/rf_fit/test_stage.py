@@ -54,7 +54,8 @@ def _measurements(path, fields, *, shift=0.0, split=None, ranges=(2.0,)):
             "rcs_dbsm": rcs, "aspect_rad": asp, "range_m": rng,
             "split": np.asarray(split if split is not None else np.arange(len(asp)) % 2, dtype=np.int64),
             "scene_bounds": np.stack([lo, hi]) + shift}
-    write_artifact(path, "measurements", data, attrs={"task": "rcs", "scene": "box"})
+    write_artifact(path, "measurements", data, attrs={"task": "rcs", "scene": "box", "antenna_tx": "horn:40",
+                                                      "antenna_rx": "horn:40"})
     return path
 
 

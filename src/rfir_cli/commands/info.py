@@ -30,8 +30,11 @@ def info(
             return
         from ..artifacts import describe_artifact
 
-        _show(describe_artifact(artifact))
+        summary = describe_artifact(artifact)
+        _show(summary)
         _show_materials(artifact)
+        if summary["kind"] == "measurements":
+            _show_row_counts(artifact)
 
     run_guarded(ctx, work)
 
@@ -53,6 +56,17 @@ def _show_materials(path: str) -> None:
                       f"{art['material/sigma_1ghz_s_per_m'][i]:.3g}", f"{art['material/scattering'][i]:.2f}",
                       f"{1e3 * art['material/thickness_m'][i]:.1f}", *[f"{g:.2f}" for g in gam[i]])
     console.print(table)
+
+
+def _show_row_counts(path: str) -> None:
+    """Rows of a measurements artifact per frequency, range and split (what --freq/--range/--split pick)."""
+    from rfir_stages.importers.select import row_counts
+
+    from ..artifacts import read_artifact
+
+    for what, counts in row_counts(read_artifact(path, "measurements")).items():
+        console.print(f"  rows per {what}: " + ", ".join(f"{k}: {v}" for k, v in counts.items()),
+                      highlight=False, markup=False, soft_wrap=True)
 
 
 def _show(summary: dict) -> None:

@@ -40,10 +40,12 @@ def predict_rcs(
     out: Annotated[Path, typer.Option("-o", "--out", help="predictions artifact to write (.h5).")],
     measurements: Annotated[Optional[Path], typer.Option(
         "--measurements", help="Measurements to predict and compare with (their rows and split).")] = None,
-    aspects: Annotated[Optional[str], typer.Option("--aspects", help="Degrees: '0:360:1' or '0,90,180'.")] = None,
-    ranges: Annotated[Optional[str], typer.Option("--ranges", help="Metres: '3' or '2,3,5'.")] = None,
+    aspects: Annotated[Optional[str], typer.Option(
+        "--aspects", help="Degrees: '0:360:1' or '0,90,180'; with --measurements also '0:90' ([0, 90) of the "
+                          "measured rows).")] = None,
+    ranges: Annotated[Optional[str], typer.Option("--range", "--ranges", help="Metres: '3' or '2,3,5'.")] = None,
     freqs: Annotated[Optional[str], typer.Option(
-        "--freqs", help="Hz: '2.4e9' (fitted ones; any inside the band of a wideband model).")] = None,
+        "--freq", "--freqs", help="Hz: '2.4e9' (fitted ones; any inside the band of a wideband model).")] = None,
     plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for PNG plots.")] = None,
     results: Annotated[Optional[Path], typer.Option(
         "--results", help="JSON with metrics (default results/<OUT stem>.json when --measurements).")] = None,
@@ -52,14 +54,18 @@ def predict_rcs(
     opts = options(ctx)
 
     def work():
+        from rfir_stages.importers.select import parse_selection
         from rfir_stages.predict import run_rcs
 
         results_path = results
         if results_path is None and measurements is not None:
             results_path = Path("results") / f"{out.stem}.json"
         with RichReporter(opts.verbosity) as reporter:
+            measured = measurements is not None   # measured rows are selected (intervals allowed), else made
             return run_rcs(rf, out, dict(opts.config().get("predict", {})), measurements_path=measurements,
-                           aspects_deg=_parse_list(aspects, "--aspects"), ranges_m=_parse_list(ranges, "--ranges"),
+                           aspects_deg=None if measured else _parse_list(aspects, "--aspects"),
+                           ranges_m=None if measured else _parse_list(ranges, "--range"),
+                           select=parse_selection(None, ranges, aspects) if measured else None,
                            freqs_hz=_parse_list(freqs, "--freqs"), plots_dir=plots, results_path=results_path,
                            seed=opts.seed, config_toml=opts.config_toml(), progress=reporter)
 

@@ -20,7 +20,12 @@ def rf_fit(
     out: Annotated[Path, typer.Option("-o", "--out", help="rf artifact to write (.h5).")],
     iterations: Annotated[Optional[int], typer.Option("--iterations", help="Adam steps (rf_fit.iterations).")] = None,
     freq_hz: Annotated[Optional[list[float]], typer.Option(
-        "--freq-hz", help="Fit only these frequencies (repeatable; default: all in the file).")] = None,
+        "--freq", "--freq-hz", help="Fit only these frequencies in Hz (repeatable; default: all in the file).")] = None,
+    range_m: Annotated[Optional[str], typer.Option(
+        "--range", help="Fit only rows at these ranges in metres: '3' or '2,3' (default: all).")] = None,
+    aspects: Annotated[Optional[str], typer.Option(
+        "--aspects", help="Fit only rows at these aspects in degrees: '0:90' ([0, 90)), '315:45', '45', "
+                          "comma-joined (default: all).")] = None,
     checkpoint: Annotated[Optional[Path], typer.Option(
         "--checkpoint", help="Checkpoint file (default: OUT.ckpt.pt).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the checkpoint when it exists.")] = False,
@@ -31,8 +36,10 @@ def rf_fit(
     opts = options(ctx)
 
     def work():
+        from rfir_stages.importers.select import parse_selection
         from rfir_stages.rf_fit import run
 
+        select = parse_selection(None, range_m, aspects)
         table = dict(opts.config().get("rf_fit", {}))
         if iterations is not None:
             table["iterations"] = int(iterations)
@@ -42,7 +49,7 @@ def rf_fit(
             table["freqs_hz"] = [float(f) for f in freq_hz]
         with RichReporter(opts.verbosity) as reporter:
             return run(scene, measurements, out, table, seed=opts.seed, config_toml=opts.config_toml(),
-                       progress=reporter, checkpoint=checkpoint, resume=resume)
+                       progress=reporter, checkpoint=checkpoint, resume=resume, select=select)
 
     r = run_guarded(ctx, work)
     console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
