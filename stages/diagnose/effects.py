@@ -13,60 +13,11 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
+from .devices import ReceiverOffsets, TransmitterOffsets
+from .obstacle import Obstacle
 from .rows import Rows
 
-FLOOR = 1e-30
-
-
-def _db(p):
-    return 10 * np.log10(np.maximum(p, FLOOR))
-
-
-def _add_power(base_db, add_lin):
-    """dB correction of adding add_lin [linear] to the power 10^(base_db/10)."""
-    return _db(10 ** (base_db / 10) + add_lin) - base_db
-
-
-class Effect:
-    """One candidate. Subclasses set name, title, params (names), x0 (starting points) and define
-    correction(); applies() says whether the data can show the effect at all."""
-
-    name = ""
-    title = ""
-    params: tuple = ()
-    x0: tuple = ((),)
-    lower: tuple | None = None
-    upper: tuple | None = None
-
-    def applies(self, rows: Rows) -> tuple[bool, str]:
-        return True, ""
-
-    def correction(self, x: np.ndarray, rows: Rows, base_db: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def fit(self, rows: Rows, base_db: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """Parameters minimising a robust (soft L1, 1 dB scale) misfit of meas - base - correction on mask."""
-        target = rows.meas_db - base_db
-        best, best_cost = None, math.inf
-        for x0 in self.x0:
-            kw = {}
-            if self.lower is not None:
-                kw["bounds"] = (np.asarray(self.lower, float), np.asarray(self.upper, float))
-            try:
-                sol = least_squares(lambda x: (target - self.correction(x, rows, base_db))[mask], np.asarray(x0, float),
-                                    loss="soft_l1", f_scale=1.0, max_nfev=200, **kw)
-            except ValueError:
-                continue
-            if sol.cost < best_cost:
-                best, best_cost = sol.x, sol.cost
-        return np.asarray(best if best is not None else self.x0[0], float)
-
-    def consistent(self, x: np.ndarray, rows: Rows, mask: np.ndarray) -> tuple[bool, str]:
-        """Whether the fitted parameters agree with what else the data say (default: nothing else)."""
-        return True, ""
-
-    def describe(self, x: np.ndarray) -> dict:
-        return {p: float(v) for p, v in zip(self.params, x)}
+from .effect_base import FLOOR, Effect, _add_power, _db  # noqa: F401  (FLOOR: part of the catalogue's API)
 
 
 class GainOffset(Effect):
@@ -216,6 +167,21 @@ class WallTransmission(Effect):
         return _add_power(base_db, (n > 0) * 10 ** (x[0] * n / 10) * rows.reference_power())
 
 
+class CrossingLoss(Effect):
+    """A loss (or gain) per crossing of an object: each object on the direct segment changes the link by
+    the same dB, of either sign (a glass partition the model treats as transparent, or one it makes
+    too opaque); the residual is a step per crossing count, LoS rows untouched."""
+
+    name, title, params = "crossing_loss", "loss or gain per object crossed", ("db_per_crossing",)
+    x0 = ((-3.0,), (3.0,))
+
+    def applies(self, rows):
+        return EdgeDiffraction.applies(self, rows)
+
+    def correction(self, x, rows, base_db):
+        return x[0] * rows.crossings
+
+
 class Ripple(Effect):
     """A frequency-dependent system response: a sinusoidal ripple over frequency, the same for every link."""
 
@@ -343,6 +309,22 @@ class Saturation(Effect):
         return np.array([levels[int(np.argmin(costs))]])
 
 
+class DynamicRange(Effect):
+    """A dynamic-range limit: the receiver reports nothing below a floor, so every weaker link reads the
+    floor itself (a clip from below; a noise floor adds power instead)."""
+
+    name, title, params = "dynamic_range", "dynamic-range limit (weak links read a floor)", ("floor_db",)
+
+    def correction(self, x, rows, base_db):
+        return np.maximum(base_db, x[0]) - base_db
+
+    def fit(self, rows, base_db, mask):
+        r = rows.meas_db - base_db
+        levels = np.quantile(base_db[mask], np.linspace(0.0, 0.5, 41))
+        costs = [np.sum(np.abs(r - self.correction(np.array([lv]), rows, base_db))[mask]) for lv in levels]
+        return np.array([levels[int(np.argmin(costs))]])
+
+
 class TurntableOffset(Effect):
     """A turntable or positioning offset: the measured pattern is the model's pattern shifted in aspect."""
 
@@ -379,7 +361,9 @@ def _turntable_centre(rows: Rows) -> np.ndarray:
     return rows.tx_m.mean(0)
 
 
+
 CATALOGUE: tuple[Effect, ...] = (GainOffset(), PathLossExponent(), AntennaPattern(), GroundBounce(), DoubleBounce(),
-                                 DiffuseLobe(), EdgeDiffraction(), WallTransmission(), Ripple(), Leakage(),
-                                 NoiseFloor(), Saturation(), TurntableOffset())
+                                 DiffuseLobe(), EdgeDiffraction(), WallTransmission(), CrossingLoss(), Ripple(),
+                                 Leakage(), NoiseFloor(), DynamicRange(), Saturation(), TurntableOffset(),
+                                 TransmitterOffsets(), ReceiverOffsets(), Obstacle())
 BY_NAME = {e.name: e for e in CATALOGUE}

@@ -22,8 +22,7 @@ from rfir_cli.progress import NullProgress
 
 from .breakdown import analyse, plot
 from .data import load_rows
-from .effects import BY_NAME
-from .select import MIN_CONFIDENCE, chain_to_json, choose, compose, evaluate, refit_chain, rivals
+from .select import chain_to_json, compose, search
 
 
 @dataclass
@@ -57,7 +56,6 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     rows, info = load_rows(model_path, measurements_path, out, geometry_path=geometry_path, seed=seed,
                            progress=progress)
     res = DiagnoseResult(out)
-    chain = []
     current = rows.pred_db.copy()
     where0 = analyse(rows, current, seed)
     res.files.append(plot(out / "residual_before.png", rows, rows.meas_db - current, where0,
@@ -65,30 +63,8 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     res.mae_before_db = _mae(rows, current, rows.test)
     ratio = _complex_ratio(rows)
     with progress.task("diagnose", total=max_effects) as bar:
-        for step in range(max_effects):
-            cands = evaluate(rows, current, exclude={e.name for e, _ in chain})
-            best, conf = choose(cands, seed)
-            record = {"step": step + 1, "test_mae_before_db": _mae(rows, current, rows.test),
-                      "train_mae_before_db": _mae(rows, current, rows.train),
-                      "candidates": [_cand_json(c) for c in cands], "named": None}
-            if best is not None and conf < MIN_CONFIDENCE:
-                record["ambiguous"] = [best.name] + rivals(cands, best)
-                record["confidence"] = conf
-                res.ambiguous = record["ambiguous"]
-                best = None
-            if best is None:
-                res.steps.append(record)
-                break
-            chain = refit_chain(chain + [(BY_NAME[best.name], best.x)], rows)
-            current = compose(chain, rows)
-            record.update(named=best.name, confidence=conf, params=dict(zip(best.params, chain[-1][1].tolist())),
-                          test_mae_after_db=_mae(rows, current, rows.test),
-                          train_mae_after_db=_mae(rows, current, rows.train))
-            res.steps.append(record)
-            res.named.append({"effect": best.name, "title": best.title, "confidence": conf})
-            bar.advance(1)
-    for item, (eff, x) in zip(res.named, chain):
-        item["params"] = eff.describe(x)
+        chain, res.steps, res.named, res.ambiguous = search(rows, max_effects, seed, advance=bar.advance)
+    current = compose(chain, rows)
     res.mae_after_db = _mae(rows, current, rows.test)
     where1 = analyse(rows, current, seed)
     if chain:
@@ -128,16 +104,6 @@ def _complex_ratio(rows) -> dict | None:
         out["phase_deg_per_10deg_aspect"] = [float(np.degrees(np.angle(np.mean(np.exp(1j * phase[b == i])))))
                                             if np.any(b == i) else None for i in range(36)]
     return out
-
-
-def _cand_json(c) -> dict:
-    d = {"effect": c.name, "applies": c.applies}
-    if not c.applies:
-        d["reason"] = c.reason
-        return d
-    d.update(params=c.params, num_params=c.num_params, note=c.reason, test_mae_db=c.test_mae_db, gain_db=c.gain_db,
-             t_stat=c.t_stat, score=c.score, significant=c.significant)
-    return d
 
 
 def _where_json(b) -> dict:
