@@ -180,7 +180,9 @@ def test_scattering_auto_picks_the_model_that_made_the_data(tmp_path, coherent):
                                                 "scattering": "auto", "model": "free"})   # within the free family
     want = "coherent" if coherent else "incoherent"
     assert res.scattering["selected"] == want, res.scattering
-    assert res.scattering["validation_links"] == 4
+    # 36 training links: every 10th row would hold out 4; 3 interleaved folds hold out all 36, still < 50: said
+    assert res.scattering["validation_links"] == 36 and res.scattering["validation_folds"] == 3
+    assert any("chosen on 36 validation links" in w for w in res.warnings)
     rf = read_artifact(tmp_path / "rf.h5", "rf")
     assert rf.free["training@attrs"]["scattering_selected"] == want
     if not coherent:

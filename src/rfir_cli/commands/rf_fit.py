@@ -1,6 +1,7 @@
 """`rfir rf-fit SCENE MEASUREMENTS -o RF`: per-Gaussian radio materials by inverse rendering."""
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -33,6 +34,7 @@ def rf_fit(
         "--split", help="Train/test protocol (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m).")] = None,
 ) -> None:
     """Fit RF opacity, roughness and complex reflection coefficient of every Gaussian (geometry frozen)."""
+    t_start = time.time()   # the recorded wall time covers the whole command
     opts = options(ctx)
 
     def work():
@@ -49,12 +51,22 @@ def rf_fit(
             table["freqs_hz"] = [float(f) for f in freq_hz]
         with RichReporter(opts.verbosity) as reporter:
             return run(scene, measurements, out, table, seed=opts.seed, config_toml=opts.config_toml(),
-                       progress=reporter, checkpoint=checkpoint, resume=resume, select=select)
+                       progress=reporter, checkpoint=checkpoint, resume=resume, select=select,
+                       t_start=t_start)
 
     r = run_guarded(ctx, work)
     console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
                   f"{len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
-                  f"{r.iterations} steps ({r.wall_time_s:.0f} s, trace {r.trace_time_s:.0f} s, {r.occlusion})"
+                  f"{r.iterations} steps ({_timing_text(r.wall_time_s, r.timings_s)}, {r.occlusion})"
                   + (f"; scattering {r.scattering['selected']}, materials per {r.scattering['sharing_selected']}"
                      if r.scattering else ""),
                   highlight=False)
+    for w in r.warnings:
+        console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
+
+
+def _timing_text(wall_s: float, parts: dict) -> str:
+    """'312 s in all: trace 12 s, model selection 240 s, fit 58 s' (the parts a fit recorded)."""
+    names = (("trace", "trace"), ("select", "model selection"), ("fit", "fit"))
+    shown = [f"{text} {parts[k]:.0f} s" for k, text in names if parts.get(k)]
+    return f"{wall_s:.0f} s in all" + (": " + ", ".join(shown) if shown else "")
