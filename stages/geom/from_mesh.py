@@ -8,6 +8,13 @@ each sub-triangle becomes one Gaussian:
   projected cross-section along the normal, pi sqrt(det Sigma_2D), equals the sub-triangle's
   area. So the areas A_l seen face-on add up to the mesh area (docs/physics.md sections 2 and 4.1);
 - thickness: `thickness_ratio` times the smaller in-plane standard deviation.
+
+Sliver facets (a 32-sided cylinder's side: 1 cm wide, 30 cm tall) would tile into thousands of
+sub-triangles a fraction of a millimetre wide that carry almost no area and cost every trace. A
+surfel whose smaller in-plane standard deviation is below SLIVER_RATIO x spacing is merged with the
+other slivers of its cell (one cell per `spacing` cube, label and normal direction) into one surfel
+with the cell's second moments, scaled to the cell's summed area: the covered area is kept, the
+count falls to about one per cell. Degenerate facets (zero area) are skipped. `report` counts both.
 """
 from __future__ import annotations
 
@@ -15,6 +22,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+SLIVER_RATIO = 0.05      # a surfel narrower (smaller in-plane std) than this x spacing is a sliver
+NORMAL_BINS = 3          # normal directions are merged when they round alike at this many steps per axis
 
 
 def _quat_from_matrix(rot: np.ndarray) -> np.ndarray:
@@ -52,13 +62,17 @@ def _subdivide(tri: np.ndarray, m: int) -> np.ndarray:
 
 
 def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: float,
-                        labels: np.ndarray | None = None, thickness_ratio: float = 0.05) -> dict[str, np.ndarray]:
+                        labels: np.ndarray | None = None, thickness_ratio: float = 0.05,
+                        report: dict | None = None) -> dict[str, np.ndarray]:
     """Scene fields (`gaussians/...`) of surfels tiling the mesh.
 
     vertices [V, 3] m, faces [F, 3] int (any winding; the normal follows it), spacing_m: the
     largest sub-triangle edge [m]; labels [F] int per face (optional) -> `gaussians/labels`.
     Returns dict with means [G, 3], log_scales [G, 3] (in-plane, in-plane, normal), rotations
-    [G, 4] wxyz, opacities [G] (ones), normals [G, 3], (labels [G]). Degenerate faces are skipped.
+    [G, 4] wxyz, opacities [G] (ones), normals [G, 3], (labels [G]). Degenerate faces are skipped and
+    sliver surfels merged (module docstring); `report`, when given, receives the counts: faces,
+    degenerate_faces, sliver_faces, sliver_surfels, merged_surfels, sliver_area_m2, area_m2,
+    sliver_width_m (the std below which a surfel is a sliver).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -83,9 +97,19 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
         if labels is not None:
             labs.append(np.full(len(sub), int(labels[f])))
         covs[-1] = _scaled_to_area(covs[-1], 0.5 * area2[f] / m**2)
+    if not means:
+        raise ValueError("the mesh has no face with a non-zero area")
+    face_of = np.concatenate([np.full(len(c), f) for f, c in zip(np.flatnonzero(keep), means)])
     means = np.concatenate(means)
     normals = np.ascontiguousarray(np.concatenate(normals))
     cov = np.concatenate(covs)
+    lab_all = np.concatenate(labs) if labels is not None else np.zeros(len(means), np.int64)
+    means, normals, cov, lab_all, stats = _merge_slivers(means, normals, cov, lab_all, face_of, spacing_m)
+    if labels is not None:
+        labs = [lab_all]
+    if report is not None:
+        report.update(stats, faces=int(len(faces)), degenerate_faces=int((~keep).sum()),
+                      area_m2=float(0.5 * area2[keep].sum()))
     # In-plane axes from the covariance, third axis = the normal.
     ev, evec = np.linalg.eigh(cov)  # ascending; the smallest (~0) is along the normal
     e1, e2 = evec[:, :, 2], evec[:, :, 1]
@@ -104,6 +128,54 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
     if labels is not None:
         out["gaussians/labels"] = np.concatenate(labs).astype(np.int64)
     return out
+
+
+def _merge_slivers(means, normals, cov, labels, face_of, spacing_m: float):
+    """Merge sliver surfels (smaller in-plane std < SLIVER_RATIO x spacing) per cell (spacing cube,
+    label, rounded normal): area-weighted mean and second moments (each surfel's own covariance plus
+    its offset), projected on the cell's mean normal and scaled to the cell's summed area.
+    Inputs [N, ...] as built above (covariances already area-scaled: pi sqrt(det_2D) = area).
+    Returns (means, normals, cov, labels, counts) with the slivers replaced."""
+    ev = np.linalg.eigvalsh(cov)                           # ascending; [:, 0] ~ 0 along the normal
+    area = math.pi * np.sqrt(np.maximum(ev[:, 1] * ev[:, 2], 0))
+    sliver = np.sqrt(np.maximum(ev[:, 1], 0)) < SLIVER_RATIO * spacing_m
+    stats = {"sliver_faces": int(np.unique(face_of[sliver]).size), "sliver_surfels": int(sliver.sum()),
+             "sliver_area_m2": float(area[sliver].sum()), "merged_surfels": 0,
+             "sliver_width_m": SLIVER_RATIO * spacing_m}
+    if not sliver.any():
+        return means, normals, cov, labels, stats
+    m, n, c, a, lab = means[sliver], normals[sliver], cov[sliver], area[sliver], labels[sliver]
+    n = n * np.where((n @ np.array([0.577, 0.578, 0.579]))[:, None] < 0, -1.0, 1.0)   # sign-free normals
+    key = np.concatenate([np.floor(m / spacing_m), np.round(n * NORMAL_BINS), lab[:, None]], 1).astype(np.int64)
+    _, group = np.unique(key, axis=0, return_inverse=True)
+    group = group.ravel()
+    k = int(group.max()) + 1
+    w = np.zeros(k)
+    np.add.at(w, group, a)
+    mu = np.zeros((k, 3))
+    np.add.at(mu, group, a[:, None] * m)
+    mu /= w[:, None]
+    nn = np.zeros((k, 3))
+    np.add.at(nn, group, a[:, None] * n)
+    nn /= np.linalg.norm(nn, axis=1, keepdims=True)
+    d = m - mu[group]
+    second = np.zeros((k, 3, 3))
+    np.add.at(second, group, a[:, None, None] * (c + d[:, :, None] * d[:, None, :]))
+    proj = np.eye(3)[None] - nn[:, :, None] * nn[:, None, :]
+    second = proj @ (second / w[:, None, None]) @ proj
+    e = np.linalg.eigvalsh(second)
+    det2 = np.maximum(e[:, 1] * e[:, 2], 1e-300)
+    # a cell of one collinear strip has no width in its moments: give it the strip's own area as a disc
+    flat = e[:, 1] < 1e-12 * np.maximum(e[:, 2], 1e-300)
+    second[flat] = proj[flat] * (w[flat] / math.pi)[:, None, None]
+    det2[flat] = (w[flat] / math.pi) ** 2
+    second = np.where(flat[:, None, None], second, second * (w / (math.pi * np.sqrt(det2)))[:, None, None])
+    glab = np.zeros(k, np.int64)
+    glab[group] = lab
+    stats["merged_surfels"] = k
+    keep = ~sliver
+    return (np.concatenate([means[keep], mu]), np.ascontiguousarray(np.concatenate([normals[keep], nn])),
+            np.concatenate([cov[keep], second]), np.concatenate([labels[keep], glab]), stats)
 
 
 def _scaled_to_area(cov: np.ndarray, area_m2: float) -> np.ndarray:

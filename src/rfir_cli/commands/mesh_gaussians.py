@@ -11,7 +11,20 @@ from typing import Annotated
 import typer
 
 from ..context import console, run_guarded
-from ..errors import ConfigError
+from ..errors import ConfigError, InputFileError
+
+
+def degenerate_facet_warnings(report: dict) -> list[str]:
+    """Lines for the facets gaussians_from_mesh skipped (zero area) or whose slivers it merged."""
+    out = []
+    if report.get("degenerate_faces"):
+        out.append(f"{report['degenerate_faces']} of {report['faces']} facets have zero area: skipped")
+    if report.get("sliver_surfels"):
+        share = 100 * report["sliver_area_m2"] / max(report["area_m2"], 1e-300)
+        out.append(f"{report['sliver_faces']} of {report['faces']} facets are slivers: their "
+                   f"{report['sliver_surfels']} surfels narrower than {report['sliver_width_m'] * 1e3:.2g} mm "
+                   f"({share:.0f} % of the area) were merged into {report['merged_surfels']} (area kept)")
+    return out
 
 
 def register(app: typer.Typer) -> None:
@@ -32,13 +45,19 @@ def mesh_gaussians(
         if not spacing_m > 0:
             raise ConfigError(f"--spacing must be positive, got {spacing_m}")
         data = read_ply_mesh(mesh)
-        fields = gaussians_from_mesh(data.vertices, data.faces, spacing_m, labels=data.labels)
+        report: dict = {}
+        try:
+            fields = gaussians_from_mesh(data.vertices, data.faces, spacing_m, labels=data.labels, report=report)
+        except ValueError as exc:   # a mesh with no face of non-zero area
+            raise InputFileError(str(exc), path=mesh) from None
         names = None
         if data.labels is not None:
             top = int(data.labels.max()) + 1
             names = [data.label_names.get(i, f"label_{i}") for i in range(top)]
         path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=spacing_m)
-        return path, len(fields["gaussians/means"])
+        return path, len(fields["gaussians/means"]), report
 
-    path, count = run_guarded(ctx, work)
+    path, count, report = run_guarded(ctx, work)
+    for line in degenerate_facet_warnings(report):
+        console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
     console.print(f"[green]wrote[/green] {path}: {count} Gaussians at {spacing_m * 100:g} cm spacing", highlight=False)
