@@ -63,3 +63,19 @@ def range_baselines(aspect_rad: np.ndarray, range_m: np.ndarray, values_db: np.n
         for k in range(values_db.shape[1]):
             out["linear_range"][i, k] = np.interp(range_m[row], r, v[:, k])
     return out
+
+
+def baselines_beating_model(metrics: dict, rows: str = "test") -> list[str]:
+    """One warning per fitted baseline that predicts the scored rows better than the model.
+
+    metrics: the model's MAE as 'mae_db' and each baseline's as 'baseline_<name>_mae_db' (dB, the
+    same rows). A model that a simple baseline beats is no better than the baseline there."""
+    model = metrics.get("mae_db")
+    if model is None or not np.isfinite(model):
+        return []
+    out = []
+    for key, value in metrics.items():
+        if key.startswith("baseline_") and key.endswith("_mae_db") and np.isfinite(value) and value < model:
+            name = key[len("baseline_"):-len("_mae_db")].replace("_", " ")
+            out.append(f"the {name} baseline beats rfir on the {rows} rows: {value:.2f} dB against {model:.2f} dB MAE")
+    return out

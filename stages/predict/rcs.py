@@ -33,7 +33,7 @@ from rfir_stages.rf_fit.splits import describe as describe_split
 from rfir_stages.rf_fit.splits import protocol_masks
 
 from .attribute_maps import plot_attribute_maps, render_attribute_maps
-from .baselines import aspect_baselines, range_baselines
+from .baselines import aspect_baselines, baselines_beating_model, range_baselines
 from .plots import attribute_views, rcs_vs_aspect
 from .wideband import is_wideband_model, predict_wideband_db, spectrum_plots
 
@@ -245,6 +245,9 @@ def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
         for k, v in base.items():
             if np.isfinite(v).any():  # aspect baselines need training rows at the test range, range ones at the aspect
                 out[f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(v - meas_rcs[test])))
+        beaten = baselines_beating_model(out)
+        if beaten:   # said in the closing lines (predict rcs) and the results JSON
+            out["warning_baselines"] = "; ".join(beaten)
     return out
 
 

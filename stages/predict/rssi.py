@@ -27,6 +27,7 @@ from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 
 from . import rssi_baselines as bl
+from .baselines import baselines_beating_model
 from .heatmap import error_limits, fov_maps, radio_map
 from .rssi_checks import check_points, floor_grid, grid_shape
 from .rssi_model_io import RssiPredictor
@@ -180,6 +181,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
                    "mae_train_db": float(np.mean(np.abs(pg[train] - measured[train])))}
         labels = rf.get("gaussians/labels")
         metrics.update(_baselines(pg, rf, labels, pred.provider, txs, rx, measured, train, test))
+        warnings += baselines_beating_model(metrics)   # printed and in the results JSON
     elif measured is not None:
         metrics = {"mae_db_this_tx": float(np.mean(np.abs(pg - measured))), "num_points": int(len(rx))}
 

@@ -82,6 +82,8 @@ def predict_rcs(
             if f"baseline_{k}_mae_db" in m:
                 table.add_row(f"baseline: {text}", f"{m[f'baseline_{k}_mae_db']:.2f}")
         console.print(table)
+    for w in filter(None, m.get("warning_baselines", "").split("; ")):
+        console.print(f"[yellow]warning:[/yellow] {w}", highlight=False, soft_wrap=True)
     if r.plots:
         console.print(f"plots: {len(r.plots)} PNG in {Path(r.plots[0]).parent}", highlight=False)
     if r.results_json:
