@@ -20,6 +20,10 @@ from .rows import Rows
 PERMUTATIONS = 200
 P_MAX = 0.01
 MIN_R2 = 0.02
+LARGE_R2 = 0.5   # a breakdown explaining this share of the held-out residual is structure a model lacks
+AXIS = {"aspect": "aspect", "frequency": "frequency", "range": "range", "distance": "range (distance)",
+        "predicted level": "predicted level", "elevation": "elevation", "transmitter": "transmitter",
+        "receiver cell (1 m)": "receiver cell", "incidence angle": "incidence angle", "LoS / NLoS": "LoS / NLoS"}
 
 
 @dataclass
@@ -116,9 +120,10 @@ def analyse(rows: Rows, base_db: np.ndarray, seed: int = 0) -> list[Breakdown]:
     return out
 
 
-def plot(path: Path, rows: Rows, residual_db: np.ndarray, items: list[Breakdown], title: str) -> Path:
+def plot(path: Path, rows: Rows, residual_db: np.ndarray, items: list[Breakdown], title: str,
+         boxes=()) -> Path:
     """One PNG: a panel per breakdown (mean residual per bin, train and test), plus a map of the mean
-    residual [N] dB per receiver position for links."""
+    residual [N] dB per receiver position for links, with the obstacle boxes (x0, y0, x1, y1 m) drawn."""
     plt = pyplot()
     panels = [b for b in items if b.feature != "receiver cell (1 m)"]
     has_map = not rows.monostatic
@@ -148,6 +153,9 @@ def plot(path: Path, rows: Rows, residual_db: np.ndarray, items: list[Breakdown]
         sc = ax.scatter(keys[:, 0], keys[:, 1], c=mean, cmap="RdBu_r", vmin=-lim, vmax=lim, s=25, marker="s")
         txs = np.unique(np.round(rows.tx_m, 3), axis=0)
         ax.scatter(txs[:, 0], txs[:, 1], marker="*", s=60, c="k")
+        for x0, y0, x1, y1 in boxes:
+            ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="k", lw=1.5, ls="--")
+            ax.annotate("obstacle", (x0, y1), fontsize=7, va="bottom")
         ax.set_aspect("equal")
         ax.set_title("mean residual per receiver position [dB] (Tx: stars)", fontsize=8)
         fig.colorbar(sc, ax=ax, shrink=0.8)

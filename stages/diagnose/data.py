@@ -96,11 +96,13 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     train = rep(split == 0)
     aspect = rep(np.asarray(meas["aspect_rad"], np.float64)) if meas.get("aspect_rad") is not None else None
     rng_m = rep(np.asarray(meas["range_m"], np.float64)) if meas.get("range_m") is not None else None
-    channel = meas.get("channel")
-    channel = np.asarray(channel)[:, cols].reshape(-1) if channel is not None else None
-    pchannel = pred.get("channel") if kind == "measurements" else None
-    pchannel = np.asarray(pchannel)[order][:, mcols].reshape(-1) if pchannel is not None else None
     good = np.isfinite(pred_db.reshape(-1)) & np.isfinite(meas_db.reshape(-1))
+    channel = meas.get("channel")
+    channel, info["phases"] = measured_phases(None if channel is None else np.asarray(channel)[:, cols].reshape(-1)[good],
+                                              "the measurement file")
+    pchannel = pred.get("channel") if kind == "measurements" else None
+    pchannel, _ = measured_phases(None if pchannel is None else np.asarray(pchannel)[order][:, mcols].reshape(-1)[good],
+                                  "the model")
     crossings = None
     incidence = None
     if geometry_path is not None and task == "rssi":
@@ -112,14 +114,29 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     rows = Rows(pred_db.reshape(-1)[good], meas_db.reshape(-1)[good], train[good], test[good], rep(tx)[good],
                 rep(rx)[good], np.tile(f_meas[cols], n_l)[good], task,
                 None if aspect is None else aspect[good], None if rng_m is None else rng_m[good],
-                None if crossings is None else crossings[good], None if channel is None else channel[good],
-                None if pchannel is None else pchannel[good], None if incidence is None else incidence[good])
+                None if crossings is None else crossings[good], channel, pchannel,
+                None if incidence is None else incidence[good])
     info.update(num_rows=rows.num, num_train=int(rows.train.sum()), num_test=int(rows.test.sum()),
                 num_links=int(n_l), num_freqs=int(n_f))
     if rows.test.sum() < 10 or rows.train.sum() < 10:
         raise StageError(f"too few rows to diagnose ({int(rows.train.sum())} train, {int(rows.test.sum())} test)",
                          path=measurements_path)
     return rows, info
+
+
+def measured_phases(channel: np.ndarray | None, where: str) -> tuple[np.ndarray | None, str]:
+    """(the complex channel [N], or None where phases are absent; a note saying which). Phases are absent
+    when the file has no channel, when any row lacks one (NaN), or when every phase is exactly 0: an
+    importer's placeholder, not a measurement (a measured phase is never 0 on every row)."""
+    if channel is None:
+        return None, f"absent: {where} has no complex channel"
+    channel = np.asarray(channel)
+    bad = int(np.sum(~np.isfinite(channel)))
+    if bad:
+        return None, f"absent: {where} lacks the phase on {bad} of {channel.size} rows"
+    if channel.size and np.all(np.asarray(channel).imag == 0) and np.all(np.asarray(channel).real >= 0):
+        return None, f"absent: every phase in {where} is 0 (placeholders, not measured)"
+    return channel, "measured"
 
 
 def _crossings(geometry_path: Path, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ class Effect:
     x0: tuple = ((),)
     lower: tuple | None = None
     upper: tuple | None = None
+    needs_phase = False   # tested only where the measured complex channel is there
 
     def applies(self, rows: Rows) -> tuple[bool, str]:
         return True, ""

@@ -239,6 +239,7 @@ class Leakage(Effect):
     it does not."""
 
     name, title, params = "leakage", "direct Tx-Rx leakage (monostatic)", ("level_db",)
+    needs_phase = True
     x0 = ((-60.0,), (-90.0,), (-120.0,))
     lower, upper = (-250.0,), (0.0,)
 

@@ -28,6 +28,7 @@ T_MIN = 3.0
 MIN_REL = 0.05
 BOOTSTRAP = 300
 MIN_CONFIDENCE = 0.5
+RESOLUTION_DB = 0.01   # no measurement resolves a smaller MAE: exact fits tie there and the simpler effect wins
 MIN_GAIN_DB = 0.05   # below any real measurement's noise: a gain this small is no effect
 
 
@@ -53,9 +54,9 @@ class Candidate:
 
 def info_score(abs_before: np.ndarray, u: np.ndarray, k: int) -> float:
     """Held-out information criterion gain 2 n ln(MAE_before / MAE_after) - 2 k (module docstring)."""
-    before = float(np.mean(abs_before))
-    after = max(before - float(np.mean(u)), 1e-9)
-    return 2 * len(u) * float(np.log(max(before, 1e-9) / after)) - 2 * k
+    before = max(float(np.mean(abs_before)), RESOLUTION_DB)
+    after = max(before - float(np.mean(u)), RESOLUTION_DB)
+    return 2 * len(u) * float(np.log(before / after)) - 2 * k
 
 
 def compose(chain: list[tuple[Effect, np.ndarray]], rows: Rows, base_db: np.ndarray | None = None) -> np.ndarray:
@@ -261,6 +262,13 @@ def search(rows: Rows, max_effects: int = 4, seed: int = 0, advance=None) -> tup
             record["confidence"] = conf
             ambiguous = record["ambiguous"]
             best = None
+        if best is not None:
+            trial = compose(pair.chain, rows, current) if pair is not None else \
+                current + BY_NAME[best.name].correction(best.x, rows, current)
+            stand_in = not_reproduced(rows, current, trial)
+            if stand_in is not None:
+                record["not_reproduced"] = {**stand_in, "candidate": " + ".join(pair.names) if pair else best.name}
+                best = None
         if best is None:
             steps.append(record)
             break
@@ -286,3 +294,29 @@ def pair_confidence(pair: Pair) -> float:
     from scipy.stats import norm
 
     return float(norm.cdf(pair.t_vs_single))
+
+
+REPRODUCE_SHARE = 0.9   # a named effect must explain this share of what the best breakdown explains
+
+
+def not_reproduced(rows: Rows, base_db: np.ndarray, trial_db: np.ndarray) -> dict | None:
+    """When a breakdown explains a large share of the held-out residual (R^2 > LARGE_R2) and the
+    candidate's prediction trial_db [dB, N] explains less than REPRODUCE_SHARE of that share, the
+    candidate is a stand-in for structure the catalogue lacks: {axis, feature, r2_breakdown,
+    r2_candidate}; else None. Both R^2 are on the held-out rows against the training rows' mean."""
+    from .breakdown import AXIS, LARGE_R2, _heldout_r2, features
+
+    r = rows.meas_db - base_db
+    top, top_r2 = None, -np.inf
+    for name, (bins, labels) in features(rows).items():
+        r2 = _heldout_r2(r, bins, rows.train, rows.test, len(labels))
+        if r2 > top_r2:
+            top, top_r2 = name, r2
+    if top is None or top_r2 <= LARGE_R2:
+        return None
+    test = rows.test
+    sse0 = float(np.sum((r[test] - np.mean(r[rows.train])) ** 2))
+    r2c = 1.0 - float(np.sum((rows.meas_db - trial_db)[test] ** 2)) / sse0 if sse0 > 0 else 0.0
+    if r2c >= REPRODUCE_SHARE * top_r2:
+        return None
+    return {"axis": AXIS.get(top, top), "feature": top, "r2_breakdown": float(top_r2), "r2_candidate": float(r2c)}

@@ -20,8 +20,9 @@ import numpy as np
 from rfir_cli.errors import ConfigError
 from rfir_cli.progress import NullProgress
 
-from .breakdown import analyse, plot
+from .breakdown import AXIS, LARGE_R2, analyse, plot
 from .data import load_rows
+from .effects import CATALOGUE
 from .select import chain_to_json, compose, search
 
 
@@ -34,6 +35,7 @@ class DiagnoseResult:
     mae_before_db: float = float("nan")
     mae_after_db: float = float("nan")
     files: list = field(default_factory=list)
+    headline: str = ""
     wall_s: float = 0.0
 
 
@@ -70,7 +72,11 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     if chain:
         res.files.append(plot(out / "residual_after.png", rows, rows.meas_db - current, where1,
                               f"residual after adding {', '.join(n['effect'] for n in res.named)}: "
-                              f"held-out MAE {res.mae_after_db:.2f} dB"))
+                              f"held-out MAE {res.mae_after_db:.2f} dB",
+                              boxes=[x[1:5] for e, x in chain if e.name == "obstacle"]))
+    lacking = lacking_structure(where1, "residual_after.png" if chain else "residual_before.png")
+    res.headline = headline(res.named, res.ambiguous, lacking)
+    untested = [e.name for e in CATALOGUE if e.needs_phase] if info["phases"] != "measured" else []
     effects_json = chain_to_json(chain)
     (out / "effects.json").write_text(json.dumps(effects_json, indent=2) + "\n")
     res.files.append(out / "effects.json")
@@ -79,13 +85,44 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     res.wall_s = time.time() - t0
     results = {"info": info, "mae_before_db": res.mae_before_db, "mae_after_db": res.mae_after_db,
                "gap_shrink": 1 - res.mae_after_db / res.mae_before_db if res.mae_before_db > 0 else 0.0,
-               "named": res.named, "ambiguous": res.ambiguous, "steps": res.steps, "complex_ratio": ratio,
+               "headline": res.headline, "lacking": lacking, "phases": info["phases"],
+               "untested_without_phase": untested, "named": res.named, "ambiguous": res.ambiguous,
+               "steps": res.steps, "complex_ratio": ratio,
                "where_before": [_where_json(b) for b in where0], "where_after": [_where_json(b) for b in where1],
                "wall_s": res.wall_s}
     (out / "results.json").write_text(json.dumps(results, indent=2, default=float) + "\n")
     (out / "report.md").write_text(_report_md(results))
     res.files += [out / "results.json", out / "report.md"]
     return res
+
+
+def lacking_structure(where_after, plot_name: str) -> list[dict]:
+    """Breakdowns that still have structure after the named effects, strongest first: [{axis, feature,
+    r2_heldout, p_value, large (R^2 > LARGE_R2), plot}]."""
+    found = sorted([b for b in where_after if b.structure], key=lambda b: -b.r2_heldout)
+    return [{"axis": AXIS.get(b.feature, b.feature), "feature": b.feature, "r2_heldout": b.r2_heldout,
+             "p_value": b.p_value, "large": bool(b.r2_heldout > LARGE_R2), "worst_bin": b.worst_bin,
+             "plot": plot_name} for b in found]
+
+
+def headline(named: list, ambiguous: list, lacking: list[dict]) -> str:
+    """The report's first line: structure the model lacks leads when a breakdown still explains a large
+    share of the residual; "no missing effect" only when no breakdown finds structure."""
+    said = f"named {' + '.join(n['effect'] for n in named)}" if named else ""
+    if ambiguous and not named:
+        said = f"ambiguous: {' / '.join(ambiguous)} explain the residual about equally; none added"
+    if lacking and lacking[0]["large"]:
+        axes = ", ".join(f"{w['axis']} (held-out R2 {w['r2_heldout']:.2f}, worst {w['worst_bin']})"
+                         for w in lacking if w["large"])
+        text = f"structure the model lacks, not in the catalogue: by {axes}; see {lacking[0]['plot']}"
+        return f"{text}; {said}" if said else text
+    if said:
+        return said
+    if lacking:
+        top = lacking[0]
+        return (f"no catalogue effect reproduces the residual; weak structure by {top['axis']} (held-out R2 "
+                f"{top['r2_heldout']:.2f}); see {top['plot']}")
+    return "no missing effect: no breakdown of the residual has structure"
 
 
 def _complex_ratio(rows) -> dict | None:
@@ -129,7 +166,7 @@ def _write_model(rf_path: Path, out_path: Path, effects_json: list, config_toml:
 
 def _report_md(r: dict) -> str:
     info = r["info"]
-    lines = [f"# Diagnosis of {info['model']}", "",
+    lines = [f"# Diagnosis of {info['model']}", "", f"**{r['headline']}**", "",
              f"Measurements: `{info['measurements']}` ({info['task']}, {info['num_links']} links x {info['num_freqs']} "
              f"frequencies; {info['num_train']} train / {info['num_test']} held-out rows, {info['split']}).", "",
              "## Gap", "", "| step | named effect | confidence | held-out MAE before | after | parameters |",
@@ -139,13 +176,20 @@ def _report_md(r: dict) -> str:
             lines.append(f"| {s['step']} | ambiguous: {' / '.join(s['ambiguous'])} (best {s['confidence']:.0%}) | | "
                          f"{s['test_mae_before_db']:.2f} dB | | |")
         elif s["named"] is None:
-            lines.append(f"| {s['step']} | no significant missing effect | | {s['test_mae_before_db']:.2f} dB | | |")
+            lines.append(f"| {s['step']} | no further significant catalogue effect | | {s['test_mae_before_db']:.2f} dB | | |")
         else:
             params = ", ".join(f"{k} = {v:.4g}" for k, v in s["params"].items())
             lines.append(f"| {s['step']} | **{s['named']}** | {s['confidence']:.0%} | {s['test_mae_before_db']:.2f} dB | "
                          f"{s['test_mae_after_db']:.2f} dB | {params} |")
     lines += ["", f"Held-out MAE {r['mae_before_db']:.2f} -> {r['mae_after_db']:.2f} dB "
-              f"(gap shrunk by {100 * r['gap_shrink']:.0f} %).", "", "## Where (before)", "",
+              f"(gap shrunk by {100 * r['gap_shrink']:.0f} %).", "", f"Phases: {r['phases']}."]
+    if r["untested_without_phase"]:
+        lines[-1] += f" Not tested without measured phases: {', '.join(r['untested_without_phase'])}."
+    if r["lacking"]:
+        lines += ["", "Structure left after the named effects (no catalogue effect reproduces it):", ""]
+        lines += [f"- by {w['axis']}: held-out R2 {w['r2_heldout']:.2f} (p {w['p_value']:.3f}), worst {w['worst_bin']}"
+                  for w in r["lacking"]]
+    lines += ["", "## Where (before)", "",
               "| breakdown | held-out R2 | permutation p | structure | worst bin (MAE) |", "|---|---|---|---|---|"]
     for w in r["where_before"]:
         lines.append(f"| {w['feature']} | {w['r2_heldout']:.3f} | {w['p_value']:.3f} | {'yes' if w['structure'] else 'no'} "
@@ -157,13 +201,17 @@ def _report_md(r: dict) -> str:
     lines += ["", "![before](residual_before.png)", ""]
     if r["named"]:
         lines += ["![after](residual_after.png)", ""]
-    lines += ["## Candidates at step 1", "", "| effect | applies | held-out gain | t | significant | parameters |",
-              "|---|---|---|---|---|---|"]
+    lines += ["## Candidates at step 1", "", "Score: held-out information criterion 2 n ln(MAE before / after) - 2 k "
+              "(k fitted parameters).", "",
+              "| effect | applies | held-out MAE before -> after | gain | t | k | score | significant | parameters |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for c in r["steps"][0]["candidates"]:
         if not c["applies"]:
             lines.append(f"| {c['effect']} | no: {c['reason']} | | | | |")
         else:
-            params = ", ".join(f"{k} = {v:.4g}" for k, v in c["params"].items())
-            lines.append(f"| {c['effect']} | yes | {c['gain_db']:.3f} dB | {c['t_stat']:.1f} | "
-                         f"{'yes' if c['significant'] else 'no'} | {params} |")
+            items = list(c["params"].items())
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in items[:6]) + (", ..." if len(items) > 6 else "")
+            lines.append(f"| {c['effect']} | yes | {c['test_mae_before_db']:.2f} -> {c['test_mae_db']:.2f} dB | "
+                         f"{c['gain_db']:.3f} dB | {c['t_stat']:.1f} | {c['num_params']} | {c['score']:.1f} | "
+                         f"{'yes' if c['significant'] else 'no'}{' (' + c['note'] + ')' if c['note'] else ''} | {params} |")
     return "\n".join(lines) + "\n"

@@ -29,6 +29,8 @@ from .tasks import check_turntable, detect_task
 
 REQUIRED = ("tx_x", "tx_y", "tx_z", "rx_x", "rx_y", "rx_z", "freq_hz", "power_db")
 OPTIONAL_FLOATS = ("phase_rad", "aspect_deg", "range_m", "rcs_dbsm")
+ABSENT_OK = ("phase_rad",)             # a cell of these may be empty: not measured on that row
+ABSENT_WORDS = ("", "nan", "na", "n/a")
 OPTIONAL_INTS = ("tx_id", "rx_id")
 SPLIT_WORDS = {"train": 0, "0": 0, "test": 1, "1": 1, "": -1, "-1": -1}
 
@@ -97,7 +99,9 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
                          if None in raw else f"line {line}: fewer values than the {len(header)} columns")
             continue
         row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-        rec = {c: _number(row[c], line, c, problems) for c in REQUIRED + tuple(c for c in OPTIONAL_FLOATS if c in present)}
+        rec = {c: _number(row[c], line, c, problems) for c in REQUIRED + tuple(c for c in OPTIONAL_FLOATS if c in present)
+               if not (c in ABSENT_OK and row[c].lower() in ABSENT_WORDS)}
+        rec.update({c: math.nan for c in ABSENT_OK if c in present and c not in rec})   # absent, never 0.0
         for c in OPTIONAL_INTS:
             if c in present:
                 value = _number(row[c], line, c, problems)
@@ -138,7 +142,7 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
         values = tuple(rec[c] for c in value_cols)
         if cell in cells:
             first_line, first_values = cells[cell]
-            if first_values != values:
+            if not all(a == b or (a != a and b != b) for a, b in zip(first_values, values)):   # NaN: both absent
                 problems.add(f"lines {first_line} and {line}: the same link and frequency with different values "
                              f"({', '.join(f'{c}={a:g} vs {b:g}' for c, a, b in zip(value_cols, first_values, values) if a != b)})")
             continue
@@ -166,7 +170,9 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
         for c, v in zip(value_cols, values):
             grid[c][link, f] = v
     data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.array(freqs, dtype=np.float64), "path_gain_db": grid["power_db"]}
-    if "phase_rad" in grid:
+    if "phase_rad" in grid and np.all(np.isnan(grid["phase_rad"])):
+        del grid["phase_rad"]                       # no phase measured at all: no channel
+    if "phase_rad" in grid:   # cells without a phase stay NaN in the channel (absent, never 0.0)
         amplitude = 10.0 ** (grid["power_db"] / 20.0)
         data["channel"] = amplitude * np.exp(1j * grid["phase_rad"])
     if "rcs_dbsm" in grid:

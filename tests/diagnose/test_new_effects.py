@@ -108,3 +108,45 @@ def test_noise_alone_names_none_of_the_flexible_effects():
     cands = {c.name: c for c in evaluate(rows, rows.pred_db)}
     for name in ("tx_offsets", "rx_offsets", "obstacle", "crossing_loss", "dynamic_range"):
         assert cands[name].applies and not cands[name].significant, (name, cands[name].score)
+
+
+def test_structure_outside_the_catalogue_leads_the_headline():
+    from rfir_stages.diagnose.breakdown import analyse
+    from rfir_stages.diagnose.stage import headline, lacking_structure
+
+    rows = room_rows()
+    d = rows.dist_m
+    rows = _noisy(rows, np.where((d > 3.0) & (d < 5.0), -6.0, 0.0))   # a bump in distance: no effect has it
+    chain, _steps, named, ambiguous = search(rows, 2)
+    lacking = lacking_structure(analyse(rows, compose(chain, rows)), "residual_after.png")
+    text = headline(named, ambiguous, lacking)
+    assert text.startswith("structure the model lacks, not in the catalogue: by ") and "range" in text, text
+    assert named == []   # the flexible stand-ins (a ground bounce, a clip) reproduce too little of it
+    pure = _noisy(room_rows(), 0.0, seed=4)
+    assert headline([], [], lacking_structure(analyse(pure, pure.pred_db), "x.png")).startswith("no missing effect")
+
+
+def test_absent_phases_are_absent():
+    from rfir_stages.diagnose.data import measured_phases
+
+    assert measured_phases(None, "f")[0] is None
+    assert "placeholders" in measured_phases(np.array([1.0, 2.0, 0.5]) + 0j, "f")[1]
+    assert "lacks the phase on 1 of 3" in measured_phases(np.array([1j, np.nan, 1.0]), "f")[1]
+    h = np.exp(1j * np.array([0.3, -1.0, 2.0]))
+    assert measured_phases(h, "f") == (h, "measured") or measured_phases(h, "f")[1] == "measured"
+
+
+def test_the_leakage_phase_is_reported_in_degrees():
+    from rfir_stages.diagnose.effects import BY_NAME
+
+    from .test_select import radar_rows
+
+    rows = radar_rows()
+    rows.pred_channel = rows.meas_channel.copy()
+    leak = 10 ** (-78 / 20) * np.exp(1j * np.radians(60.0))
+    rows.meas_channel = rows.meas_channel + leak
+    rows.meas_db = 10 * np.log10(np.abs(rows.meas_channel) ** 2)
+    chain, steps, named, _ = search(rows, 1)
+    assert named[0]["effect"] == "leakage"
+    assert abs(steps[0]["params"]["phase_deg"] - 60.0) < 2.0 and abs(named[0]["params"]["phase_deg"] - 60.0) < 2.0
+    assert BY_NAME["leakage"].needs_phase

@@ -35,11 +35,7 @@ def diagnose(
                        config_toml=opts.config_toml(), progress=reporter)
 
     r = run_guarded(ctx, work)
-    if r.ambiguous and len(r.named) == 0:
-        console.print(f"ambiguous: {' / '.join(r.ambiguous)} explain the residual about equally; none added",
-                      highlight=False)
-    elif not r.named:
-        console.print(f"no significant missing effect (held-out MAE {r.mae_before_db:.2f} dB)", highlight=False)
+    console.print(r.headline, highlight=False, markup=False)
     for i, n in enumerate(r.named, 1):
         params = ", ".join(f"{k} = {v:.4g}" for k, v in n["params"].items())
         console.print(f"{i}. [bold]{n['effect']}[/bold] ({n['title']}; confidence {n['confidence']:.0%}): {params}",
