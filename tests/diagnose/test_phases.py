@@ -4,6 +4,7 @@ import numpy as np
 
 from rfir_stages.importers.csv_links import read_links_csv
 
+ATTRS = {"task": "rcs", "scene": "synthetic"}
 HEADER = "tx_x,tx_y,tx_z,rx_x,rx_y,rx_z,freq_hz,power_db,phase_rad\n"
 
 
@@ -34,11 +35,11 @@ def test_diagnose_says_leakage_was_not_tested_without_phases(tmp_path):
     pred = -75 + 8 * np.cos(2 * asp) ** 8 + 4 * np.cos(5 * asp)
     base = {"tx_pos": tx, "rx_pos": tx, "freq_hz": np.array([2.4e9]), "aspect_rad": asp,
             "range_m": np.full(len(asp), 3.0), "split": np.arange(len(asp)) % 2}
-    write_artifact(tmp_path / "model.h5", "measurements", {**base, "path_gain_db": pred[:, None]}, attrs={"task": "rcs", "scene": "synthetic"})
+    write_artifact(tmp_path / "model.h5", "measurements", {**base, "path_gain_db": pred[:, None]}, attrs=ATTRS)
     meas = pred + np.random.default_rng(0).normal(0, 0.5, len(asp))
     zero_phase = 10 ** (meas / 20) + 0j            # what an importer filling 0.0 would write
     write_artifact(tmp_path / "meas.h5", "measurements", {**base, "path_gain_db": meas[:, None],
-                                                           "channel": zero_phase[:, None]}, attrs={"task": "rcs", "scene": "synthetic"})
+                                                           "channel": zero_phase[:, None]}, attrs=ATTRS)
     res = run(tmp_path / "model.h5", tmp_path / "meas.h5", tmp_path / "rep")
     import json
 
