@@ -181,13 +181,25 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     candidates += [("physical", s) for s in phys_sharings]
     scattering = {"requested": mode, "selected": candidates[0][0], "sharing_requested": sharing_requested,
                   "sharing_selected": candidates[0][1], "model_requested": model_kind}
+    # A checkpoint fits any run with the same inputs, rows and settings; more iterations may follow it.
+    key = _key(str(scene_path.resolve()), str(measurements_path.resolve()),
+               {k: v for k, v in config.items() if k not in ("iterations", "checkpoint_every")}, seed,
+               np.asarray(rows).tolist())
+    ckpt = Path(checkpoint) if checkpoint is not None else out_path.with_name(out_path.name + ".ckpt.pt")
+    chosen = ckpt.with_name(ckpt.name + ".selection")   # the model selection of this run, for --resume
     t_sel = time.time()
-    if len(candidates) > 1:
+    reused = _load_selection(chosen, key) if resume and len(candidates) > 1 else None
+    if reused is not None:
+        scattering = reused
+        progress.log(f"rf-fit: model selection reused from {chosen}: {scattering['selected']}/"
+                     f"{scattering['sharing_selected']}")
+    elif len(candidates) > 1:
         asp, rng = meas.get("aspect_rad"), meas.get("range_m")
         folds, how = validation_folds(protocol, None if asp is None else np.degrees(np.asarray(asp)[rows]),
                                       None if rng is None else np.asarray(rng)[rows])
         scattering.update(_select_model(geom, links, target, folds, how, ant, provider, render_cfg, candidates,
                                         labels, fit_cfg, progress, physical, phys_cfg))
+        _save_selection(chosen, key, scattering)
     select_s = time.time() - t_sel
     starts = scattering.pop("states", [])   # the selected candidate's fitted states: where the refit starts
     warnings = [scattering.pop("warning")] if "warning" in scattering else []
@@ -200,10 +212,6 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     index = RFParams.sharing_index(fit_cfg.sharing, geom.num, labels)
     params = _new_params(index, len(freqs), fit_cfg, coherent=scattering["selected"] == "coherent")
     warm = _best_start(cache, target, params, starts)
-    # A checkpoint fits any run with the same inputs and settings; more iterations may follow it.
-    key = _key(str(scene_path.resolve()), str(measurements_path.resolve()),
-               {k: v for k, v in config.items() if k not in ("iterations", "checkpoint_every")}, seed)
-    ckpt = Path(checkpoint) if checkpoint is not None else out_path.with_name(out_path.name + ".ckpt.pt")
     result = fit(cache, target, params, fit_cfg, progress=progress, checkpoint=ckpt, resume=resume, key=key,
                  init_gain=not warm)
     if result.extra.get("floored"):
@@ -238,6 +246,30 @@ def _new_params(index: torch.Tensor, num_freqs: int, fit_cfg: FitConfig, coheren
                     gamma_abs=fit_cfg.init_gamma_abs, gamma_phase_rad=fit_cfg.init_gamma_phase_rad,
                     diffuse=fit_cfg.init_diffuse if fit_cfg.diffuse else None,
                     diffuse_roughness=fit_cfg.init_diffuse_roughness, coherent=coherent)
+
+
+def _save_selection(path: Path, key: str, scattering: dict) -> None:
+    """The model selection's outcome (and the free candidates' fitted states) beside the checkpoint,
+    written to a temporary file and renamed, so `--resume` after a kill does not select again."""
+    states = scattering.get("states", [])
+    record = {"key": key, "scattering": {k: v for k, v in scattering.items() if k != "states"},
+              "states": states if states and isinstance(states[0], dict) else []}   # physical fits: refit anyway
+    tmp = path.with_name(path.name + ".partial")
+    torch.save(record, tmp)
+    tmp.replace(path)
+
+
+def _load_selection(path: Path, key: str) -> dict | None:
+    """The saved selection (scattering dict with "states") when it was made for the same run, else None."""
+    if not path.exists():
+        return None
+    try:
+        record = torch.load(path, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - a damaged record is a user-fixable input problem
+        raise InputFileError(f"cannot read the saved model selection ({exc}); delete it", path=path) from None
+    if record.get("key") != key:
+        return None
+    return dict(record["scattering"], states=record["states"])
 
 
 def _best_start(cache, target: np.ndarray, params: RFParams, states: list) -> bool:

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from rfir_cli.artifacts import read_artifact
+from rfir_cli.errors import InputFileError
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.model.predict import FLOOR_DB
 from rfir_stages.rf_fit.antennas import AntennaPattern
@@ -133,3 +134,36 @@ def test_wall_time_covers_the_whole_command_with_its_parts(tmp_path):
     cands = attrs["scattering_fit_time_coherent_s"] + attrs["scattering_fit_time_incoherent_s"]
     assert 0 < cands <= attrs["select_time_s"]
     assert set(res.timings_s) >= {"trace", "select", "fit", "total"}
+
+
+def test_resume_reuses_the_model_selection_of_the_interrupted_run(tmp_path):
+    from rfir_cli.progress import NullProgress
+    from rfir_stages.rf_fit import run
+
+    from .test_stage import _scattering_measurements
+
+    class Logged(NullProgress):
+        def __init__(self):
+            self.lines = []
+
+        def log(self, message: str) -> None:
+            self.lines.append(message)
+
+    fields = box_fields(0.06, 0.03)
+    write_scene_artifact(tmp_path / "scene.h5", fields)
+    meas = _scattering_measurements(tmp_path / "m.h5", fields, True)
+    cfg = {"visibility": False, "iterations": 10, "checkpoint_every": 5, "scattering": "auto",
+           "sharing": "gaussian", "model": "free"}
+    first = run(tmp_path / "scene.h5", meas, tmp_path / "rf.h5", cfg)
+    assert (tmp_path / "rf.h5.ckpt.pt.selection").exists()
+    log = Logged()
+    again = run(tmp_path / "scene.h5", meas, tmp_path / "rf.h5", dict(cfg, iterations=12), resume=True, progress=log)
+    assert any("model selection reused" in line for line in log.lines), log.lines
+    assert not any("validation MAE on" in line for line in log.lines)          # no candidate was fitted again
+    assert again.scattering["selected"] == first.scattering["selected"]
+    assert again.scattering["val_mae_coherent_db"] == first.scattering["val_mae_coherent_db"]
+    assert read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]["resumed_at"] == 10
+    other = Logged()                            # other settings: selected afresh, then the checkpoint is refused
+    with pytest.raises(InputFileError, match="other inputs or settings"):
+        run(tmp_path / "scene.h5", meas, tmp_path / "rf.h5", dict(cfg, lr=0.2), resume=True, progress=other)
+    assert any("validation MAE on" in line for line in other.lines)
