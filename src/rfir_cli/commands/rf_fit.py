@@ -68,5 +68,6 @@ def rf_fit(
 def _timing_text(wall_s: float, parts: dict) -> str:
     """'312 s in all: trace 12 s, model selection 240 s, fit 58 s' (the parts a fit recorded)."""
     names = (("trace", "trace"), ("select", "model selection"), ("fit", "fit"))
-    shown = [f"{text} {parts[k]:.0f} s" for k, text in names if parts.get(k)]
-    return f"{wall_s:.0f} s in all" + (": " + ", ".join(shown) if shown else "")
+    sec = lambda t: f"{t:.0f} s" if t >= 10 else f"{t:.1f} s"  # noqa: E731
+    shown = [f"{text} {sec(parts[k])}" for k, text in names if parts.get(k, 0) >= 0.05]
+    return f"{sec(wall_s)} in all" + (": " + ", ".join(shown) if shown else "")
