@@ -5,6 +5,7 @@ kill never leaves a half-written file at the target path, nor damages an earlier
 """
 from __future__ import annotations
 
+import functools
 import os
 import re
 import time
@@ -215,6 +216,21 @@ def write_artifact(path: str | Path, kind: str, data: Mapping[str, np.ndarray], 
     return path
 
 
+def _damaged_as_error(read):
+    """Turn whatever h5py raises on a truncated or damaged file (OSError, RuntimeError, KeyError,
+    ValueError, TypeError, by where the damage sits) into one InputFileError naming the file."""
+
+    @functools.wraps(read)
+    def wrapper(path, *args, **kwargs):
+        try:
+            return read(path, *args, **kwargs)
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+            detail = (str(exc).splitlines() or [type(exc).__name__])[0].split(";")[0]
+            raise InputFileError(f"cannot read HDF5 data (truncated or damaged): {detail}", path=path) from None
+
+    return wrapper
+
+
 def _open(path: Path) -> h5py.File:
     if not path.exists():
         raise InputFileError("file not found", path=path)
@@ -257,6 +273,7 @@ def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
     return ds[()]
 
 
+@_damaged_as_error
 def read_artifact(path: str | Path, kind: str | Iterable[str] | None = None) -> Artifact:
     """Load and validate an artifact. Raises InputFileError / SchemaError with one clear line."""
     path = Path(path)
@@ -284,6 +301,7 @@ def read_artifact(path: str | Path, kind: str | Iterable[str] | None = None) -> 
     return Artifact(path, found, version, producer, created, root, data, prov, free)
 
 
+@_damaged_as_error
 def describe_artifact(path: str | Path) -> dict:
     """A summary for `rfir info`: header, provenance and every dataset with shape, dtype, unit."""
     path = Path(path)
@@ -303,6 +321,7 @@ def describe_artifact(path: str | Path) -> dict:
             "datasets": datasets, "provenance": prov}
 
 
+@_damaged_as_error
 def validate_artifact(path: str | Path, kind: str | None = None) -> list[str]:
     """All problems of an artifact file (empty when valid); raises only for unreadable files."""
     path = Path(path)

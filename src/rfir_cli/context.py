@@ -12,6 +12,7 @@ from typing import Callable, TypeVar
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn, \
     TimeRemainingColumn
 
@@ -132,7 +133,8 @@ def run_guarded(ctx: typer.Context, work: Callable[[], T]) -> T:
     except RfirError as exc:
         if verbosity > 0:
             traceback.print_exc()
-        err_console.print(f"[red]error:[/red] {exc}", markup=True, highlight=False, soft_wrap=True)
+        # escaped: a message quotes file contents, which may look like markup ("[/]")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", markup=True, highlight=False, soft_wrap=True)
         raise typer.Exit(exc.exit_code) from None
     except KeyboardInterrupt:
         err_console.print("[red]interrupted[/red]")
@@ -142,7 +144,8 @@ def run_guarded(ctx: typer.Context, work: Callable[[], T]) -> T:
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback unless -v
         if verbosity > 0:
             traceback.print_exc()
-        err_console.print(f"[red]internal error:[/red] {type(exc).__name__}: {exc} (run with -v for the traceback)",
+        err_console.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))} "
+                          "(run with -v for the traceback)",
                           soft_wrap=True, highlight=False)
         raise typer.Exit(70) from None
 

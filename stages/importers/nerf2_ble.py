@@ -8,6 +8,7 @@ test_index.txt list transmitter row indices. Gateways are receivers; a link is (
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +26,10 @@ MISSING_DBM = -100.0
 
 def _read_table(path: Path, columns: int | None, problems: RowProblems) -> tuple[list[str], np.ndarray]:
     """A numeric CSV with one header line -> (header, values [rows, cols]); bad cells are recorded."""
-    if not path.exists():
-        raise InputFileError("file not found (NeRF2 BLE layout needs it)", path=path)
-    with open(path, newline="", encoding="utf-8-sig") as handle:
-        rows = list(csv.reader(handle))
+    try:
+        rows = list(csv.reader(io.StringIO(_text(path), newline="")))
+    except csv.Error as exc:
+        raise InputFileError(f"not a readable CSV file ({exc})", path=path) from None
     if len(rows) < 2:
         raise InputFileError("needs a header line and at least one data row", path=path)
     header, body = [h.strip() for h in rows[0]], rows[1:]
@@ -51,11 +52,23 @@ def _read_table(path: Path, columns: int | None, problems: RowProblems) -> tuple
     return header, values
 
 
-def _read_gateways(path: Path) -> dict[str, np.ndarray]:
-    if not path.exists():
+def _text(path: Path) -> str:
+    """A file of the layout as text; a one-line InputFileError when missing, not UTF-8 or binary."""
+    if not path.is_file():
         raise InputFileError("file not found (NeRF2 BLE layout needs it)", path=path)
     try:
-        content = yaml.safe_load(path.read_text())
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"not a UTF-8 text file (byte {exc.start}: {exc.reason})", path=path) from None
+    if "\x00" in text:
+        raise InputFileError("not a text file (holds NUL bytes)", path=path)
+    return text
+
+
+def _read_gateways(path: Path) -> dict[str, np.ndarray]:
+    text = _text(path)
+    try:
+        content = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise InputFileError(f"not valid YAML: {str(exc).splitlines()[0]}", path=path) from None
     if not isinstance(content, dict) or not content:
@@ -64,7 +77,10 @@ def _read_gateways(path: Path) -> dict[str, np.ndarray]:
     for name, pos in content.items():
         if isinstance(pos, dict) and "position" in pos:
             pos = pos["position"]
-        array = np.asarray(pos, dtype=float) if isinstance(pos, (list, tuple)) else None
+        try:
+            array = np.asarray(pos, dtype=float) if isinstance(pos, (list, tuple)) else None
+        except (TypeError, ValueError):
+            array = None
         if array is None or array.shape != (3,) or not np.all(np.isfinite(array)):
             raise InputFileError(f"gateway {name!r}: position must be three finite numbers, got {pos!r}", path=path)
         gateways[str(name)] = array
@@ -100,7 +116,10 @@ def import_nerf2_ble(folder: str | Path, out: str | Path, *, freq_hz: float = 2.
     split_of_tx = np.full(tx.shape[0], -1, dtype=np.int64)
     for name, value in (("train_index.txt", 0), ("test_index.txt", 1)):
         if (folder / name).exists():
-            index = np.loadtxt(folder / name, dtype=np.int64, ndmin=1)
+            words = _text(folder / name).split()
+            if not all(w.lstrip("-").isdigit() and len(w) < 18 for w in words):
+                raise InputFileError("expected whole numbers (transmitter row indices)", path=folder / name)
+            index = np.array([int(w) for w in words], dtype=np.int64)
             if index.size and (index.min() < 0 or index.max() >= tx.shape[0]):
                 raise InputFileError(f"indices outside 0..{tx.shape[0] - 1}", path=folder / name)
             split_of_tx[index] = value
