@@ -100,6 +100,12 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     task = str(meas.attrs.get("task", ""))
     ant = antenna_choice(config, meas, task, str(measurements_path))
     progress.log(f"rf-fit: {ant.note()}")
+    if "polarisation" in meas.attrs:   # the physical model uses what the measurements state
+        phys = dict(config.get("physical") or {})
+        if str(phys.get("polarisation", "V")).upper() != meas.attrs["polarisation"]:
+            progress.log(f"rf-fit: polarisation {meas.attrs['polarisation']} (stated by the measurements; "
+                         f"rf_fit.physical.polarisation {phys.get('polarisation', 'V')} not used)")
+        config = dict(config, physical=dict(phys, polarisation=str(meas.attrs["polarisation"])))
     if fit_cfg.sharing not in SHARING:
         raise ConfigError(f"rf_fit.sharing = {fit_cfg.sharing!r}: expected one of {', '.join(SHARING)}")
     sharing_requested = fit_cfg.sharing

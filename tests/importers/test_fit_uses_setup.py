@@ -81,10 +81,11 @@ def test_a_file_that_states_no_antenna_is_fitted_isotropic_and_says_so(box_csv, 
 
 
 def test_the_stated_antenna_reaches_the_fit_and_predict(box_csv, tmp_path, monkeypatch):
-    import_csv(box_csv / "links.csv", tmp_path / "m.h5", antenna="horn:30")
+    import_csv(box_csv / "links.csv", tmp_path / "m.h5", antenna="horn:30", polarisation="H")
     r = _fit(box_csv, tmp_path / "m.h5", tmp_path / "rf.h5")
     assert r.exit_code == 0, r.output
     assert "antenna horn:30 (stated by the measurements)" in r.output
+    assert "polarisation H (stated by the measurements; rf_fit.physical.polarisation V not used)" in r.output
     attrs = read_artifact(tmp_path / "rf.h5", "rf").free["model@attrs"]
     assert attrs["antenna_kind"] == "horn" and attrs["antenna_hpbw_deg"] == 30.0
     monkeypatch.chdir(tmp_path)
