@@ -166,6 +166,9 @@ def make(data_dir: Path, quick: bool = False, seed: int = 0) -> dict:
         folder.mkdir(parents=True, exist_ok=True)
         clean = read_artifact(scenes / scene / "measurements.h5", "measurements")
         attrs = {"task": str(clean.attrs["task"]), "scene": "blind"}
+        sim = clean.free.get("simulator@attrs", {})
+        if sim.get("antenna_tx") == "horn":   # the cases carry no simulator group: state the radar's horn
+            attrs["antenna_tx"] = attrs["antenna_rx"] = f"horn:{float(sim['horn_hpbw_deg']):g}"
         write_artifact(folder / "model.h5", "measurements", {k: np.asarray(v) for k, v in clean.data.items()},
                        attrs=attrs)
         rng = np.random.default_rng(seed * 1000 + 17 * (i + 1))
