@@ -1,0 +1,29 @@
+"""Conforming screen meshes for the boundary-element solver (RWG needs shared vertices on shared edges)."""
+from __future__ import annotations
+
+import numpy as np
+
+from rfir_stages.po import dihedral_mesh, plate_mesh
+
+
+def merge_vertices(vertices: np.ndarray, faces: np.ndarray, tol_m: float = 1e-9):
+    """Merge vertices closer than tol_m (V,3 m; F,3 int) -> (vertices, faces) with shared edges."""
+    key = np.round(np.asarray(vertices, float) / tol_m).astype(np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return np.asarray(vertices, float)[first], inv.ravel()[np.asarray(faces)]
+
+
+def plate_screen(size_m: float, n: int):
+    """Square plate of side size_m in the y-z plane (normal +x), centred on the origin, 2 n^2 triangles.
+
+    Aspects in the x-y plane then sweep from broadside (phi = 0, 180 deg) to grazing (90, 270 deg),
+    with V polarisation (+z) along one edge pair."""
+    v, f = plate_mesh(size_m, size_m, n)  # z = 0 plane
+    return np.stack([v[:, 2], v[:, 1], v[:, 0]], 1), f
+
+
+def dihedral_screen(a_m: float, b_m: float, n: int):
+    """90-degree dihedral, fold along z (length a_m), plates of width b_m in the planes x = 0 and y = 0,
+    opening toward +x +y (bisector phi = 45 deg in the x-y plane); merged vertices on the fold."""
+    v, f = dihedral_mesh(a_m, b_m, n)  # fold along y, plates x = 0 and z = 0
+    return merge_vertices(np.stack([v[:, 0], v[:, 2], v[:, 1]], 1), f)
