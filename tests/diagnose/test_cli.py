@@ -37,7 +37,7 @@ def _radar_measurements(path, fields):
     write_artifact(path, "measurements", {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.array([2.4e9]),
                                           "path_gain_db": pg, "rcs_dbsm": rcs, "aspect_rad": asp, "range_m": rng,
                                           "split": np.arange(len(asp)) % 2, "scene_bounds": np.stack([lo, hi])},
-                   attrs={"task": "rcs", "scene": "box"})
+                   attrs={"task": "rcs", "scene": "box", "antenna_tx": "horn:40", "antenna_rx": "horn:40"})
     return path
 
 
