@@ -90,7 +90,8 @@ def test_the_stated_antenna_reaches_the_fit_and_predict(box_csv, tmp_path, monke
     assert attrs["antenna_kind"] == "horn" and attrs["antenna_hpbw_deg"] == 30.0
     monkeypatch.chdir(tmp_path)
     r = CliRunner().invoke(_app(), ["predict", "rcs", str(tmp_path / "rf.h5"), "--measurements", str(tmp_path / "m.h5"),
-                                    "-o", str(tmp_path / "p.h5"), "--aspects", "0:90", "--range", "3"])
+                                    "-o", str(tmp_path / "p.h5"), "--aspects", "0:90", "--range", "3",
+                                    "--freq", "2.4e9"])
     assert r.exit_code == 0, r.output
     pred = read_artifact(tmp_path / "p.h5", "predictions")
     np.testing.assert_allclose(np.sort(np.degrees(pred["aspect_rad"])), [0, 30, 60], atol=1e-9)
@@ -101,13 +102,15 @@ def test_the_stated_antenna_reaches_the_fit_and_predict(box_csv, tmp_path, monke
 
 def test_row_selection_in_rf_fit(box_csv, tmp_path):
     import_csv(box_csv / "links.csv", tmp_path / "m.h5")
-    r = _fit(box_csv, tmp_path / "m.h5", tmp_path / "rf.h5", "--aspects", "300:90", "--range", "2")
+    r = _fit(box_csv, tmp_path / "m.h5", tmp_path / "rf.h5", "--aspects", "300:90", "--range", "2", "--freq", "2.4e9")
     assert r.exit_code == 0, r.output
     assert read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]["num_train_rows"] == 3   # 300, 0 and 60 deg train
     r = _fit(box_csv, tmp_path / "m.h5", tmp_path / "rf2.h5", "--range", "7")
     assert r.exit_code == 5 and "--range 7 leaves no row of the 12 considered (the file has ranges 2, 3 m" in r.output
     assert len(r.output.strip().splitlines()) <= 3 and "Traceback" not in r.output   # log lines, then the error
     assert not (tmp_path / "rf2.h5").exists()
+    r = _fit(box_csv, tmp_path / "m.h5", tmp_path / "rf2.h5", "--freq-hz", "5.8e9")
+    assert r.exit_code == 5 and "frequency 5.8 GHz is not in the file" in r.output
     r = _fit(box_csv, tmp_path / "m.h5", tmp_path / "rf2.h5", "--aspects", "0:9x")
     assert r.exit_code == 4 and "--aspects '0:9x'" in r.output
 
