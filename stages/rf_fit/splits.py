@@ -125,7 +125,7 @@ def validation_rows(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nd
 
 
 MIN_VALIDATION_LINKS = 50   # fewer held-out links than this decide a model by noise
-KFOLD_MAX_LINKS = 120       # k-fold (several fits per candidate) only up to this many training links
+KFOLD_MAX_LINKS = 60        # k-fold (several fits per candidate) only up to this many training links (cost)
 KFOLDS = 3
 
 
