@@ -22,9 +22,10 @@ def _positions(rows: Rows, side: str) -> np.ndarray:
 
 def _device_index(pos_m: np.ndarray, devices_m: np.ndarray) -> np.ndarray:
     """[N] index of the device at each position (-1: none within DEVICE_TOL_M)."""
-    d = np.linalg.norm(pos_m[:, None, :] - devices_m[None, :, :], axis=2)
+    uniq, inv = np.unique(pos_m, axis=0, return_inverse=True)   # many rows share a position: match each once
+    d = np.linalg.norm(uniq[:, None, :] - devices_m[None, :, :], axis=2)
     idx = np.argmin(d, axis=1)
-    return np.where(d[np.arange(len(pos_m)), idx] <= DEVICE_TOL_M, idx, -1)
+    return np.where(d[np.arange(len(uniq)), idx] <= DEVICE_TOL_M, idx, -1)[inv.reshape(-1)]
 
 
 class _DeviceOffsets(Effect):

@@ -69,32 +69,37 @@ class Obstacle(Effect):
     def correction(self, x, rows, base_db):
         return x[0] * segments_cross_boxes(rows.tx_m[:, :2], rows.rx_m[:, :2], np.asarray(x[1:5])[None])[:, 0]
 
-    def _score(self, r, p0, p1, boxes, tx_xy):
-        """(SSE reduction [B], mean residual of the crossing rows [B]) of each box on the rows given."""
+    def _score(self, s, n, p0, p1, boxes, tx_xy):
+        """(SSE reduction [B], mean residual of the crossing rows [B]) of each box, from the residual sum s
+        and the row count n of each distinct link [K] (floor-plan segments p0 -> p1 [K, 2])."""
         gains, means = np.full(len(boxes), -np.inf), np.zeros(len(boxes))
-        for s in range(0, len(boxes), CHUNK):
-            b = boxes[s:s + CHUNK]
+        for c in range(0, len(boxes), CHUNK):
+            b = boxes[c:c + CHUNK]
             m = segments_cross_boxes(p0, p1, b)
-            n = m.sum(0)
-            tot = r @ m
-            mean = tot / np.maximum(n, 1)
+            cnt = n @ m
+            tot = s @ m
+            mean = tot / np.maximum(cnt, 1)
             has_tx = np.any((tx_xy[:, None, 0] >= b[None, :, 0]) & (tx_xy[:, None, 0] <= b[None, :, 2])
                             & (tx_xy[:, None, 1] >= b[None, :, 1]) & (tx_xy[:, None, 1] <= b[None, :, 3]), axis=0)
-            valid = (n >= MIN_CROSSING_ROWS) & (n <= MAX_SHARE * len(r)) & ~has_tx
-            gains[s:s + CHUNK] = np.where(valid, tot * mean, -np.inf)
-            means[s:s + CHUNK] = mean
+            valid = (cnt >= MIN_CROSSING_ROWS) & (cnt <= MAX_SHARE * n.sum()) & ~has_tx
+            gains[c:c + CHUNK] = np.where(valid, tot * mean, -np.inf)
+            means[c:c + CHUNK] = mean
         return gains, means
 
     def fit(self, rows, base_db, mask):
         r = (rows.meas_db - base_db)[mask]
         r = r - np.median(r)     # a shared offset is not the obstacle's
-        p0, p1 = rows.tx_m[mask, :2], rows.rx_m[mask, :2]
+        seg = np.concatenate([rows.tx_m[mask, :2], rows.rx_m[mask, :2]], 1)
+        links, inv = np.unique(np.round(seg, 4), axis=0, return_inverse=True)   # rows of a link cross alike
+        inv = inv.reshape(-1)
+        s, n = np.bincount(inv, weights=r), np.bincount(inv).astype(float)
+        p0, p1 = links[:, :2], links[:, 2:]
         tx_xy = np.unique(np.round(rows.tx_m[:, :2], 3), axis=0)
         xy = np.concatenate([rows.tx_m[:, :2], rows.rx_m[:, :2]])
         lo, hi = xy.min(0), xy.max(0)
         step = float(np.max(hi - lo)) / GRID_CELLS
         boxes = _box_grid(lo, hi, step)
-        gains, _ = self._score(r, p0, p1, boxes, tx_xy)
+        gains, _ = self._score(s, n, p0, p1, boxes, tx_xy)
         if not np.isfinite(gains.max()):
             return np.array([0.0, lo[0], lo[1], lo[0], lo[1]])
         box = boxes[int(np.argmax(gains))].copy()
@@ -104,9 +109,9 @@ class Obstacle(Effect):
                 trial = np.repeat(box[None], 9, 0)
                 trial[:, e] = box[e] + step / 4 * np.arange(-4, 5)
                 trial = trial[(trial[:, 2] > trial[:, 0]) & (trial[:, 3] > trial[:, 1])]
-                g, _ = self._score(r, p0, p1, trial, tx_xy)
+                g, _ = self._score(s, n, p0, p1, trial, tx_xy)
                 if g.max() > best:
                     best, box = float(g.max()), trial[int(np.argmax(g))].copy()
-        crossing = segments_cross_boxes(p0, p1, box[None])[:, 0]
+        crossing = segments_cross_boxes(rows.tx_m[mask, :2], rows.rx_m[mask, :2], box[None])[:, 0]
         loss = float(np.median((rows.meas_db - base_db)[mask][crossing]) - np.median((rows.meas_db - base_db)[mask][~crossing]))
         return np.concatenate([[loss], box])
