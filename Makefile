@@ -26,15 +26,17 @@ test: setup
 test-all: setup
 	$(PY) -m pytest -q -m "slow or not slow"
 
-## Paper-shaped tables: data, rfir and every baseline on the same splits -> results/reproduce/<target>.{md,csv,png}.
-## Steps whose outputs exist are reused (data/reproduce/); FORCE=--force reruns them.
-REPRO := $(PY) -m rfir_stages.reproduce
+## Paper-shaped tables: the Snakemake workflow (workflow/Snakefile) runs data, rfir and every baseline on
+## the same splits -> results/reproduce/<target>.{md,csv,png,json}; data and fits in data/reproduce/.
+## Steps rerun when their command, code or inputs changed. SMKARGS: more Snakemake options
+## (-n: dry run; --forceall: rerun everything; --profile workflow/profiles/slurm: on a cluster).
+SMK := $(VENV)/bin/snakemake -s workflow/Snakefile
 reproduce: setup
-	$(REPRO) all $(FORCE)
+	$(SMK) all $(SMKARGS)
 reproduce-quick: setup
-	$(REPRO) all --quick $(FORCE)
+	$(SMK) all --config quick=true $(SMKARGS)
 reproduce-rcs reproduce-wideband reproduce-rssi reproduce-extrapolation reproduce-edit reproduce-ablation: setup
-	$(REPRO) $(patsubst reproduce-%,%,$@) $(FORCE)
+	$(SMK) $(patsubst reproduce-%,%,$@) $(SMKARGS)
 
 bench: setup
 	@for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

@@ -1,60 +1,91 @@
-"""CLI of the reproduce targets (see the package docstring); `make reproduce*` calls it."""
+"""Helpers the reproduce workflow (workflow/Snakefile) calls; `make reproduce*` runs the workflow.
+
+    python -m rfir_stages.reproduce table TARGET [--quick] [--data DIR] [--out DIR] [--set KEY=VALUE]
+    python -m rfir_stages.reproduce steps [TARGET...] [--quick] [--data DIR] [--out DIR] [--set KEY=VALUE]
+    python -m rfir_stages.reproduce freqs MEASUREMENTS.h5 EVERY
+
+table: fill TARGET's table from its steps' results JSON and benchmark files and write
+OUT/<target>.md, .csv, .png and OUT/<target>.json (rows, rfir lowest, wall time of every step).
+steps: print the command line of every step (what the workflow would run). freqs: every EVERY-th
+frequency of a measurements file, comma separated (for `rfir predict rcs --freqs`).
+--set reproduce.<full|quick>.<key>=value overrides a size of configs/reproduce.toml.
+"""
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
+
+import numpy as np
 
 from rfir_cli.errors import RfirError
 
-from .runner import Runner
-from .tables import to_markdown, write_table
-from .targets import TARGETS
+from .plan import Plan
+from .tables import Table, to_markdown, write_table
+from .targets import TARGETS, declare
+
+
+def write_target(name: str, quick: bool, data: Path | None, out: Path | None, overrides: list[str] = ()) -> list[Path]:
+    """Fill one target's table from its results and write its files; returns their paths."""
+    plan, tables = declare([name], quick, data, out, overrides)
+    return write_target_files(plan, name, *tables[name])
+
+
+def write_target_files(plan: Plan, name: str, table: Table, labels: list[str]) -> list[Path]:
+    """OUT/<name>.md, .csv, .png (the table filled from the results) and OUT/<name>.json (rows where
+    rfir is lowest, the wall time of every step from its benchmark file)."""
+    table = table.resolved()
+    table.steps = [(label, plan.wall(label)) for label in labels]
+    paths = write_table(table, plan.out, name)
+    summary = {"title": table.title, "quick": plan.quick,
+               "rfir_lowest": table.ours_lowest(),
+               "step_s": {label: t for label, t in table.steps},
+               "step_s_total": sum(t for _, t in table.steps if t is not None),
+               "files": [str(p) for p in paths]}
+    path = plan.out / f"{name}.json"
+    path.write_text(json.dumps(summary, indent=1) + "\n")
+    print(to_markdown(table))
+    return [*paths, path]
+
+
+def wideband_freqs(meas: Path, every: int) -> str:
+    from rfir_cli.artifacts import read_artifact
+
+    f = np.asarray(read_artifact(meas, "measurements")["freq_hz"], np.float64)
+    return ",".join(f"{x:.6g}" for x in f[::every])
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m rfir_stages.reproduce", description=__doc__)
-    ap.add_argument("targets", nargs="+", help=f"{', '.join(TARGETS)} or all")
-    ap.add_argument("--quick", action="store_true", help="reduced sizes: checks the chain in minutes")
-    ap.add_argument("--data", type=Path, default=None, help="data and fits (default data/reproduce[-quick])")
-    ap.add_argument("--out", type=Path, default=None, help="tables, logs, times (default results/reproduce[-quick])")
-    ap.add_argument("--force", action="store_true", help="rerun steps whose outputs exist")
+    ap = argparse.ArgumentParser(prog="python -m rfir_stages.reproduce", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    t = sub.add_parser("table", help="write one target's table from its results")
+    t.add_argument("target", help=", ".join(TARGETS))
+    s = sub.add_parser("steps", help="print the steps' command lines")
+    s.add_argument("targets", nargs="*", help="default: all")
+    for p in (t, s):
+        p.add_argument("--quick", action="store_true", help="the reduced variant")
+        p.add_argument("--data", type=Path, default=None, help="data and fits (default data/reproduce[-quick])")
+        p.add_argument("--out", type=Path, default=None, help="tables, JSON, logs (default results/reproduce[-quick])")
+        p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                       help="reproduce.<full|quick>.<key>=value over configs/reproduce.toml")
+    f = sub.add_parser("freqs", help="every EVERY-th frequency of a measurements file")
+    f.add_argument("measurements", type=Path)
+    f.add_argument("every", type=int)
     a = ap.parse_args(argv)
-    names = list(TARGETS) if "all" in a.targets else a.targets
-    unknown = [n for n in names if n not in TARGETS]
-    if unknown:
-        print(f"error: unknown target {unknown[0]!r} (known: {', '.join(TARGETS)}, all)", file=sys.stderr)
-        return 2
-    suffix = "-quick" if a.quick else ""
-    runner = Runner(a.data or Path(f"data/reproduce{suffix}"), a.out or Path(f"results/reproduce{suffix}"),
-                    quick=a.quick, force=a.force)
-    summary_path = runner.out / "summary.json"
-    summary: dict = {}
-    for name in names:
-        t0 = time.perf_counter()
-        try:
-            table = TARGETS[name](runner)
-        except RfirError as exc:
-            print(f"error: reproduce {name}: {exc}", file=sys.stderr)
-            return getattr(exc, "exit_code", 1)
-        paths = write_table(table, runner.out, name)
-        wall = time.perf_counter() - t0
-        steps = {k: v for k, v in runner.times.items() if k in runner.used}
-        summary[name] = {"wall_s_this_run": wall, "step_s_total": sum(steps.values()), "steps": steps,
-                         "rfir_lowest": table.ours_lowest(), "files": [str(p) for p in paths]}
-        runner.used.clear()
-        on_disk = json.loads(summary_path.read_text()) if summary_path.exists() else {}
-        summary = {**on_disk, name: summary[name]}     # other targets may have finished meanwhile
-        summary_path.write_text(json.dumps(summary, indent=1) + "\n")
-        print(to_markdown(table))
-        print(f"reproduce {name}: {wall / 60:.1f} min this run ({sum(steps.values()) / 60:.1f} min of steps "
-              f"incl. cached) -> {', '.join(str(p) for p in paths)}")
-    if runner.failed:
-        print("error: " + str(len(runner.failed)) + " baseline step(s) failed:\n  " + "\n  ".join(runner.failed),
-              file=sys.stderr)
-        return 1
+    try:
+        if a.cmd == "table":
+            write_target(a.target, a.quick, a.data, a.out, a.overrides)
+        elif a.cmd == "steps":
+            plan, _ = declare(a.targets or list(TARGETS), a.quick, a.data, a.out, a.overrides)
+            for step in plan.steps.values():
+                print(f"{step.label}: {step.command}")
+        else:
+            print(wideband_freqs(a.measurements, a.every))
+    except RfirError as exc:
+        print(f"error: reproduce {a.cmd}: {exc}", file=sys.stderr)
+        return getattr(exc, "exit_code", 1)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""How each method is run on one row of a reproduce table, returning its Cell and its JSON.
+"""How each method is run on one row of a reproduce table: its steps, and deferred cells that read its results.
 
 rfir: `rfir rf-fit` then `rfir predict rcs|rssi` (whose JSON also scores the simple baselines on
 the same split: nearest aspect, linear interpolation, log-distance, multi-wall, nearest links).
@@ -8,13 +8,39 @@ Ray tracing: scripts/baseline_raytrace.py (Sionna RT on a mesh with one guessed 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
-from rfir_cli.errors import StageError
-
-from .runner import Runner, read_json
+from .plan import Plan, read_json
 from .tables import Cell
 
-SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+SCRIPTS = Path("scripts")       # relative to the repository root, where the workflow runs
+
+
+class Result:
+    """The results JSON of a step, read when the table is filled; `labels`: the steps its time sums."""
+
+    def __init__(self, plan: Plan, path: Path, *labels: str):
+        self.plan, self.path, self.labels = plan, Path(path), labels
+
+    def data(self) -> dict:
+        return read_json(self.path)
+
+    def cell(self, key: str = "metrics.mae_db") -> Callable[[], Cell]:
+        """A deferred Cell: the value at dotted `key` and the summed wall time of the steps."""
+        def read() -> Cell:
+            value = self.data()
+            for part in key.split("."):
+                value = value[part]
+            return Cell(value, self.plan.wall(*self.labels))
+        return read
+
+    def metric(self, *keys: str) -> Callable[[], Cell]:
+        """A deferred Cell without a time: the first of `keys` present in the JSON's metrics (a simple
+        baseline scored by rfir's predict)."""
+        def read() -> Cell:
+            m = self.data()["metrics"]
+            return Cell(next((m[k] for k in keys if k in m), None))
+        return read
 
 
 def set_args(pairs: dict | None) -> list[str]:
@@ -25,11 +51,10 @@ def set_args(pairs: dict | None) -> list[str]:
     return out
 
 
-def rfir_rcs(r: Runner, label: str, scene: Path, meas: Path, protocol: str, freq_hz: float,
-             iterations: int, sets: dict | None = None) -> tuple[Cell, dict]:
+def rfir_rcs(r: Plan, label: str, scene: Path, meas: Path, protocol: str, freq_hz: float,
+             iterations: int, sets: dict | None = None) -> Result:
     """rf-fit on the protocol's training rows at one frequency, predict rcs on its test rows."""
     fits = r.data / "fits"
-    fits.mkdir(parents=True, exist_ok=True)
     rf = fits / f"{label}.h5"
     t_fit = r.step(f"{label}__rfir_fit", [r.rfir, "--seed", "0", *set_args(sets), "rf-fit", str(scene), str(meas),
                                          "-o", str(rf), "--split", protocol, "--freq-hz", f"{freq_hz:g}",
@@ -38,15 +63,13 @@ def rfir_rcs(r: Runner, label: str, scene: Path, meas: Path, protocol: str, freq
     t_pred = r.step(f"{label}__rfir_predict", [r.rfir, "--seed", "0", "predict", "rcs", str(rf), "-o",
                                                str(fits / f"{label}_pred.h5"), "--measurements", str(meas),
                                                "--plots", str(r.out / "plots" / label), "--results", str(j)], j)
-    d = read_json(j)
-    return Cell(d["metrics"]["mae_db"], t_fit + t_pred), d
+    return Result(r, j, t_fit, t_pred)
 
 
-def rfir_rssi(r: Runner, label: str, scene: Path, meas: Path, split: str, iterations: int | None,
-              sets: dict | None = None) -> tuple[Cell, dict]:
+def rfir_rssi(r: Plan, label: str, scene: Path, meas: Path, split: str, iterations: int | None,
+              sets: dict | None = None) -> Result:
     """`rfir --recipe rssi` fit (split "random": the file's column; "holdout_tx": 4 unseen Tx) and score."""
     fits = r.data / "fits"
-    fits.mkdir(parents=True, exist_ok=True)
     rf = fits / f"{label}.h5"
     sets = dict(sets or {})
     if split == "holdout_tx":
@@ -59,24 +82,22 @@ def rfir_rssi(r: Runner, label: str, scene: Path, meas: Path, split: str, iterat
     t_pred = r.step(f"{label}__rfir_predict", [r.rfir, "--seed", "0", "--recipe", "rssi", "predict", "rssi", str(rf),
                                                "--measurements", str(meas), "-o", str(fits / f"{label}_pred.h5"),
                                                "--plots", str(r.out / "plots" / label), "--results", str(j)], j)
-    d = read_json(j)
-    return Cell(d["metrics"]["mae_db"], t_fit + t_pred), d
+    return Result(r, j, t_fit, t_pred)
 
 
-def _baseline(r: Runner, label: str, method: str, argv: list[str]) -> Cell:
-    """A baseline that fails leaves a "failed" cell (the run goes on, and ends with a non-zero exit)."""
+def _baseline(r: Plan, label: str, method: str, argv: list[str]) -> Callable[[], Cell]:
+    """A baseline script's step; its deferred cell."""
     j = r.json_path(f"{label}__{method}")
-    try:
-        wall = r.step(f"{label}__{method}", [r.python, *argv, "--results", str(j)], j)
-    except StageError as exc:
-        r.failed.append(str(exc))
-        return Cell(note=f"failed (logs/{label}__{method}.log)")
-    d = read_json(j)
-    return Cell(d["metrics"]["mae_db"], wall or d.get("wall_time_s"))
+    step = r.step(f"{label}__{method}", [r.python, *argv, "--results", str(j)], j, threads=2)
+
+    def read() -> Cell:
+        d = read_json(j)
+        return Cell(d["metrics"]["mae_db"], r.wall(step) or d.get("wall_time_s"))
+    return read
 
 
-def nerf2(r: Runner, label: str, meas: Path, task: str, split: str, minutes: float, freq_index: int = 0,
-          epochs: int | None = None) -> Cell:
+def nerf2(r: Plan, label: str, meas: Path, task: str, split: str, minutes: float, freq_index: int = 0,
+          epochs: int | None = None) -> Callable[[], Cell]:
     """The NeRF2-style field; split: random/holdout_tx (rssi) or an rf-fit protocol (rcs)."""
     argv = [str(SCRIPTS / "baseline_nerf2.py"), str(meas), "--minutes", f"{minutes:g}", "--threads", "2",
             "--freq-index", str(freq_index)]
@@ -92,8 +113,8 @@ def nerf2(r: Runner, label: str, meas: Path, task: str, split: str, minutes: flo
     return _baseline(r, label, "nerf2", argv)
 
 
-def wrfgs(r: Runner, label: str, meas: Path, scene: Path, task: str, split: str, minutes: float,
-          freq_index: int = 0, epochs: int | None = None) -> Cell:
+def wrfgs(r: Plan, label: str, meas: Path, scene: Path, task: str, split: str, minutes: float,
+          freq_index: int = 0, epochs: int | None = None) -> Callable[[], Cell]:
     """The WRF-GS-style Gaussian field (signal entangled with the source) on the scene's Gaussians."""
     argv = [str(SCRIPTS / "baseline_wrfgs.py"), str(meas), "--scene", str(scene), "--task", task,
             "--minutes", f"{minutes:g}", "--threads", "2", "--freq-index", str(freq_index)]
@@ -103,9 +124,9 @@ def wrfgs(r: Runner, label: str, meas: Path, scene: Path, task: str, split: str,
     return _baseline(r, label, "wrfgs", argv)
 
 
-def raytrace(r: Runner, label: str, mesh: Path, meas: Path, material: str = "concrete") -> Cell:
+def raytrace(r: Plan, label: str, mesh: Path, meas: Path, material: str = "concrete") -> Callable[[], Cell]:
     """Sionna RT on `mesh` with one ITU material for everything, scored on the file's test split."""
     j = r.json_path(f"{label}__raytrace")
-    wall = r.step(f"{label}__raytrace", [r.python, str(SCRIPTS / "baseline_raytrace.py"), str(mesh), str(meas),
+    step = r.step(f"{label}__raytrace", [r.python, str(SCRIPTS / "baseline_raytrace.py"), str(mesh), str(meas),
                                         "--material", material, "--results", str(j)], j)
-    return Cell(read_json(j)["mae_db"], wall)
+    return Result(r, j, step).cell("mae_db")

@@ -2,7 +2,8 @@
 
 A table has rows (a data set and protocol) and method columns; each cell is an MAE in dB, or a
 note where a method cannot run (e.g. "unsupported: cannot edit"). The lowest MAE of a row is bold
-in Markdown, and each method's wall time is kept beside its MAE.
+in Markdown, and each method's wall time is kept beside its MAE. A target declares its table before
+its steps ran: a row label or cell may be a function that reads the results, called by `resolved()`.
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from rfir_cli.figures import pyplot, save_figure
 
@@ -32,9 +34,16 @@ class Table:
     rows: list[tuple[str, dict[str, Cell]]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     ours: str = "rfir"
+    steps: list[tuple[str, float | None]] = field(default_factory=list)   # (step label, wall s) of the target
 
-    def add(self, label: str, cells: dict[str, Cell]) -> None:
+    def add(self, label: str | Callable[[], str], cells: dict[str, Cell | Callable[[], Cell]]) -> None:
         self.rows.append((label, cells))
+
+    def resolved(self) -> "Table":
+        """A copy with every deferred label and cell read (from the steps' results)."""
+        rows = [(label() if callable(label) else label, {m: c() if callable(c) else c for m, c in cells.items()})
+                for label, cells in self.rows]
+        return Table(self.title, list(self.methods), rows, list(self.notes), self.ours, list(self.steps))
 
     def best(self, cells: dict[str, Cell]) -> str | None:
         """The method with the lowest MAE on a row (None if no method has one)."""
@@ -85,6 +94,11 @@ def to_markdown(table: Table) -> str:
                      " (not on: " + "; ".join(lbl for lbl, ok in lowest if not ok) + ")") + "."]
     if table.notes:
         lines += [""] + [f"- {n}" for n in table.notes]
+    if table.steps:
+        total = sum(t for _, t in table.steps if t is not None)
+        lines += ["", f"Steps of this target (wall time from Snakemake's benchmark files; {total / 60:.1f} min in all, "
+                  "shared steps counted in every target that uses them):", "", "| step | minutes |", "|---|---|"]
+        lines += [f"| {label} | {'' if t is None else f'{t / 60:.2f}'} |" for label, t in table.steps]
     return "\n".join(lines) + "\n"
 
 

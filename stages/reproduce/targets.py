@@ -1,6 +1,6 @@
 """The reproduce targets: which data each makes, which rows and methods its table has.
 
-Sizes (full / --quick):
+Sizes (full / quick; fit steps, surfel spacing and baseline budgets in configs/reproduce.toml):
 - data: Sionna RT as `rfir simulate` makes it / physical optics (lego, h-target) or a small
   Sionna classroom; geometry for rfir and the WRF-GS-style field: surfels on the true mesh
   (`rfir mesh-gaussians`; docs/geom.md shows photo geometry scores the same on the lego).
@@ -11,24 +11,29 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from . import methods as M
-from .runner import Runner, read_json
+from rfir_cli.config import resolve_config
+from rfir_cli.errors import ConfigError
+
+from .plan import Plan, default_dirs
 from .tables import Cell, Table
 
 NOT_EDITABLE = "cannot edit: retrain on new measurements"
 SINGLE_FREQ = "not run: single-frequency implementation"
 
 
-def _simulate(r: Runner, name: str, scene: str, sets: dict, args: list[str] = ()) -> Path:
+def _simulate(r: Plan, name: str, scene: str, sets: dict, args: list[str] = ()) -> Path:
+    """`rfir simulate`: measurements, the true mesh and (unless --no-photos) photos with their cameras."""
     folder = r.data / name
     meas = folder / "measurements.h5"
-    r.step(f"data__{name}", [r.rfir, *M.set_args(sets), "simulate", scene, str(folder), *args], meas)
+    also = [folder / "meshes" / f"{scene}_gt.ply"]
+    if "--no-photos" not in args:
+        also += [f"{folder / 'images'}/", folder / "cameras.h5"]
+    r.step(f"data__{name}", [r.rfir, *M.set_args(sets), "simulate", scene, str(folder), *args], meas, also)
     return meas
 
 
-def _surfels(r: Runner, name: str, scene: str, spacing: float) -> Path:
+def _surfels(r: Plan, name: str, scene: str, spacing: float) -> Path:
     out = r.data / name / "scene.h5"
     mesh = r.data / name / "meshes" / f"{scene}_gt.ply"
     r.step(f"data__{name}_surfels", [r.rfir, "mesh-gaussians", str(mesh), "-o", str(out), "--spacing", f"{spacing:g}"],
@@ -44,37 +49,37 @@ def _rcs_sets(quick: bool, freqs: list[float], ranges: list[float]) -> dict:
     return sets
 
 
-def _sizes(r: Runner) -> dict:
-    if r.quick:
-        return {"iters": 30, "spacing": 0.05, "minutes": 0.3, "epochs": 1}
-    return {"iters": 200, "spacing": 0.03, "minutes": 4.0, "epochs": None}
+def _sizes(r: Plan) -> dict:
+    """The variant's sizes of configs/reproduce.toml (baseline_epochs 0: no cap)."""
+    s = r.sizes
+    return {"iters": s["iterations"], "spacing": s["surfel_spacing_m"], "minutes": s["baseline_minutes"],
+            "rssi_minutes": s["rssi_minutes"], "epochs": s["baseline_epochs"] or None}
 
 
-def _object_data(r: Runner, obj: str, freqs: list[float], ranges: list[float], tag: str = "") -> tuple[Path, Path]:
+def _object_data(r: Plan, obj: str, freqs: list[float], ranges: list[float], tag: str = "") -> tuple[Path, Path]:
     s = _sizes(r)
     name = f"{obj}{tag}"
     meas = _simulate(r, name, obj, _rcs_sets(r.quick, freqs, ranges), ["--no-photos", "--task", "rcs"])
     return meas, _surfels(r, name, obj, s["spacing"])
 
 
-def _rcs_row(r: Runner, table: Table, label: str, obj: str, meas: Path, scene: Path, protocol: str,
+def _rcs_row(r: Plan, table: Table, label: str, obj: str, meas: Path, scene: Path, protocol: str,
              freq_hz: float, freq_index: int) -> None:
     s = _sizes(r)
-    ours, d = M.rfir_rcs(r, label, scene, meas, protocol, freq_hz, s["iters"])
-    m = d["metrics"]
-    near = m.get("baseline_nearest_mae_db", m.get("baseline_nearest_range_mae_db"))
-    lin = m.get("baseline_linear_mae_db", m.get("baseline_linear_range_mae_db"))
+    ours = M.rfir_rcs(r, label, scene, meas, protocol, freq_hz, s["iters"])
+    near = ours.metric("baseline_nearest_mae_db", "baseline_nearest_range_mae_db")
+    lin = ours.metric("baseline_linear_mae_db", "baseline_linear_range_mae_db")
     table.add(f"{obj} {freq_hz / 1e9:g} GHz, {protocol}", {
-        "rfir": ours,
+        "rfir": ours.cell(),
         "NeRF2-style": M.nerf2(r, label, meas, "rcs", protocol, s["minutes"], freq_index, s["epochs"]),
         "WRF-GS-style": M.wrfgs(r, label, meas, scene, "rcs", protocol, s["minutes"], freq_index, s["epochs"]),
-        "nearest aspect": Cell(near), "linear interpolation": Cell(lin)})
+        "nearest aspect": near, "linear interpolation": lin})
 
 
 RCS_METHODS = ["rfir", "NeRF2-style", "WRF-GS-style", "nearest aspect", "linear interpolation"]
 
 
-def target_rcs(r: Runner) -> Table:
+def target_rcs(r: Plan) -> Table:
     """The paper's RCS table (lego and car at 2.4 and 5.8 GHz, even/odd aspects) plus harder protocols."""
     t = Table("RCS: monostatic, 3 m, train/test protocols of rf_fit.splits", RCS_METHODS)
     freqs = [2.4e9] if r.quick else [2.4e9, 5.8e9]
@@ -92,7 +97,7 @@ def target_rcs(r: Runner) -> Table:
     return t
 
 
-def target_extrapolation(r: Runner) -> Table:
+def target_extrapolation(r: Plan) -> Table:
     """Range extrapolation: train at 2, 2.5, 4, 4.5, 5 m, test at 3 m (lego, 2.4 GHz)."""
     t = Table("Range extrapolation: lego 2.4 GHz, 3 m held out",
               ["rfir", "NeRF2-style", "WRF-GS-style", "nearest range", "linear in range"])
@@ -100,26 +105,23 @@ def target_extrapolation(r: Runner) -> Table:
     meas, scene = _object_data(r, "lego", [2.4e9], ranges, tag="_ranges")
     s = _sizes(r)
     label = "extrap_lego_2.4_range3"
-    ours, d = M.rfir_rcs(r, label, scene, meas, "range:3", 2.4e9, s["iters"])
-    m = d["metrics"]
+    ours = M.rfir_rcs(r, label, scene, meas, "range:3", 2.4e9, s["iters"])
     t.add("lego 2.4 GHz, test 3 m", {
-        "rfir": ours,
+        "rfir": ours.cell(),
         "NeRF2-style": M.nerf2(r, label, meas, "rcs", "range:3", s["minutes"], 0, s["epochs"]),
         "WRF-GS-style": M.wrfgs(r, label, meas, scene, "rcs", "range:3", s["minutes"], 0, s["epochs"]),
-        "nearest range": Cell(m.get("baseline_nearest_range_mae_db")),
-        "linear in range": Cell(m.get("baseline_linear_range_mae_db"))})
+        "nearest range": ours.metric("baseline_nearest_range_mae_db"),
+        "linear in range": ours.metric("baseline_linear_range_mae_db")})
     t.notes.append(f"training ranges: {', '.join(f'{x:g}' for x in ranges if x != 3.0)} m")
     return t
 
 
 def _wideband_freqs(meas: Path, every: int) -> str:
-    from rfir_cli.artifacts import read_artifact
-
-    f = np.asarray(read_artifact(meas, "measurements")["freq_hz"], np.float64)
-    return ",".join(f"{x:.6g}" for x in f[::every])
+    """Every `every`-th frequency of the measurements, read when the step runs (a shell substitution)."""
+    return f"$(python -m rfir_stages.reproduce freqs {meas} {every})"
 
 
-def target_wideband(r: Runner) -> Table:
+def target_wideband(r: Plan) -> Table:
     """h-target, 160 MHz around 5.8 GHz (physical optics): rfir base + frequency network."""
     t = Table("Wideband: h-target 5.72-5.88 GHz, even/odd aspects", ["rfir", "rfir base (no network)",
               "NeRF2-style", "WRF-GS-style", "nearest aspect", "linear interpolation"])
@@ -130,13 +132,12 @@ def target_wideband(r: Runner) -> Table:
     scene = _surfels(r, "htarget", "h-target", 0.06 if r.quick else 0.03)
     it = (40, 30) if r.quick else (500, 300)
     fits = r.data / "fits"
-    fits.mkdir(parents=True, exist_ok=True)
     rf = fits / "wideband_htarget.h5"
     fit_sets = {"rf_fit.wideband.base_iterations": it[0], "rf_fit.wideband.net_iterations": it[1],
                 "rf_fit.wideband.links_per_step": 60, "rf_fit.wideband.freqs_per_step": 6,
                 "rf_fit.wideband.pair_floor": 0.001, "rf_fit.wideband.save_base": "true"}
     t_fit = r.step("wideband_htarget__rfir_fit", [r.rfir, "--seed", "0", *M.set_args(fit_sets), "rf-fit", str(scene),
-                                                  str(meas), "-o", str(rf)], rf)
+                                                  str(meas), "-o", str(rf)], rf, [rf.with_name(rf.stem + "_base.h5")])
     freqs = _wideband_freqs(meas, 1 if r.quick else 8)
     cells = {}
     for key, path in (("rfir", rf), ("rfir base (no network)", rf.with_name(rf.stem + "_base.h5"))):
@@ -146,25 +147,24 @@ def target_wideband(r: Runner) -> Table:
             r.rfir, "--seed", "0", "predict", "rcs", str(path), "--measurements", str(meas), "--freqs", freqs,
             "-o", str(fits / f"wideband_{tag}_pred.h5"), "--plots", str(r.out / "plots" / f"wideband_{tag}"),
             "--results", str(j)], j)
-        d = read_json(j)
-        cells[key] = Cell(d["metrics"]["mae_db"], t_pred + (t_fit if tag == "net" else 0.0))
-    m = d["metrics"]
+        res = M.Result(r, j, t_pred, *([t_fit] if tag == "net" else []))
+        cells[key] = res.cell()
     cells.update({"NeRF2-style": Cell(note=SINGLE_FREQ), "WRF-GS-style": Cell(note=SINGLE_FREQ),
-                  "nearest aspect": Cell(m.get("baseline_nearest_mae_db")),
-                  "linear interpolation": Cell(m.get("baseline_linear_mae_db"))})
+                  "nearest aspect": res.metric("baseline_nearest_mae_db"),
+                  "linear interpolation": res.metric("baseline_linear_mae_db")})
     t.add("h-target wideband" + (" (every 8th frequency scored)" if not r.quick else ""), cells)
     t.notes.append("the base fit's time is inside rfir's (one rf-fit writes both)")
     return t
 
 
-def _classroom(r: Runner) -> tuple[Path, Path]:
+def _classroom(r: Plan) -> tuple[Path, Path]:
     """The room's RSSI data (full: with the photos the geom-mesh baseline needs) and its surfels."""
     sets = {} if not r.quick else {"simulate.rssi.tx_grid": "[2,2]", "simulate.rssi.rx_grid": "[6,5]"}
     meas = _simulate(r, "classroom", "classroom", sets, ["--no-photos"] if r.quick else [])
     return meas, _surfels(r, "classroom", "classroom", 1.2 if r.quick else 0.8)
 
 
-def _geom_mesh(r: Runner) -> Path:
+def _geom_mesh(r: Plan) -> Path:
     """Photos -> calibrate -> geom -> the TSDF mesh the ray-tracing baseline runs on."""
     meas, _ = _classroom(r)
     folder = meas.parent
@@ -172,29 +172,29 @@ def _geom_mesh(r: Runner) -> Path:
     r.step("data__classroom_calibrate", [r.rfir, "calibrate", str(folder / "images"), "-o", str(calib), "--poses",
                                          str(folder / "cameras.h5"), "--intrinsics-from", str(folder / "cameras.h5")],
            calib)
-    r.step("data__classroom_geom", [r.rfir, "geom", str(calib), "-o", str(scene)], scene)
-    return folder / "geom_scene_mesh.ply"
+    mesh = folder / "geom_scene_mesh.ply"
+    r.step("data__classroom_geom", [r.rfir, "geom", str(calib), "-o", str(scene)], scene, [mesh])
+    return mesh
 
 
-def target_rssi(r: Runner) -> Table:
+def target_rssi(r: Plan) -> Table:
     """Classroom RSSI (Sionna RT, 2.4 GHz): random 80/20 links and 4 unseen transmitters."""
     t = Table("RSSI: classroom 2.4 GHz", ["rfir", "NeRF2-style", "WRF-GS-style", "ray tracing (geom mesh)",
                                           "ray tracing (true mesh)", "log-distance", "multi-wall", "nearest links"])
     meas, scene = _classroom(r)
     s = _sizes(r)
     splits = ["random"] if r.quick else ["random", "holdout_tx"]
-    minutes = s["minutes"] if r.quick else 6.0
+    minutes = s["rssi_minutes"]
     mesh = r.data / "classroom" / "meshes" / "classroom_gt.ply"
     for split in splits:
         label = f"rssi_classroom_{split}"
-        ours, d = M.rfir_rssi(r, label, scene, meas, split, 30 if r.quick else None)
-        m = d["metrics"]
-        row = {"rfir": ours,
+        ours = M.rfir_rssi(r, label, scene, meas, split, 30 if r.quick else None)
+        row = {"rfir": ours.cell(),
                "NeRF2-style": M.nerf2(r, label, meas, "rssi", split, minutes, 0, s["epochs"]),
                "WRF-GS-style": M.wrfgs(r, label, meas, scene, "rssi", split, minutes, 0, s["epochs"]),
-               "log-distance": Cell(m.get("baseline_log_distance_mae_db")),
-               "multi-wall": Cell(m.get("baseline_multiwall_mae_db")),
-               "nearest links": Cell(m.get("baseline_nearest_links_mae_db"))}
+               "log-distance": ours.metric("baseline_log_distance_mae_db"),
+               "multi-wall": ours.metric("baseline_multiwall_mae_db"),
+               "nearest links": ours.metric("baseline_nearest_links_mae_db")}
         if split == "random":
             row["ray tracing (true mesh)"] = M.raytrace(r, label + "_truemesh", mesh, meas)
             row["ray tracing (geom mesh)"] = (Cell(note="full run only") if r.quick
@@ -208,43 +208,47 @@ def target_rssi(r: Runner) -> Table:
     return t
 
 
-def target_ablation(r: Runner) -> Table:
+def target_ablation(r: Plan) -> Table:
     """rfir without its path-loss / phase terms (RCS) and without the distance weighting (RSSI)."""
     t = Table("Ablation: rfir's terms", ["rfir", "without path-loss term", "without phase term",
                                          "without LoS weighting"])
     s = _sizes(r)
     meas, scene = _object_data(r, "lego", [2.4e9] if r.quick else [2.4e9, 5.8e9], [3.0])
-    full, _ = M.rfir_rcs(r, "rcs_lego_2.4_data", scene, meas, "data", 2.4e9, s["iters"])
-    no_pl, _ = M.rfir_rcs(r, "ablation_lego_no_path_loss", scene, meas, "data", 2.4e9, s["iters"],
-                          {"rf_fit.path_loss": "false"})
-    no_ph, _ = M.rfir_rcs(r, "ablation_lego_no_phase", scene, meas, "data", 2.4e9, s["iters"], {"rf_fit.phase": "false"})
+    full = M.rfir_rcs(r, "rcs_lego_2.4_data", scene, meas, "data", 2.4e9, s["iters"]).cell()
+    no_pl = M.rfir_rcs(r, "ablation_lego_no_path_loss", scene, meas, "data", 2.4e9, s["iters"],
+                       {"rf_fit.path_loss": "false"}).cell()
+    no_ph = M.rfir_rcs(r, "ablation_lego_no_phase", scene, meas, "data", 2.4e9, s["iters"],
+                       {"rf_fit.phase": "false"}).cell()
     t.add("lego 2.4 GHz RCS, even/odd", {"rfir": full, "without path-loss term": no_pl, "without phase term": no_ph,
                                          "without LoS weighting": Cell(note="RSSI only")})
     if not r.quick:
         cmeas, cscene = _classroom(r)
-        full, _ = M.rfir_rssi(r, "rssi_classroom_random", cscene, cmeas, "random", None)
-        now, _ = M.rfir_rssi(r, "ablation_classroom_no_weighting", cscene, cmeas, "random", None,
-                             {"rf_fit.rssi.weighting": "false"})
+        full = M.rfir_rssi(r, "rssi_classroom_random", cscene, cmeas, "random", None).cell()
+        now = M.rfir_rssi(r, "ablation_classroom_no_weighting", cscene, cmeas, "random", None,
+                          {"rf_fit.rssi.weighting": "false"}).cell()
         t.add("classroom RSSI, random", {"rfir": full, "without LoS weighting": now,
                                          "without path-loss term": Cell(note="RCS only"),
                                          "without phase term": Cell(note="RCS only")})
     return t
 
 
-def _edit_row(r: Runner, t: Table, name: str, rf: Path, before: Path, after: Path, ops: list[str]) -> None:
+def _edit_row(r: Plan, t: Table, name: str, rf: Path, before: Path, after: Path, ops: list[str]) -> None:
     j = r.json_path(f"edit_{name}__rfir")
-    wall = r.step(f"edit_{name}__rfir", [r.python, "-m", "rfir_stages.edit.validate", str(rf), str(before), str(after),
+    step = r.step(f"edit_{name}__rfir", [r.python, "-m", "rfir_stages.edit.validate", str(rf), str(before), str(after),
                                          *ops, "--name", name, "--results", str(j),
                                          "--plots", str(r.out / "plots" / "edit"), "--work", str(r.data / "edit_work")], j)
-    d = read_json(j)
-    t.add(f"{name} (unedited {d['unedited_mae_db']:.2f} dB; ratio {d['mae_ratio']:.2f}; change corr "
-          f"{d['change_correlation']:.2f})",
-          {"rfir": Cell(d["edited_mae_db"], wall), "NeRF2-style": Cell(note=NOT_EDITABLE),
+    res = M.Result(r, j, step)
+
+    def label() -> str:
+        d = res.data()
+        return (f"{name} (unedited {d['unedited_mae_db']:.2f} dB; ratio {d['mae_ratio']:.2f}; change corr "
+                f"{d['change_correlation']:.2f})")
+    t.add(label, {"rfir": res.cell("edited_mae_db"), "NeRF2-style": Cell(note=NOT_EDITABLE),
            "WRF-GS-style": Cell(note=NOT_EDITABLE), "ray tracing": Cell(note="not run: the mesh from photos has no "
                                                                            "objects to select")})
 
 
-def target_edit(r: Runner) -> Table:
+def target_edit(r: Plan) -> Table:
     """Edits of a fitted scene checked against the simulator run on the edited scene (issue 9)."""
     t = Table("Edits: MAE of the edited scene's prediction", ["rfir", "NeRF2-style", "WRF-GS-style", "ray tracing"])
     s = _sizes(r)
@@ -256,7 +260,6 @@ def target_edit(r: Runner) -> Table:
     # One material for the whole object: the lego is one plastic, and per-brick materials fit brick-specific
     # brightness that does not move with a brick (docs/edit.md: per brick 1.25 -> 2.20 dB, x1.77).
     rf = r.data / "fits" / "edit_lego_global.h5"
-    r.data.joinpath("fits").mkdir(parents=True, exist_ok=True)
     r.step("edit_lego__rfir_fit", [r.rfir, "--seed", "0", "--set", "rf_fit.sharing=global", "rf-fit", str(scene),
                                    str(before), "-o", str(rf), "--iterations", str(s["iters"])], rf)
     _edit_row(r, t, "lego_rotate_top", rf, before, after, ["--select", "label:brick_1[6-9]", "--op",
@@ -279,6 +282,27 @@ def target_edit(r: Runner) -> Table:
                 "NeRF2- and WRF-GS-style fields learn one fixed scene: an edit means new measurements and a new "
                 "training run (their time and data, not a prediction)"]
     return t
+
+
+def declare(names: list[str], quick: bool, data: Path | None = None, out: Path | None = None,
+            overrides: list[str] = ()) -> tuple[Plan, dict[str, tuple[Table, list[str]]]]:
+    """The plan of the named targets (every step, inputs linked) and, per target, its deferred table
+    and the labels of its steps. data / out default to plan.default_dirs(quick); overrides:
+    `reproduce.<full|quick>.<key>=value` settings over configs/reproduce.toml."""
+    d, o = default_dirs(quick)
+    bad = [o for o in overrides if not o.startswith("reproduce.")]
+    if bad:
+        raise ConfigError(f"reproduce setting {bad[0]!r}: only reproduce.* keys (configs/reproduce.toml)")
+    sizes = resolve_config(overrides=list(overrides))["reproduce"]["quick" if quick else "full"]
+    plan = Plan(data or d, out or o, quick=quick, sizes=sizes)
+    tables = {}
+    for name in names:
+        if name not in TARGETS:
+            raise ConfigError(f"unknown reproduce target {name!r} (known: {', '.join(TARGETS)})")
+        plan.used = []
+        tables[name] = (TARGETS[name](plan), list(plan.used))
+    plan.link_inputs()
+    return plan, tables
 
 
 TARGETS = {"rcs": target_rcs, "wideband": target_wideband, "rssi": target_rssi,

@@ -1,16 +1,16 @@
-"""The reproduce driver: table output and the step runner (cache, times, failures)."""
+"""The reproduce targets as data: tables, the plan of steps (inputs, code versions), the table CLI."""
 from __future__ import annotations
 
 import csv
 import json
-import sys
 
 import pytest
 
-from rfir_cli.errors import StageError
-from rfir_stages.reproduce.__main__ import main
-from rfir_stages.reproduce.runner import Runner
+from rfir_cli.errors import ConfigError, StageError
+from rfir_stages.reproduce.__main__ import main, write_target
+from rfir_stages.reproduce.plan import Plan, code_version, read_benchmark, rule_name
 from rfir_stages.reproduce.tables import Cell, Table, to_markdown, write_table
+from rfir_stages.reproduce.targets import TARGETS, declare
 
 
 def _table() -> Table:
@@ -37,69 +37,103 @@ def test_write_table_files(tmp_path):
     assert png.stat().st_size > 1000 and png.read_bytes()[:4] == b"\x89PNG"
 
 
-def test_step_runs_once_then_is_cached(tmp_path):
-    r = Runner(tmp_path / "data", tmp_path / "out", echo=False)
-    target = tmp_path / "made.txt"
-    argv = [sys.executable, "-c", f"open({str(target)!r}, 'a').write('x')"]
-    wall = r.step("make", argv, target)
-    assert target.read_text() == "x" and wall > 0
-    assert r.step("make", argv, target) == pytest.approx(wall)      # cached: not run again
-    assert target.read_text() == "x"
-    times = json.loads((tmp_path / "out" / "times.json").read_text())
-    assert times["make"] == pytest.approx(wall)
-    again = Runner(tmp_path / "data", tmp_path / "out", echo=False, force=True)
-    again.step("make", argv, target)
-    assert target.read_text() == "xx"                                # --force reruns
+def test_deferred_cells_and_labels_are_read_when_resolved():
+    seen = []
+    t = Table("demo", ["rfir"])
+    t.add(lambda: "late label", {"rfir": lambda: seen.append(1) or Cell(0.5)})
+    assert seen == []                                                # declaring reads nothing
+    r = t.resolved()
+    assert r.rows == [("late label", {"rfir": Cell(0.5)})] and seen == [1]
 
 
-def test_outputs_that_came_without_this_data_folders_stamp_are_rerun(tmp_path):
-    """A fresh clone holds results/reproduce/json but no generated data: its steps must run."""
-    target = tmp_path / "out" / "json" / "committed.json"
-    target.parent.mkdir(parents=True)
-    target.write_text("old")
-    argv = [sys.executable, "-c", f"open({str(target)!r}, 'w').write('new')"]
-    r = Runner(tmp_path / "fresh_data", tmp_path / "out", echo=False)
-    r.step("committed", argv, target)
-    assert target.read_text() == "new"
-    assert (tmp_path / "fresh_data" / "steps" / "committed.done").exists()
-    target.write_text("kept")
-    r.step("committed", argv, target)                                # stamped now: cached
-    assert target.read_text() == "kept"
+def test_plan_links_inputs_through_files_folders_and_shell_substitutions(tmp_path):
+    p = Plan(tmp_path / "d", tmp_path / "o")
+    p.step("make", ["rfir", "simulate", "lego", "d/lego"], "d/lego/m.h5", ["d/lego/images/"])
+    p.step("use", ["rfir", "calibrate", "d/lego/images/cam0.png", "--x", "$(python -m tool d/lego/m.h5 8)"],
+           "d/c.h5")
+    p.step("alone", ["rfir", "geom", "elsewhere.h5"], "d/g.h5")
+    p.link_inputs()
+    assert p.steps["use"].inputs == ["d/lego/images/", "d/lego/m.h5"]
+    assert p.steps["alone"].inputs == [] and p.steps["make"].inputs == []
+    assert p.steps["use"].command.endswith('--x "$(python -m tool d/lego/m.h5 8)"')
 
 
-def test_a_changed_command_line_reruns_the_step(tmp_path):
-    """A new option (say a config default spelled out in the command) must not reuse old outputs."""
-    r = Runner(tmp_path / "data", tmp_path / "out", echo=False)
-    target = tmp_path / "made.txt"
-    argv = [sys.executable, "-c", f"open({str(target)!r}, 'a').write('x')", "--old"]
-    r.step("make", argv, target)
-    r.step("make", argv, target)
-    assert target.read_text() == "x"
-    r.step("make", argv[:-1] + ["--new"], target)
-    assert target.read_text() == "xx"
-    (tmp_path / "data" / "steps" / "make.done").write_text("made.txt\n1.0 s\n")   # a stamp without its command
-    r.step("make", argv[:-1] + ["--new"], target)
-    assert target.read_text() == "xxx"
+def test_a_step_declared_twice_must_keep_its_command(tmp_path):
+    p = Plan(tmp_path / "d", tmp_path / "o")
+    p.step("a", ["rfir", "geom", "x"], "y")
+    p.step("a", ["rfir", "geom", "x"], "y")                          # shared by two targets: fine
+    with pytest.raises(StageError, match="declared twice"):
+        p.step("a", ["rfir", "geom", "z"], "y")
 
 
-def test_failed_step_names_its_log(tmp_path):
-    r = Runner(tmp_path / "data", tmp_path / "out", echo=False)
-    with pytest.raises(StageError, match=r"make\.log.*exit 3"):
-        r.step("make", [sys.executable, "-c", "print('boom'); raise SystemExit(3)"], tmp_path / "never")
-    assert "boom" in (tmp_path / "out" / "logs" / "make.log").read_text()
-    with pytest.raises(StageError, match="did not write"):
-        r.step("quiet", [sys.executable, "-c", "pass"], tmp_path / "never")
+def test_code_version_follows_the_content_of_the_commands_sources(tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
+    (tmp_path / "pkg" / "notes.txt").write_text("ignored")
+    v1 = code_version(("pkg",), tmp_path)
+    (tmp_path / "pkg" / "notes.txt").write_text("changed, not source")
+    assert code_version(("pkg",), tmp_path) == v1
+    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
+    assert code_version(("pkg",), tmp_path) != v1
 
 
-def test_unknown_target_is_a_clear_error(capsys):
-    assert main(["nope"]) == 2
-    assert "unknown target 'nope'" in capsys.readouterr().err
+@pytest.mark.parametrize("quick", [True, False])
+def test_every_target_declares_steps_with_known_code_and_unique_rules(quick):
+    plan, tables = declare(list(TARGETS), quick)
+    assert set(tables) == set(TARGETS)
+    names = [rule_name(label) for label in plan.steps]
+    assert len(set(names)) == len(names)
+    owners = {o for s in plan.steps.values() for o in s.outputs}
+    for step in plan.steps.values():
+        assert step.code_files                                        # raises for a command CODE lacks
+        assert set(step.inputs) <= owners
+        assert not any(a.startswith("/") for a in step.argv), step.command   # no machine path in a rule
+    fit = plan.steps["rcs_lego_2.4_data__rfir_fit"]
+    assert fit.inputs == ["data/reproduce%s/lego/scene.h5" % ("-quick" if quick else ""),
+                          "data/reproduce%s/lego/measurements.h5" % ("-quick" if quick else "")]
+    assert fit.argv[-1] == ("30" if quick else "200")                 # configs/reproduce.toml
 
 
-def test_two_runners_on_one_folder_keep_each_others_times(tmp_path):
-    a = Runner(tmp_path / "data", tmp_path / "out", echo=False)
-    b = Runner(tmp_path / "data", tmp_path / "out", echo=False)      # started before a wrote anything
-    a.step("from_a", [sys.executable, "-c", f"open({str(tmp_path / 'a')!r}, 'w')"], tmp_path / "a")
-    b.step("from_b", [sys.executable, "-c", f"open({str(tmp_path / 'b')!r}, 'w')"], tmp_path / "b")
-    times = json.loads((tmp_path / "out" / "times.json").read_text())
-    assert set(times) == {"from_a", "from_b"}
+def test_sizes_come_from_the_config_and_overrides_are_checked():
+    plan, _ = declare(["rcs"], True, overrides=["reproduce.quick.baseline_minutes=0.5"])
+    assert "--minutes 0.5" in plan.steps["rcs_lego_2.4_data__nerf2"].command
+    with pytest.raises(ConfigError, match="unknown config key"):
+        declare(["rcs"], True, overrides=["reproduce.quick.nope=1"])
+    with pytest.raises(ConfigError, match="only reproduce"):
+        declare(["rcs"], True, overrides=["rf_fit.iterations=3"])
+    with pytest.raises(ConfigError, match="unknown reproduce target 'nope'"):
+        declare(["nope"], True)
+
+
+def test_benchmark_files_are_read_and_missing_ones_are_none(tmp_path):
+    b = tmp_path / "x.tsv"
+    b.write_text("s\th:m:s\tmax_rss\n12.5\t0:00:12\t100.0\n")
+    assert read_benchmark(b) == 12.5
+    assert read_benchmark(tmp_path / "missing.tsv") is None
+
+
+def test_table_cli_fills_a_target_from_results_and_benchmarks(tmp_path):
+    """The ablation table from hand-written results: MAEs from the JSON, times from benchmark files."""
+    plan, tables = declare(["ablation"], True, tmp_path / "d", tmp_path / "o")
+    for i, label in enumerate(["rcs_lego_2.4_data", "ablation_lego_no_path_loss", "ablation_lego_no_phase"]):
+        j = plan.json_path(f"{label}__rfir")
+        j.parent.mkdir(parents=True, exist_ok=True)
+        j.write_text(json.dumps({"metrics": {"mae_db": 1.0 + i}}))
+        for step in (f"{label}__rfir_fit", f"{label}__rfir_predict"):
+            b = plan.benchmark_path(step)
+            b.parent.mkdir(parents=True, exist_ok=True)
+            b.write_text(f"s\th:m:s\n{30 * (i + 1)}\t0:00:30\n")
+    paths = write_target("ablation", True, tmp_path / "d", tmp_path / "o")
+    md = paths[0].read_text()
+    assert "| lego 2.4 GHz RCS, even/odd | **1.00** | 2.00 | 3.00 | RSSI only |" in md
+    assert "| lego 2.4 GHz RCS, even/odd | 1.0 | 2.0 | 3.0 |  |" in md      # fit + predict, minutes
+    summary = json.loads((tmp_path / "o" / "ablation.json").read_text())
+    assert summary["step_s"]["ablation_lego_no_phase__rfir_fit"] == 90.0
+    assert summary["step_s"]["data__lego"] is None and summary["step_s_total"] == 360.0
+
+
+def test_table_cli_names_a_missing_result(tmp_path, capsys):
+    assert main(["table", "ablation", "--quick", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")]) == 5
+    err = capsys.readouterr().err
+    assert "rcs_lego_2.4_data__rfir.json" in err and "cannot read the step result" in err
+    assert not (tmp_path / "o" / "ablation.md").exists()
