@@ -17,9 +17,9 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
     """Predict the map of Tx tx_m [3] m at receivers on a grid (height_m, step_m over the input's floor
     plan) with both artifacts; write the PNG; return {"mean_abs_change_db", "max_abs_change_db", "points"}."""
     from rfir_stages.predict.rssi_checks import floor_grid
-    from rfir_stages.predict.rssi_model_io import RssiPredictor
+    from rfir_stages.predict.rssi_model_io import load_predictor
 
-    before, after = RssiPredictor(rf_before), RssiPredictor(rf_after)
+    before, after = load_predictor(rf_before), load_predictor(rf_after)
     bounds = before.geom.means.min(0).values.numpy(), before.geom.means.max(0).values.numpy()
     rx = floor_grid(bounds, height_m, step_m)
     tx = np.broadcast_to(np.asarray(tx_m, np.float64).reshape(1, 3), rx.shape)

@@ -173,6 +173,15 @@ class RoomPaths:
     def num(self) -> int:
         return int(self.link.numel())
 
+    def slot_use(self) -> list[int]:
+        """Number of paths using each interaction slot; paths are stored most interactions first, so
+        slot i is used by the first slot_use()[i] paths."""
+        used = (self.kind > 0).sum(0)
+        counts = (self.kind > 0).sum(1)
+        if counts.numel() > 1 and bool((counts[1:] > counts[:-1]).any()):
+            raise ValueError("room paths must be stored most interactions first")
+        return [int(u) for u in used]
+
     def select_links(self, rows) -> "RoomPaths":
         """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
         rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
@@ -185,43 +194,45 @@ class RoomPaths:
 
     def field(self, eta_of_patch: torch.Tensor, thickness_of_patch: torch.Tensor | None,
               scattering_of_patch: torch.Tensor) -> torch.Tensor:
-        """Received complex amplitude [M] (P_T = 1 W): the sum over each link's paths.
+        """Received complex amplitude [M] (P_T = 1 W), every coefficient evaluated exactly.
 
         eta_of_patch [P, M] complex relative permittivity of each patch's material at each link's
         frequency (or [P, 1] for one frequency); thickness_of_patch [P] m (None: half-spaces);
         scattering_of_patch [P] S."""
-        f = self.freq_hz[self.link]                                         # [Q]
+        f = self.freq_hz[self.link]
+        k0 = (2 * math.pi * f / C0)[:, None]
+        col = self.link if eta_of_patch.shape[1] > 1 else torch.zeros_like(self.link)
+        eta = eta_of_patch[self.patch, col[:, None]]                                  # [Q, I]
+        th = None if thickness_of_patch is None else thickness_of_patch[self.patch]
+        r_te, r_tm = fresnel(eta, self.cos, k0, th)
+        if th is None:
+            t_te = t_tm = torch.zeros_like(r_te)             # a half-space transmits nothing
+        else:
+            t_te, t_tm = slab_transmission(eta, self.cos, k0, th)
+        refl = self.kind == 1
+        c_te, c_tm = torch.where(refl, r_te, t_te), torch.where(refl, r_tm, t_tm)
+        spec = torch.where(refl, torch.sqrt((1.0 - scattering_of_patch[self.patch] ** 2).clamp(min=0.0)),
+                           torch.ones((), dtype=torch.float64)).prod(1)
+        return self.chain([(c_te[:, i], c_tm[:, i]) for i in range(c_te.shape[1])], spec)
+
+    def chain(self, coefficients: list, spec: torch.Tensor) -> torch.Tensor:
+        """Received complex amplitude [M] from the TE and TM coefficients of each interaction slot i,
+        coefficients[i] = (c_te, c_tm) complex of length >= slot_use()[i] (the paths using slot i come
+        first), and each path's specular share spec [Q] (prod sqrt(1 - S^2))."""
+        f = self.freq_hz[self.link]
         k0 = 2 * math.pi * f / C0
         e = self.e_tx.to(torch.complex128)
-        amp = torch.ones(self.num, dtype=torch.complex128)
-        col = self.link if eta_of_patch.shape[1] > 1 else torch.zeros_like(self.link)
-        for i in range(self.kind.shape[1]):
-            kind = self.kind[:, i]
-            act = kind > 0
-            if not bool(act.any()):
-                continue
-            q = torch.nonzero(act).squeeze(1)
-            p = self.patch[q, i]
-            eta = eta_of_patch[p, col[q]]
-            th = None if thickness_of_patch is None else thickness_of_patch[p]
-            refl = kind[q] == 1
-            r_te, r_tm = fresnel(eta, self.cos[q, i], k0[q], th)
-            if th is None:
-                t_te = t_tm = torch.zeros_like(r_te)        # a half-space transmits nothing
-            else:
-                t_te, t_tm = slab_transmission(eta, self.cos[q, i], k0[q], th)
-            c_te = torch.where(refl, r_te, t_te)
-            c_tm = torch.where(refl, r_tm, t_tm)
-            s, pin, pout = (t[q, i].to(torch.complex128) for t in (self.s, self.p_in, self.p_out))
-            eq = e[q]
-            new = (c_te * (eq * s).sum(1))[:, None] * s + (c_tm * (eq * pin).sum(1))[:, None] * pout
-            e = e.index_put((q,), new)
-            spec = torch.where(refl, torch.sqrt((1.0 - scattering_of_patch[p] ** 2).clamp(min=0.0)),
-                               torch.ones_like(scattering_of_patch[p]))
-            amp = amp.index_put((q,), amp[q] * spec.to(torch.complex128))
+        for i, n in enumerate(self.slot_use()):
+            if n == 0:
+                break
+            s, pin, pout = (t[:n, i].to(torch.complex128) for t in (self.s, self.p_in, self.p_out))
+            head = e[:n]
+            c_te, c_tm = coefficients[i]
+            new = (c_te[:n] * (head * s).sum(1))[:, None] * s + (c_tm[:n] * (head * pin).sum(1))[:, None] * pout
+            e = torch.cat([new, e[n:]])
         lam = C0 / f
         free = (lam / (4 * math.pi * self.length_m)).to(torch.complex128) * torch.exp(-1j * k0 * self.length_m)
-        a = self.gain * free * amp * (self.e_rx.to(torch.complex128) * e).sum(1)
+        a = self.gain * spec * free * (self.e_rx.to(torch.complex128) * e).sum(1)
         return torch.zeros(self.num_links, dtype=torch.complex128).index_add(0, self.link, a)
 
 
@@ -419,6 +430,8 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
         gain = gain * np.asarray(rx_gain(-k_arr), dtype=np.float64)
     e_tx = polarisation_vectors(k_dep, polarisation)
     e_rx = polarisation_vectors(k_arr, polarisation)
-    t = lambda x: torch.as_tensor(np.ascontiguousarray(x[keep_path]))  # noqa: E731
+    # paths sorted by interaction count, most first: slot i is then used by a prefix of the paths
+    order_q = np.flatnonzero(keep_path)[np.argsort(-counts[keep_path], kind="stable")]
+    t = lambda x: torch.as_tensor(np.ascontiguousarray(x[order_q]))  # noqa: E731
     return RoomPaths(m_links, t(link), t(length), t(np.sqrt(gain)), t(order), t(e_tx), t(e_rx), t(kind), t(patch),
                      t(cosm), t(sm), t(pim), t(pom), torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))

@@ -30,7 +30,7 @@ from . import rssi_baselines as bl
 from .baselines import baselines_beating_model
 from .heatmap import error_limits, fov_maps, radio_map
 from .rssi_checks import check_points, floor_grid, grid_shape
-from .rssi_model_io import RssiPredictor
+from .rssi_model_io import RssiPredictor, load_predictor
 
 DEFAULTS = {"grid": [1.0, 0.4], "max_memory_gb": 8.0, "chunk_links": 512, "tx_match_m": 0.01}
 
@@ -134,7 +134,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     if tx is None and measurements_path is None:
         raise ConfigError("give --tx X,Y,Z (a map), or --measurements FILE (score the model on its test split)")
     rf = read_artifact(rf_path, "rf")
-    pred = RssiPredictor(rf, str(config.get("occlusion", "auto")))
+    pred = load_predictor(rf, str(config.get("occlusion", "auto")))
     meas = read_artifact(measurements_path, "measurements") if measurements_path is not None else None
     if meas is not None and str(meas.attrs.get("task", "")) != "rssi":
         raise StageError("`predict rssi` needs task 'rssi' measurements", path=measurements_path)
@@ -238,14 +238,21 @@ def _plots(folder: Path, pred: RssiPredictor, rf, meas, txs, rx, pg, measured, t
     return paths
 
 
+def _plain(value):
+    """An attribute as JSON can hold it (arrays as lists, numpy scalars as numbers)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value.item() if hasattr(value, "item") else value
+
+
 def _results(path: Path, name, rf, rf_path, measurements_path, result: RssiPredictResult, seed) -> Path:
     training = rf.free.get("training@attrs", {})
     model = rf.free.get("model@attrs", {})
     doc = {"name": name, "task": "rssi", "scene": str(rf.attrs.get("scene", "")), "freq_hz": result.freq_hz,
            "rf": str(rf_path), "measurements": str(measurements_path), "seed": seed,
            "num_gaussians": int(len(rf["rf/opacity"])), "metrics": result.metrics,
-           "model": {k: (v.item() if hasattr(v, "item") else v) for k, v in model.items()},
-           "fit": {k: (v.item() if hasattr(v, "item") else v) for k, v in training.items()},
+           "model": {k: _plain(v) for k, v in model.items()},
+           "fit": {k: _plain(v) for k, v in training.items()},
            "predict_wall_time_s": result.wall_time_s, "predict_time_s": result.predict_time_s,
            "num_links": result.num_links, "warnings": result.warnings}
     path.parent.mkdir(parents=True, exist_ok=True)

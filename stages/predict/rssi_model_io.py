@@ -90,3 +90,12 @@ class RssiPredictor:
                 if progress is not None:
                     progress.advance(b - a)
         return out
+
+
+def load_predictor(rf, occlusion: str = "auto"):
+    """The predictor of an RSSI `rf` artifact: the physical room model (model_kind "rssi_physical") or
+    the LoS/NLoS model."""
+    if str(rf.free.get("model@attrs", {}).get("model_kind", "")) == "rssi_physical":
+        from rfir_stages.model.room import RoomPredictor
+        return RoomPredictor(rf, occlusion)
+    return RssiPredictor(rf, occlusion)

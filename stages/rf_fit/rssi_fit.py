@@ -29,7 +29,8 @@ from .rssi_model import (RssiModel, build_probe_field, friis_los, link_terms, lo
                          predict_db, render_los, render_nlos)
 
 CACHE_BYTES = 24  # per link and Gaussian: float32 amplitude and lobe, complex64 phase, + temporaries
-RSSI_DEFAULTS = {"split": "file", "holdout_tx": 4, "weighting": True, "probe_step_m": 0.5, "hidden": 16,
+RSSI_MODELS = ("free", "physical")
+RSSI_DEFAULTS = {"model": "free", "split": "file", "holdout_tx": 4, "weighting": True, "probe_step_m": 0.5, "hidden": 16,
                  "batch_links": 1024, "los_lr": 0.01, "nlos_init_db": -6.0}
 
 
@@ -37,6 +38,8 @@ def rssi_settings(config: dict) -> dict:
     """The [rf_fit.rssi] table with defaults filled in and checked."""
     cfg = dict(RSSI_DEFAULTS)
     cfg.update(config.get("rssi", {}) or {})
+    if cfg["model"] not in RSSI_MODELS:
+        raise ConfigError(f"rf_fit.rssi.model = {cfg['model']!r}: expected one of {', '.join(RSSI_MODELS)}")
     if cfg["split"] not in ("file", "holdout_tx"):
         raise ConfigError(f"rf_fit.rssi.split = {cfg['split']!r}: expected 'file' or 'holdout_tx'")
     if not cfg["probe_step_m"] > 0 or int(cfg["batch_links"]) < 1:
@@ -154,6 +157,13 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     antenna = AntennaPattern("isotropic" if kind == "auto" else kind, hpbw_deg=float(config.get("horn_hpbw_deg", 40.0)))
     if antenna.kind not in ("isotropic", "dipole"):
         raise ConfigError(f"rf_fit.antenna = {kind!r}: the RSSI model takes omni antennas (isotropic or dipole)")
+    if cfg["model"] == "physical":   # the physical room model (docs/physics.md section 9): room_stage.py
+        if antenna.kind != "isotropic":
+            raise ConfigError(f"rf_fit.antenna = {kind!r}: the physical room model takes isotropic antennas")
+        from .room_stage import run_room
+        return run_room(scene, meas, geom, rows, held, tx, rx, float(freqs[col]), target_np, scene_path,
+                        measurements_path, out_path, config, render_cfg, cfg, seed=seed, config_toml=config_toml,
+                        progress=progress, t_start=t_start)
 
     need = len(rows) * geom.num * CACHE_BYTES
     avail = psutil.virtual_memory().available

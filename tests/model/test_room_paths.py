@@ -157,3 +157,53 @@ def test_metal_corner_second_order_path():
                       paths.e_rx, paths.kind, paths.patch, paths.cos, paths.s, paths.p_in, paths.p_out)), paths.freq_hz)
     got = sub.field(eta, None, torch.zeros(patches.num, dtype=torch.float64)).numpy()[0]
     np.testing.assert_allclose(got, _free(d), rtol=1e-9)
+
+
+def test_tabulated_coefficients_equal_the_exact_evaluation():
+    from rfir_stages.model.physical import MaterialParams
+    from rfir_stages.model.room import RoomLinks
+
+    floor = plate_mesh((2.0, 2.0, 0.0), (1, 0, 0), (0, 1, 0), 6.0, 6.0)
+    wall = plate_mesh((0.0, 2.0, 1.5), (0, 1, 0), (0, 0, 1), 6.0, 3.0)
+    pane = plate_mesh((2.0, 0.5, 1.2), (1, 0, 0), (0, 0, 1), 1.0, 1.0)          # crossed by some direct paths
+    patches, prov = _room([floor, wall, pane], spacing=0.25)
+    rng = np.random.default_rng(0)
+    tx = rng.uniform([0.5, -1.0, 0.5], [4.0, 4.0, 2.5], (40, 3))
+    rx = rng.uniform([0.5, -1.0, 0.5], [4.0, 4.0, 2.5], (40, 3))
+    paths = trace_room_paths(tx, rx, np.full(40, F), patches, prov, max_order=2, higher_order_min_area_m2=0.5)
+    assert (paths.kind == 2).any() and (paths.order == 2).any()
+    params = MaterialParams(3, eps_r=4.0, sigma_1ghz=0.05, scattering=0.2, thickness_m=0.1)
+    params.set_values(2, eps_r=6.3, sigma_1ghz=0.003, thickness_m=0.006)
+    with torch.no_grad():
+        vals = params.values()
+        lab = torch.as_tensor(patches.label)
+        links = RoomLinks(paths, None, lab, 3)
+        fast = links.power(vals)[:, 0].numpy()
+        exact = np.abs(paths.field(vals.eta(torch.tensor([F]))[lab], vals.thickness_m[lab],
+                                   vals.scattering[lab]).numpy()) ** 2
+    assert np.max(np.abs(10 * np.log10(fast / exact))) < 0.01
+
+
+def test_diffuse_weights_equal_the_direct_lambertian_sum():
+    from rfir_stages.model.room_diffuse import diffuse_cells, diffuse_terms
+
+    floor = plate_mesh((0.0, 0.0, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 4.0)
+    patches, prov = _room([floor], spacing=0.25)
+    geom = prov.geom
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals).numpy()
+    cells = diffuse_cells(geom.means.numpy(), areas, patches, np.zeros(patches.num, np.int64), 1.0)
+    assert abs(cells.area.sum() - 16.0) < 0.8 and len(cells.area) >= 16     # surfel areas: within 5 % of the plate
+    tx = np.array([[0.3, -0.2, 1.8], [-1.0, 1.0, 2.5]])
+    rx = np.array([[1.2, 0.9, 1.0], [1.5, -1.5, 0.7]])
+    terms = diffuse_terms(tx, rx, np.full(2, F), cells, 1, prov, opacity=0.9, margin_m=0.1, t_stop=1e-4)
+    eta = torch.tensor([[complex(5.24, -0.69)]], dtype=torch.complex128)
+    got = terms.power(eta, torch.tensor([0.2]), torch.tensor([0.3], dtype=torch.float64)).numpy()
+    want = []
+    for t, r in zip(tx, rx):
+        wi, wo = t - cells.centre, r - cells.centre
+        di, do = np.linalg.norm(wi, axis=1), np.linalg.norm(wo, axis=1)
+        ci, co = wi[:, 2] / di, wo[:, 2] / do
+        r_te, r_tm = fresnel(eta[0, 0], ci, K, 0.2)
+        g2 = 0.5 * (np.abs(r_te.numpy()) ** 2 + np.abs(r_tm.numpy()) ** 2)
+        want.append(np.sum(0.09 * g2 * cells.area * ci * co * LAM ** 2 / (16 * math.pi ** 3 * di ** 2 * do ** 2)))
+    np.testing.assert_allclose(got, want, rtol=2e-3)

@@ -1,0 +1,146 @@
+"""rf-fit of RSSI links with the physical room model (rfir_stages.model.room, docs/physics.md section 9).
+
+Called by rssi_fit.run_rssi when `[rf_fit.rssi] model = "physical"`. Materials are fitted per label
+class (desk_03 -> desk) when the scene has labels, else per segment (k-means of the Gaussians on
+position and normal); `[rf_fit.room] sharing` overrides. The fit itself is fit_physical.fit_materials
+(the starts, start switching and best-state rules of the RCS model). The artifact holds the Gaussians,
+the materials (model.artifact.physical_fields) and the room settings, so predict rssi can trace any
+new link.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import fields
+
+import numpy as np
+import torch
+
+from rfir_cli.artifacts import write_artifact
+from rfir_cli.errors import ConfigError
+from rfir_cli.provenance import Provenance
+from rfir_stages.model.artifact import physical_fields
+from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
+from rfir_stages.model.physical import PairSettings
+from rfir_stages.model.room import RoomGeometry, RoomSettings, label_classes
+
+MODEL_KIND = "rssi_physical"
+SHARINGS = ("auto", "class", "label", "segment", "global")
+FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
+
+
+def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
+    """(room settings, fit settings, sharing) from the [rf_fit] table ([rf_fit.room] and [rf_fit.physical])."""
+    table = dict(config.get("room", {}) or {})
+    sharing = str(table.pop("sharing", "auto"))
+    if sharing not in SHARINGS:
+        raise ConfigError(f"rf_fit.room.sharing = {sharing!r}: expected one of {', '.join(SHARINGS)}")
+    known = {f.name for f in fields(RoomSettings)}
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise ConfigError(f"rf_fit.room: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+    settings = RoomSettings(**{k: type(getattr(RoomSettings, k))(v) for k, v in table.items()})
+    if settings.polarisation not in ("V", "H") or settings.max_order < 0:
+        raise ConfigError("rf_fit.room: polarisation must be 'V' or 'H' and max_order >= 0")
+    phys = dict(config.get("physical", {}) or {})
+    fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys})
+    return settings, fit_cfg, sharing
+
+
+def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], str]:
+    """(material of each Gaussian [G], material names, the sharing used)."""
+    labels = scene.get("gaussians/labels")
+    names = [str(s) for s in scene.attrs.get("label_names", [])] if "label_names" in scene.attrs else None
+    if sharing == "auto":
+        sharing = "class" if labels is not None else "segment"
+    if sharing == "class":
+        if labels is None:
+            raise ConfigError("rf_fit.room.sharing = 'class' needs gaussians/labels in the scene; use 'segment'")
+        lab = np.asarray(labels, dtype=np.int64)
+        top = int(lab.max()) + 1
+        cls, cnames = label_classes(names if names and len(names) >= top else [f"label_{i}" for i in range(top)])
+        used, idx = np.unique(cls[lab], return_inverse=True)
+        return idx.astype(np.int64), [cnames[u] for u in used], sharing
+    idx, mnames = material_index(sharing, geom.num, None if labels is None else torch.as_tensor(labels),
+                                 geom.means, geom.normals, label_names=names)
+    return idx.numpy(), mnames, sharing
+
+
+def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,
+             measurements_path, out_path, config: dict, render_cfg, cfg: dict, *, seed: int, config_toml: str,
+             progress, t_start: float):
+    """Trace, fit and write; returns stage.RfFitResult."""
+    from .stage import RfFitResult
+
+    settings, fit_cfg, sharing = room_config(config)
+    material, names, sharing = room_materials(sharing, scene, geom)
+    labels = scene.get("gaussians/labels")
+    t0 = time.time()
+    room = RoomGeometry(geom, None if labels is None else torch.as_tensor(np.asarray(labels, dtype=np.int64)),
+                        material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
+    progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches, "
+                 f"{len(rows)} training links, materials per {sharing} ({len(names)}), reflections up to order "
+                 f"{settings.max_order}, diffuse {'on' if settings.diffuse else 'off'}, polarisation "
+                 f"{settings.polarisation}, isotropic antennas, system gain "
+                 f"{'fitted' if fit_cfg.fit_gain else '0 dB'}")
+    links = room.links(tx, rx, np.full(len(tx), freq_hz))
+    trace_s = time.time() - t0
+    progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(tx), 1):.1f} per link) "
+                 f"in {trace_s:.1f} s")
+    res = fit_materials(links, len(names), target_db[:, None], fit_cfg, progress, label="physical room")
+    seen = np.zeros(len(names), bool)
+    seen[room.material_of_patch[np.unique(links.paths.patch[links.paths.kind > 0].numpy())]] = True
+    unseen = [n for n, s in zip(names, seen) if not s]
+    if unseen:
+        progress.log(f"warning: no training path reflects off or crosses {', '.join(unseen)}: "
+                     "their materials keep the starting values")
+    with torch.no_grad():
+        vals = res.params.values()
+    data, model_attrs = physical_fields(vals, torch.as_tensor(material), room.areas, np.asarray([freq_hz]),
+                                        PairSettings(opacity=settings.opacity, polarisation=settings.polarisation),
+                                        names, float(res.params.gain_db.detach()))
+    model_attrs.update({"model_kind": MODEL_KIND, "sharing": sharing,
+                        "model_doc": "room paths (images over planar patches) + diffuse, physical materials "
+                                     "(docs/physics.md section 9)"})
+    model_attrs.update({f"room.{f.name}": getattr(settings, f.name) for f in fields(RoomSettings)})
+    model_attrs["render.alpha_min"] = render_cfg.alpha_min
+    data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
+    data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
+    training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr, "seed": seed,
+                      "train_mae_db": res.train_mae_db, "initial_mae_db": res.initial_mae_db,
+                      "wall_time_s": res.wall_time_s, "trace_time_s": trace_s, "measurements": str(meas.path),
+                      "split": cfg["split"], "start": res.start,
+                      "unseen_materials": "; ".join(unseen),
+                      "split_protocol": ("rows with split == 0 (train)" if cfg["split"] == "file" else
+                                         f"transmitters {np.asarray(held).tolist()} held out (seed {seed})")}
+    attrs = {"task": "rssi", "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
+    if "label_names" in scene.attrs:
+        attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)
+    prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
+    prov.add_input(scene_path)
+    prov.add_input(measurements_path)
+    prov.wall_time_s = time.time() - t_start
+    prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s, "fit_time_s": res.wall_time_s}
+    free = {"model": {"@attrs": model_attrs},
+            "training": {"loss_curve": res.loss_curve, "train_rows": np.asarray(rows, np.int64),
+                         "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
+    write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
+    table = material_rows(vals, names, freq_hz)
+    for row in table:
+        progress.log(f"  {row['material']:<16} eps_r {row['eps_r']:5.2f}  sigma {row['sigma_s_per_m']:8.3g} S/m  "
+                     f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
+                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}")
+    return RfFitResult(out_path, geom.num, int(len(rows)), [float(freq_hz)], res.train_mae_db, res.initial_mae_db,
+                       fit_cfg.iterations, time.time() - t_start, trace_s, room.provider.name,
+                       {"trace": trace_s, "fit": res.wall_time_s}, materials=table,
+                       warnings=[f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
+
+
+def material_rows(vals, names: list[str], freq_hz: float) -> list[dict]:
+    """One row per material: eps_r, sigma at freq_hz, thickness, S, |Gamma| at normal incidence."""
+    f = torch.tensor([float(freq_hz)], dtype=torch.float64)
+    r = vals.normal_reflection(f).abs()[:, 0]
+    sigma = vals.sigma_1ghz * (f / 1e9) ** vals.sigma_exponent
+    th = vals.thickness_m
+    return [{"material": n, "eps_r": float(vals.eps_r[i]), "sigma_s_per_m": float(sigma[i]),
+             "thickness_m": 0.0 if th is None else float(th[i]), "scattering": float(vals.scattering[i]),
+             "gamma_normal_abs": float(r[i])} for i, n in enumerate(names)]
