@@ -1,0 +1,56 @@
+"""The physical room model end to end (`rf_fit.rssi.model = physical`) on the reduced room.
+
+The measurements are the independent closed form of helpers.py (Friis, an 8 dB partition, a floor
+image with coefficient -0.4): the fitted model must predict the held-out links better than a fitted
+log-distance model, and the partition's fitted material must cost about the 8 dB the data hold."""
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from rfir_cli.artifacts import read_artifact
+from rfir_cli.main import app
+from rfir_stages.model.artifact import load_physical
+from rfir_stages.model.materials import C0, slab_transmission
+
+from .helpers import write_measurements, write_scene
+
+PHYSICAL = ["--set", "rf_fit.rssi.model=physical", "--set", "rf_fit.physical.iterations=60",
+            "--set", "rf_fit.physical.start_iterations=15"]
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("room")
+    write_scene(d / "scene.h5", spacing_m=0.3)
+    write_measurements(d / "meas.h5")
+    r = CliRunner().invoke(app, [*PHYSICAL, "rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(d / "rf.h5")])
+    assert r.exit_code == 0, r.output
+    assert "physical room model" in r.output and "partition" in r.output     # assumptions and materials printed
+    return d
+
+
+def test_fit_writes_materials_and_predicts_held_out_links(fitted, tmp_path):
+    rf = read_artifact(fitted / "rf.h5", "rf")
+    assert rf.free["model@attrs"]["model_kind"] == "rssi_physical"
+    res = tmp_path / "res.json"
+    r = CliRunner().invoke(app, ["predict", "rssi", str(fitted / "rf.h5"), "--measurements", str(fitted / "meas.h5"),
+                                 "-o", str(tmp_path / "p.h5"), "--results", str(res)])
+    assert r.exit_code == 0, r.output
+    m = json.loads(res.read_text())["metrics"]
+    assert m["mae_db"] < 2.0
+    assert m["mae_db"] < m["baseline_log_distance_mae_db"]
+
+
+def test_partition_material_costs_about_the_measured_wall_loss(fitted):
+    rf = read_artifact(fitted / "rf.h5", "rf")
+    model = load_physical(rf)
+    i = model.names.index("partition")
+    f = 2.4e9
+    eta = model.mats.eta(torch.tensor([f]))[i, 0]
+    t_te, _ = slab_transmission(eta, 1.0, 2 * math.pi * f / C0, model.mats.thickness_m[i])
+    loss_db = -20 * float(np.log10(abs(complex(t_te))))
+    assert 4.0 < loss_db < 12.0, loss_db
