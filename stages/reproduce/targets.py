@@ -284,10 +284,23 @@ def target_edit(r: Plan) -> Table:
     return t
 
 
+DIAGNOSE = "diagnose_blind"
+
+
+def declare_diagnose(r: Plan) -> str:
+    """The blind diagnose set (stages/diagnose/blind.py, docs/diagnose.md): hidden effects in copies of
+    simulated data, diagnosed without their answers, scored; it writes its own table to
+    OUT/diagnose/diagnose_blind.{md,json} (and a report per case)."""
+    out = r.out / "diagnose"
+    return r.step(DIAGNOSE, [r.python, "-m", "rfir_stages.diagnose.blind", "run", str(r.data / "diagnose_blind"),
+                             str(out), *(["--quick"] if r.quick else [])],
+                  out / "diagnose_blind.md", [out / "diagnose_blind.json"])
+
+
 def declare(names: list[str], quick: bool, data: Path | None = None, out: Path | None = None,
             overrides: list[str] = ()) -> tuple[Plan, dict[str, tuple[Table, list[str]]]]:
-    """The plan of the named targets (every step, inputs linked) and, per target, its deferred table
-    and the labels of its steps. data / out default to plan.default_dirs(quick); overrides:
+    """The plan of the named targets and of the diagnose set (every step, inputs linked) and, per
+    target, its deferred table and the labels of its steps. data / out default to plan.default_dirs(quick); overrides:
     `reproduce.<full|quick>.<key>=value` settings over configs/reproduce.toml."""
     d, o = default_dirs(quick)
     bad = [o for o in overrides if not o.startswith("reproduce.")]
@@ -301,6 +314,7 @@ def declare(names: list[str], quick: bool, data: Path | None = None, out: Path |
             raise ConfigError(f"unknown reproduce target {name!r} (known: {', '.join(TARGETS)})")
         plan.used = []
         tables[name] = (TARGETS[name](plan), list(plan.used))
+    declare_diagnose(plan)
     plan.link_inputs()
     return plan, tables
 
