@@ -1,10 +1,11 @@
 """`make reproduce*`: generate data, run rfir and every baseline on the same splits, write tables.
 
-    python -m rfir_stages.reproduce TARGET... [--quick] [--data DIR] [--out DIR] [--force]
-
-TARGET: rcs, wideband, rssi, extrapolation, edit, ablation, or all. Each target writes
-OUT/<target>.md, OUT/<target>.csv and OUT/<target>.png (MAE per method and row) and records the
-wall time of every step in OUT/times.json; steps whose outputs exist are not run again (--force
-reruns them). --quick: reduced sizes (physical-optics data, few iterations, short baseline
-budgets) that check the whole chain in minutes; its numbers are not the project's results.
+The targets (rcs, wideband, rssi, extrapolation, edit, ablation; targets.py) declare their steps as
+data on a Plan (plan.py: command lines, inputs, outputs, code versions) and a table whose cells read
+the steps' results later (tables.py). The Snakemake workflow workflow/Snakefile turns each step into
+a rule and each table into a rule that writes OUT/<target>.md, .csv, .png and .json (with the wall
+time of every step from Snakemake's benchmark files). Sizes of the full and the quick variant:
+configs/reproduce.toml; the quick variant (physical-optics data, few iterations, one baseline
+epoch) checks the whole chain in minutes and its numbers are not the project's results.
+`python -m rfir_stages.reproduce` holds the helpers the workflow calls (see __main__.py).
 """
