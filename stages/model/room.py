@@ -1,4 +1,4 @@
-"""The physical model of received power in rooms (docs/physics.md section 9): paths + diffuse + materials.
+"""The physical model of received power in rooms (docs/physics.md section 8.10): paths + diffuse + materials.
 
     P(link) = g |sum_paths a_path(materials)|^2 + g P_diff(materials)
 
@@ -44,6 +44,9 @@ class RoomSettings:
     opacity: float = 0.9
     margin_m: float = 0.0025
     t_stop: float = 1e-4
+    # the fit uses at most this many training links, evenly spaced (0: all): materials are a few
+    # parameters each, and a fit step costs paths x interactions
+    fit_links: int = 3000
 
 
 def label_classes(label_names: list[str]) -> tuple[np.ndarray, list[str]]:
@@ -101,10 +104,14 @@ class RoomLinks:
         mat = material_of_patch[paths.patch]                                           # [Q, I]
         theta = torch.rad2deg(torch.arccos(paths.cos.clamp(0.0, 1.0)))
         j = theta.floor().long().clamp(0, ANGLE_NODES - 2)
-        self._frac = (theta - j).clamp(0.0, 1.0)
-        self._index = (mat * len(self.freqs) + fid[paths.link][:, None]) * ANGLE_NODES + j
-        self._mat = mat
-        self._refl = paths.kind == 1
+        frac = (theta - j).clamp(0.0, 1.0).to(torch.complex128)
+        index = (mat * len(self.freqs) + fid[paths.link][:, None]) * ANGLE_NODES + j
+        refl = paths.kind == 1
+        # per used slot, contiguous: table index, interpolation weight, reflection (else crossing)
+        self._slots = [(index[:n, i].contiguous(), frac[:n, i].contiguous(), refl[:n, i].contiguous())
+                       for i, n in enumerate(paths.slot_use()) if n > 0]
+        # materials of each path's reflections (num_materials: none), for the specular share
+        self._refl_mat = torch.where(refl, mat, torch.full_like(mat, num_materials))
 
     @property
     def num_links(self) -> int:
@@ -131,13 +138,12 @@ class RoomLinks:
         """(specular field [M] complex, diffuse power [M])."""
         tab = self._tables(mats)
         coefficients = []
-        for i, n in enumerate(self.paths.slot_use()):
-            idx, refl = self._index[:n, i], self._refl[:n, i]
+        for idx, frac, refl in self._slots:
             lo, hi = tab[:, idx], tab[:, idx + 1]                                       # [4, n]
-            c = lo + (hi - lo) * self._frac[:n, i].to(torch.complex128)
+            c = lo + (hi - lo) * frac
             coefficients.append((torch.where(refl, c[0], c[2]), torch.where(refl, c[1], c[3])))
         spec_m = torch.sqrt((1.0 - mats.scattering ** 2).clamp(min=0.0))
-        spec = torch.where(self._refl, spec_m[self._mat], torch.ones((), dtype=torch.float64)).prod(1)
+        spec = torch.cat([spec_m, torch.ones(1, dtype=torch.float64)])[self._refl_mat].prod(1)
         field = self.paths.chain(coefficients, spec)
         if self.diffuse is None:
             return field, torch.zeros(self.num_links, dtype=torch.float64)

@@ -1,4 +1,4 @@
-"""Specular paths in rooms by the image method over planar patches of surfels (docs/physics.md section 9).
+"""Specular paths in rooms by the image method over planar patches of surfels (docs/physics.md section 8.10).
 
 For each link (Tx, Rx) the paths are: the direct path, first-order reflections off every patch and
 second-order reflections between pairs of large patches. A patch is a set of coplanar surfels of one
@@ -175,12 +175,21 @@ class RoomPaths:
 
     def slot_use(self) -> list[int]:
         """Number of paths using each interaction slot; paths are stored most interactions first, so
-        slot i is used by the first slot_use()[i] paths."""
-        used = (self.kind > 0).sum(0)
-        counts = (self.kind > 0).sum(1)
-        if counts.numel() > 1 and bool((counts[1:] > counts[:-1]).any()):
-            raise ValueError("room paths must be stored most interactions first")
-        return [int(u) for u in used]
+        slot i is used by the first slot_use()[i] paths (cached)."""
+        if "_slot_use" not in self.__dict__:
+            counts = (self.kind > 0).sum(1)
+            if counts.numel() > 1 and bool((counts[1:] > counts[:-1]).any()):
+                raise ValueError("room paths must be stored most interactions first")
+            self.__dict__["_slot_use"] = [int(u) for u in (self.kind > 0).sum(0)]
+        return self.__dict__["_slot_use"]
+
+    def _slot_bases(self) -> list:
+        """Per used slot: (s, p_in, p_out) [n_i, 3] complex, contiguous (cached)."""
+        if "_bases" not in self.__dict__:
+            self.__dict__["_bases"] = [tuple(t[:n, i].to(torch.complex128).contiguous() for t in (self.s, self.p_in,
+                                                                                                  self.p_out))
+                                       for i, n in enumerate(self.slot_use()) if n > 0]
+        return self.__dict__["_bases"]
 
     def select_links(self, rows) -> "RoomPaths":
         """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
@@ -222,10 +231,8 @@ class RoomPaths:
         f = self.freq_hz[self.link]
         k0 = 2 * math.pi * f / C0
         e = self.e_tx.to(torch.complex128)
-        for i, n in enumerate(self.slot_use()):
-            if n == 0:
-                break
-            s, pin, pout = (t[:n, i].to(torch.complex128) for t in (self.s, self.p_in, self.p_out))
+        for i, (s, pin, pout) in enumerate(self._slot_bases()):
+            n = s.shape[0]
             head = e[:n]
             c_te, c_tm = coefficients[i]
             new = (c_te[:n] * (head * s).sum(1))[:, None] * s + (c_tm[:n] * (head * pin).sum(1))[:, None] * pout

@@ -1,4 +1,4 @@
-"""rf-fit of RSSI links with the physical room model (rfir_stages.model.room, docs/physics.md section 9).
+"""rf-fit of RSSI links with the physical room model (rfir_stages.model.room, docs/physics.md section 8.10).
 
 Called by rssi_fit.run_rssi when `[rf_fit.rssi] model = "physical"`. Materials are fitted per label
 class (desk_03 -> desk) when the scene has labels, else per segment (k-means of the Gaussians on
@@ -82,11 +82,16 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{settings.max_order}, diffuse {'on' if settings.diffuse else 'off'}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}")
-    links = room.links(tx, rx, np.full(len(tx), freq_hz))
+    fit = np.arange(len(tx))
+    if 0 < settings.fit_links < len(tx):
+        fit = np.linspace(0, len(tx) - 1, settings.fit_links).round().astype(np.int64)
+        progress.log(f"fitting on {len(fit)} of the {len(tx)} training links, evenly spaced "
+                     f"(rf_fit.room.fit_links = {settings.fit_links})")
+    links = room.links(tx[fit], rx[fit], np.full(len(fit), freq_hz))
     trace_s = time.time() - t0
-    progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(tx), 1):.1f} per link) "
+    progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(fit), 1):.1f} per link) "
                  f"in {trace_s:.1f} s")
-    res = fit_materials(links, len(names), target_db[:, None], fit_cfg, progress, label="physical room")
+    res = fit_materials(links, len(names), target_db[fit, None], fit_cfg, progress, label="physical room")
     seen = np.zeros(len(names), bool)
     seen[room.material_of_patch[np.unique(links.paths.patch[links.paths.kind > 0].numpy())]] = True
     unseen = [n for n, s in zip(names, seen) if not s]
@@ -100,7 +105,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                                         names, float(res.params.gain_db.detach()))
     model_attrs.update({"model_kind": MODEL_KIND, "sharing": sharing,
                         "model_doc": "room paths (images over planar patches) + diffuse, physical materials "
-                                     "(docs/physics.md section 9)"})
+                                     "(docs/physics.md section 8.10)"})
     model_attrs.update({f"room.{f.name}": getattr(settings, f.name) for f in fields(RoomSettings)})
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
@@ -122,6 +127,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s, "fit_time_s": res.wall_time_s}
     free = {"model": {"@attrs": model_attrs},
             "training": {"loss_curve": res.loss_curve, "train_rows": np.asarray(rows, np.int64),
+                         "fit_rows": np.asarray(rows, np.int64)[fit],
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
     table = material_rows(vals, names, freq_hz)

@@ -157,7 +157,7 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     antenna = AntennaPattern("isotropic" if kind == "auto" else kind, hpbw_deg=float(config.get("horn_hpbw_deg", 40.0)))
     if antenna.kind not in ("isotropic", "dipole"):
         raise ConfigError(f"rf_fit.antenna = {kind!r}: the RSSI model takes omni antennas (isotropic or dipole)")
-    if cfg["model"] == "physical":   # the physical room model (docs/physics.md section 9): room_stage.py
+    if cfg["model"] == "physical":   # the physical room model (docs/physics.md section 8.10): room_stage.py
         if antenna.kind != "isotropic":
             raise ConfigError(f"rf_fit.antenna = {kind!r}: the physical room model takes isotropic antennas")
         from .room_stage import run_room
