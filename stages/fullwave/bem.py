@@ -55,7 +55,7 @@ def bem_monostatic_rcs(vertices, faces, freq_hz: float, directions, polarization
     rwg = bempp.function_space(grid, "RWG", 0)
     snc = bempp.function_space(grid, "SNC", 0)
     t0 = time.perf_counter()
-    a = maxwell.electric_field(rwg, rwg, snc, k).weak_form().A
+    a = maxwell.electric_field(rwg, rwg, snc, k).weak_form().to_dense()
     t1 = time.perf_counter()
     lu = lu_factor(a, overwrite_a=True, check_finite=False)
     t2 = time.perf_counter()
