@@ -46,7 +46,7 @@ class RoomSettings:
     t_stop: float = 1e-4
     # the fit uses at most this many training links, evenly spaced (0: all): materials are a few
     # parameters each, and a fit step costs paths x interactions
-    fit_links: int = 3000
+    fit_links: int = 1500
 
 
 def label_classes(label_names: list[str]) -> tuple[np.ndarray, list[str]]:
@@ -107,9 +107,15 @@ class RoomLinks:
         frac = (theta - j).clamp(0.0, 1.0).to(torch.complex128)
         index = (mat * len(self.freqs) + fid[paths.link][:, None]) * ANGLE_NODES + j
         refl = paths.kind == 1
-        # per used slot, contiguous: table index, interpolation weight, reflection (else crossing)
-        self._slots = [(index[:n, i].contiguous(), frac[:n, i].contiguous(), refl[:n, i].contiguous())
-                       for i, n in enumerate(paths.slot_use()) if n > 0]
+        # per used slot, contiguous: the TE and TM entries of the flat table (_tables: R_TE, R_TM, T_TE,
+        # T_TM blocks) and the interpolation weight
+        block = num_materials * len(self.freqs) * ANGLE_NODES
+        self._slots = []
+        for i, n in enumerate(paths.slot_use()):
+            if n == 0:
+                continue
+            te = index[:n, i] + torch.where(refl[:n, i], 0, 2 * block)
+            self._slots.append((te.contiguous(), (te + block).contiguous(), frac[:n, i].contiguous()))
         # materials of each path's reflections (num_materials: none), for the specular share
         self._refl_mat = torch.where(refl, mat, torch.full_like(mat, num_materials))
 
@@ -122,7 +128,7 @@ class RoomLinks:
                          self.material_of_patch, self.num_materials)
 
     def _tables(self, mats: MaterialValues) -> torch.Tensor:
-        """[4, N * F * ANGLE_NODES] complex: R_TE, R_TM, T_TE, T_TM of every material, frequency and angle node."""
+        """[4 * N * F * ANGLE_NODES] complex, blocks R_TE, R_TM, T_TE, T_TM of every material, frequency and angle node."""
         cos = torch.cos(torch.deg2rad(torch.arange(ANGLE_NODES, dtype=torch.float64)))
         eta = mats.eta(self.freqs)[:, :, None]                                          # [N, F, 1]
         k0 = (2 * math.pi * self.freqs / C0)[None, :, None]
@@ -132,16 +138,15 @@ class RoomLinks:
             t_te = t_tm = torch.zeros_like(r_te)
         else:
             t_te, t_tm = slab_transmission(eta, cos, k0, th)
-        return torch.stack([r_te, r_tm, t_te, t_tm]).reshape(4, -1)
+        return torch.stack([r_te, r_tm, t_te, t_tm]).reshape(-1)
 
     def components(self, mats: MaterialValues) -> tuple[torch.Tensor, torch.Tensor]:
         """(specular field [M] complex, diffuse power [M])."""
         tab = self._tables(mats)
         coefficients = []
-        for idx, frac, refl in self._slots:
-            lo, hi = tab[:, idx], tab[:, idx + 1]                                       # [4, n]
-            c = lo + (hi - lo) * frac
-            coefficients.append((torch.where(refl, c[0], c[2]), torch.where(refl, c[1], c[3])))
+        for te, tm, frac in self._slots:
+            lo_te, lo_tm = tab[te], tab[tm]
+            coefficients.append((lo_te + (tab[te + 1] - lo_te) * frac, lo_tm + (tab[tm + 1] - lo_tm) * frac))
         spec_m = torch.sqrt((1.0 - mats.scattering ** 2).clamp(min=0.0))
         spec = torch.cat([spec_m, torch.ones(1, dtype=torch.float64)])[self._refl_mat].prod(1)
         field = self.paths.chain(coefficients, spec)

@@ -183,13 +183,38 @@ class RoomPaths:
             self.__dict__["_slot_use"] = [int(u) for u in (self.kind > 0).sum(0)]
         return self.__dict__["_slot_use"]
 
-    def _slot_bases(self) -> list:
-        """Per used slot: (s, p_in, p_out) [n_i, 3] complex, contiguous (cached)."""
-        if "_bases" not in self.__dict__:
-            self.__dict__["_bases"] = [tuple(t[:n, i].to(torch.complex128).contiguous() for t in (self.s, self.p_in,
-                                                                                                  self.p_out))
-                                       for i, n in enumerate(self.slot_use()) if n > 0]
-        return self.__dict__["_bases"]
+    def _jones(self) -> dict:
+        """Geometry-only factors of the polarisation chain (cached), in each interaction's own basis.
+
+        The field before slot i is (v0, v1) on (s_i, p_in_i); the slot maps it to (c_te v0, c_tm v1) on
+        (s_i, p_out_i); paths that go on project that onto (s_{i+1}, p_in_{i+1}) with `step[i]`
+        [n_{i+1}, 4] (s.s', p_out.s', s.p_in', p_out.p_in'), the others onto e_R with `end[i]` [n_i - n_{i+1}, 2].
+        `start` [n_0, 2]: e_T on (s_0, p_in_0); `direct` [Q - n_0]: e_T . e_R of paths with no interaction."""
+        if "_jones_cache" not in self.__dict__:
+            use = [n for n in self.slot_use() if n > 0]
+            c = lambda x: x.to(torch.complex128).contiguous()  # noqa: E731
+            dot = lambda x, y: (x * y).sum(-1)  # noqa: E731
+            step, end = [], []
+            for i, n in enumerate(use):
+                s, pout = self.s[:n, i], self.p_out[:n, i]
+                nxt = use[i + 1] if i + 1 < len(use) else 0
+                if nxt:
+                    s2, p2 = self.s[:nxt, i + 1], self.p_in[:nxt, i + 1]
+                    step.append(c(torch.stack([dot(s[:nxt], s2), dot(pout[:nxt], s2), dot(s[:nxt], p2),
+                                               dot(pout[:nxt], p2)], 1)))
+                er = self.e_rx[nxt:n]
+                end.append(c(torch.stack([dot(s[nxt:], er), dot(pout[nxt:], er)], 1)))
+            n0 = use[0] if use else 0
+            start = c(torch.stack([dot(self.e_tx[:n0], self.s[:n0, 0]), dot(self.e_tx[:n0], self.p_in[:n0, 0])], 1)) \
+                if n0 else torch.zeros((0, 2), dtype=torch.complex128)
+            direct = c(dot(self.e_tx[n0:], self.e_rx[n0:]))
+            f = self.freq_hz[self.link]
+            k0 = 2 * math.pi * f / C0
+            base = (self.gain * C0 / f / (4 * math.pi * self.length_m)).to(torch.complex128) \
+                * torch.exp(-1j * k0 * self.length_m)
+            self.__dict__["_jones_cache"] = {"use": use, "step": step, "end": end, "start": start,
+                                             "direct": direct, "base": base}
+        return self.__dict__["_jones_cache"]
 
     def select_links(self, rows) -> "RoomPaths":
         """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
@@ -227,19 +252,24 @@ class RoomPaths:
     def chain(self, coefficients: list, spec: torch.Tensor) -> torch.Tensor:
         """Received complex amplitude [M] from the TE and TM coefficients of each interaction slot i,
         coefficients[i] = (c_te, c_tm) complex of length >= slot_use()[i] (the paths using slot i come
-        first), and each path's specular share spec [Q] (prod sqrt(1 - S^2))."""
-        f = self.freq_hz[self.link]
-        k0 = 2 * math.pi * f / C0
-        e = self.e_tx.to(torch.complex128)
-        for i, (s, pin, pout) in enumerate(self._slot_bases()):
-            n = s.shape[0]
-            head = e[:n]
-            c_te, c_tm = coefficients[i]
-            new = (c_te[:n] * (head * s).sum(1))[:, None] * s + (c_tm[:n] * (head * pin).sum(1))[:, None] * pout
-            e = torch.cat([new, e[n:]])
-        lam = C0 / f
-        free = (lam / (4 * math.pi * self.length_m)).to(torch.complex128) * torch.exp(-1j * k0 * self.length_m)
-        a = self.gain * spec * free * (self.e_rx.to(torch.complex128) * e).sum(1)
+        first), and each path's specular share spec [Q] (prod sqrt(1 - S^2)). The field vector of the
+        module docstring is carried as its two components in each interaction's basis (`_jones`)."""
+        j = self._jones()
+        pieces = []
+        if j["use"]:
+            v0, v1 = j["start"][:, 0], j["start"][:, 1]
+            for i, n in enumerate(j["use"]):
+                c_te, c_tm = coefficients[i]
+                w0, w1 = c_te[:n] * v0, c_tm[:n] * v1
+                nxt = j["step"][i].shape[0] if i < len(j["step"]) else 0
+                e = j["end"][i]
+                pieces.append(e[:, 0] * w0[nxt:] + e[:, 1] * w1[nxt:])
+                if nxt:
+                    st = j["step"][i]
+                    v0 = st[:, 0] * w0[:nxt] + st[:, 1] * w1[:nxt]
+                    v1 = st[:, 2] * w0[:nxt] + st[:, 3] * w1[:nxt]
+        pol = torch.cat(pieces[::-1] + [j["direct"]])
+        a = j["base"] * spec * pol
         return torch.zeros(self.num_links, dtype=torch.complex128).index_add(0, self.link, a)
 
 
