@@ -92,9 +92,10 @@ def _loss(pred_db, target, cfg: PhysicalFitConfig):
 
 
 def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig,
-                  progress=None, label: str = "physical") -> PhysicalFitResult:
-    """Fit `num_materials` materials (the N of `agg`) so that the predicted path gain [M, K] dB matches
-    target_db."""
+                  progress=None, label: str = "physical", priors: dict | None = None) -> PhysicalFitResult:
+    """Fit `num_materials` materials (the N of `agg`, or any model with the same `power`) so that the
+    predicted path gain [M, K] dB matches target_db. priors: {material index: (eps_r, sigma at 1 GHz,
+    thickness m)}, each such material's value at every start (a name that says "glass")."""
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
@@ -102,8 +103,11 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
 
     def new(start) -> MaterialParams:
         _, eps, sig, s, th = start
-        return MaterialParams(num_materials, eps_r=eps, sigma_1ghz=sig, scattering=s,
-                              thickness_m=None if cfg.half_space else th, sigma_exponent=cfg.sigma_exponent)
+        params = MaterialParams(num_materials, eps_r=eps, sigma_1ghz=sig, scattering=s,
+                                thickness_m=None if cfg.half_space else th, sigma_exponent=cfg.sigma_exponent)
+        for i, (p_eps, p_sig, p_th) in (priors or {}).items():
+            params.set_values(i, eps_r=p_eps, sigma_1ghz=p_sig, thickness_m=p_th)
+        return params
 
     def run(params: MaterialParams, steps: int, bar) -> tuple[float, dict, list]:
         groups = [{"params": [params.t_eps, params.t_sig, params.t_s] + ([] if params.half_space else [params.t_th]),

@@ -65,6 +65,29 @@ def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], st
     return idx.numpy(), mnames, sharing
 
 
+TYPICAL_THICKNESS_M = {"glass": 0.01, "metal": 0.002, "concrete": 0.2, "brick": 0.15, "wood": 0.03,
+                       "plasterboard": 0.0125, "ceiling_board": 0.015, "chipboard": 0.02, "plywood": 0.015,
+                       "marble": 0.03, "floorboard": 0.02}
+
+
+def name_priors(names: list[str]) -> dict:
+    """{material index: (eps_r, sigma at 1 GHz [S/m], thickness [m])} for materials whose name contains an
+    ITU-R P.2040 material ("glass_partition" -> glass), the law's values at 1 GHz and a typical thickness."""
+    import re
+
+    from rfir_stages.model.materials import ITU_MATERIALS
+
+    out = {}
+    for i, name in enumerate(names):
+        low = str(name).lower()
+        for key in sorted(ITU_MATERIALS, key=len, reverse=True):     # "ceiling_board" before "board"-like keys
+            if key != "vacuum" and re.search(rf"(^|[^a-z]){key}([^a-z]|$)", low):
+                a, _, c, _, _, _ = ITU_MATERIALS[key]
+                out[i] = (a, max(c, 1e-4), TYPICAL_THICKNESS_M.get(key, 0.05))
+                break
+    return out
+
+
 def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,
              measurements_path, out_path, config: dict, render_cfg, cfg: dict, *, seed: int, config_toml: str,
              progress, t_start: float):
@@ -91,7 +114,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     trace_s = time.time() - t0
     progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(fit), 1):.1f} per link) "
                  f"in {trace_s:.1f} s")
-    res = fit_materials(links, len(names), target_db[fit, None], fit_cfg, progress, label="physical room")
+    priors = name_priors(names)
+    if priors:
+        progress.log("starting values from material names (ITU-R P.2040 at 1 GHz): " + "; ".join(
+            f"{names[i]}: eps_r {e:g}, sigma {g:g} S/m, {t * 100:g} cm" for i, (e, g, t) in priors.items()))
+    res = fit_materials(links, len(names), target_db[fit, None], fit_cfg, progress, label="physical room",
+                        priors=priors)
     seen = np.zeros(len(names), bool)
     seen[room.material_of_patch[np.unique(links.paths.patch[links.paths.kind > 0].numpy())]] = True
     unseen = [n for n, s in zip(names, seen) if not s]

@@ -54,3 +54,11 @@ def test_partition_material_costs_about_the_measured_wall_loss(fitted):
     t_te, _ = slab_transmission(eta, 1.0, 2 * math.pi * f / C0, model.mats.thickness_m[i])
     loss_db = -20 * float(np.log10(abs(complex(t_te))))
     assert 4.0 < loss_db < 12.0, loss_db
+
+
+def test_material_names_give_itu_starting_values():
+    from rfir_stages.rf_fit.room_stage import name_priors
+
+    got = name_priors(["glass_partition", "desk", "Metal-Cabinet", "wall_concrete", "woodland"])
+    assert set(got) == {0, 2, 3}                      # "woodland" is not wood, "desk" names no material
+    assert got[0][0] == 6.31 and got[2][1] == 1e7 and got[3][2] == 0.2
