@@ -38,11 +38,12 @@ def test_fit_writes_materials_and_predicts_held_out_links(fitted, tmp_path):
     assert rf.free["model@attrs"]["model_kind"] == "rssi_physical"
     res = tmp_path / "res.json"
     r = CliRunner().invoke(app, ["predict", "rssi", str(fitted / "rf.h5"), "--measurements", str(fitted / "meas.h5"),
-                                 "-o", str(tmp_path / "p.h5"), "--results", str(res)])
+                                 "-o", str(tmp_path / "p.h5"), "--results", str(res), "--plots", str(tmp_path / "plots")])
     assert r.exit_code == 0, r.output
     m = json.loads(res.read_text())["metrics"]
     assert m["mae_db"] < 2.0
     assert m["mae_db"] < m["baseline_log_distance_mae_db"]
+    assert {"rssi_predicted.png", "fov_attributes.png"} <= {p.name for p in (tmp_path / "plots").iterdir()}
 
 
 def test_partition_material_costs_about_the_measured_wall_loss(fitted):
