@@ -35,6 +35,7 @@ class RoomSettings:
 
     max_order: int = 2
     higher_order_min_area_m2: float = 1.0
+    third_order_min_area_m2: float = 10.0
     coplanar_m: float = 0.01
     diffuse: bool = True
     diffuse_cell_m: float = 0.7
@@ -78,7 +79,8 @@ class RoomGeometry:
         """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]."""
         s = self.settings
         paths = trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
-                                 max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2)
+                                 max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
+                                 third_order_min_area_m2=s.third_order_min_area_m2)
         diffuse = None
         if s.diffuse:
             diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.num_materials, self.provider, s.opacity,

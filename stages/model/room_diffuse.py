@@ -1,4 +1,4 @@
-"""Diffuse scattering in rooms, summed in power over cells of surfels (docs/physics.md sections 8.8 and 9).
+"""Diffuse scattering in rooms, summed in power over cells of surfels (docs/physics.md sections 8.8 and 8.10).
 
 The Lambertian term of section 8.8 for every link and every lit cell:
 

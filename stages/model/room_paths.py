@@ -389,11 +389,12 @@ def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
 
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
                      max_order: int = 2, higher_order_min_area_m2: float = 1.0, first_order_min_area_m2: float = 0.0,
-                     tx_gain=None, rx_gain=None) -> RoomPaths:
+                     third_order_min_area_m2: float = 10.0, tx_gain=None, rx_gain=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].
 
-    First-order reflections use every patch of at least first_order_min_area_m2, higher orders the
-    patches of at least higher_order_min_area_m2 (walls, floor, ceiling, large furniture).
+    First-order reflections use every patch of at least first_order_min_area_m2, second order the
+    patches of at least higher_order_min_area_m2 (walls, floor, ceiling, large furniture), third and
+    higher orders those of at least third_order_min_area_m2 (the surfaces that bound a room).
     tx_gain / rx_gain: callables (unit directions [N, 3]) -> linear power gain [N]; None: isotropic.
     Paths with more than MAX_INTERACTIONS interactions are dropped."""
     tx = np.asarray(tx_m, dtype=np.float64)
@@ -403,7 +404,7 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
     verts.append(np.stack([tx, rx], 1))                       # [N, order + 2, 3] per order
     refl.append(np.zeros((m_links, 0), np.int64))
     for o in range(1, max_order + 1):
-        area_min = first_order_min_area_m2 if o == 1 else higher_order_min_area_m2
+        area_min = (first_order_min_area_m2, higher_order_min_area_m2)[o - 1] if o <= 2 else third_order_min_area_m2
         cand = np.flatnonzero(patches.area >= area_min)
         lo, po, co = reflection_paths(tx, rx, patches, cand, o)
         link.append(lo)
