@@ -136,6 +136,12 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
                           "('file' or 'holdout_tx')")
     geom = geometry_from_artifact(scene)
     where = str(measurements_path)
+    if cfg["model"] == "free" and fit_cfg.sharing == "label" and scene.get("gaussians/labels") is None:
+        # checked before any tracing: geometry from photos has no object labels
+        progress.log("warning: rf_fit.sharing = 'label' but the scene has no gaussians/labels (geometry from "
+                     "photos?): one material for all Gaussians ('global') instead; rf_fit.rssi.model = physical "
+                     "fits materials per segment of the geometry")
+        fit_cfg.sharing = "global"
     check_overlap(geom, meas, where)
     rows, held = training_rows(meas, cfg, seed, where)
     freqs = np.asarray(meas["freq_hz"], np.float64)
