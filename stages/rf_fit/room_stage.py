@@ -140,7 +140,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr, "seed": seed,
                       "train_mae_db": res.train_mae_db, "initial_mae_db": res.initial_mae_db,
-                      "wall_time_s": res.wall_time_s, "trace_time_s": trace_s, "measurements": str(meas.path),
+                      "wall_time_s": time.time() - t_start, "fit_time_s": res.wall_time_s, "trace_time_s": trace_s,
+                      "measurements": str(meas.path),
                       "split": cfg["split"], "start": res.start,
                       "unseen_materials": "; ".join(unseen),
                       "split_protocol": ("rows with split == 0 (train)" if cfg["split"] == "file" else

@@ -236,7 +236,8 @@ def _write(out_path, scene, meas, freq, rows, held, model: RssiModel, field, cfg
     training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr,
                       "sharing": fit_cfg.sharing, "learn": ",".join(fit_cfg.learn), "seed": fit_cfg.seed,
                       "train_mae_db": res["train_mae_db"], "initial_mae_db": res["initial_mae_db"],
-                      "wall_time_s": res["fit_time_s"], "trace_time_s": trace_s, "batch_links": int(cfg["batch_links"]),
+                      "wall_time_s": prov.wall_time_s, "fit_time_s": res["fit_time_s"], "trace_time_s": trace_s,
+                      "batch_links": int(cfg["batch_links"]),
                       "measurements": str(meas.path), "split": cfg["split"],
                       "split_protocol": ("rows with split == 0 (train)" if cfg["split"] == "file" else
                                          f"transmitters {held.tolist()} held out (seed {fit_cfg.seed})")}
