@@ -15,7 +15,7 @@ import torch
 from rfir_cli.errors import ConfigError
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
-from rfir_stages.model.physical import POLARISATIONS, AggregatedPairs, PairSettings, build_pairs
+from rfir_stages.model.physical import EPS_R_MAX, POLARISATIONS, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
 from rfir_stages.model.surfels import surfel_areas
 
@@ -115,6 +115,13 @@ def material_table(result: PhysicalFitResult, names: list[str], freqs_hz: np.nda
     return [{"material": n, "eps_r": float(vals.eps_r[i]), "sigma_s_per_m": float(sigma[i, 0]),
              "scattering": float(vals.scattering[i]), "thickness_m": 0.0 if th is None else float(th[i]),
              "gamma_normal_abs": [float(x) for x in r[i]]} for i, n in enumerate(names)]
+
+
+def bound_warnings(rows: list[dict]) -> list[str]:
+    """Warnings for fitted materials at the edge of their range (the data ask for something the model
+    cannot be): eps_r or thickness within 2 % of its upper bound. rows: material_table's dicts."""
+    return [f"{r['material']}: eps_r {r['eps_r']:.1f} / thickness {r['thickness_m']:.2f} m ran to the bound of its "
+            "range" for r in rows if r["eps_r"] > 0.98 * EPS_R_MAX or r["thickness_m"] > 0.98 * THICKNESS_M[1]]
 
 
 def physical_artifact_fields(setup: PhysicalSetup, sharing: str, result: PhysicalFitResult, freqs_hz: np.ndarray,

@@ -23,6 +23,8 @@ from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, mat
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings, label_classes
 
+from .physical_stage import bound_warnings
+
 MODEL_KIND = "rssi_physical"
 SHARINGS = ("auto", "class", "label", "segment", "global")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
@@ -160,6 +162,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
     table = material_rows(vals, names, freq_hz)
+    bounds = bound_warnings(table)
+    for w in bounds:
+        progress.log(f"warning: {w}")
     for row in table:
         progress.log(f"  {row['material']:<16} eps_r {row['eps_r']:5.2f}  sigma {row['sigma_s_per_m']:8.3g} S/m  "
                      f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
@@ -167,7 +172,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     return RfFitResult(out_path, geom.num, int(len(rows)), [float(freq_hz)], res.train_mae_db, res.initial_mae_db,
                        fit_cfg.iterations, time.time() - t_start, trace_s, room.provider.name,
                        {"trace": trace_s, "fit": res.wall_time_s}, materials=table,
-                       warnings=[f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
+                       warnings=([f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
+                       + bounds)
 
 
 def material_rows(vals, names: list[str], freq_hz: float) -> list[dict]:

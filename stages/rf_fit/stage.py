@@ -22,7 +22,6 @@ from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
-from rfir_stages.model.physical import EPS_R_MAX, THICKNESS_M
 
 from .antennas import antenna_choice
 from .fit import FLOOR_DB, FitConfig, FitResult, fit, mae_db, predict_db
@@ -30,7 +29,8 @@ from .unseen import fill_unseen, unseen_mask
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
 from .params import RFParams
-from .physical_stage import PhysicalSetup, material_table, physical_artifact_fields, physical_config, sharing_candidates
+from .physical_stage import (PhysicalSetup, bound_warnings, material_table, physical_artifact_fields, physical_config,
+                             sharing_candidates)
 from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows, validation_folds
@@ -418,10 +418,7 @@ def _run_physical(physical: PhysicalSetup, scattering: dict, target: np.ndarray,
     if unseen:
         warnings.append(f"no training link sees {', '.join(unseen)}: kept at the starting material "
                         f"({result.start}); predictions there are not fitted")
-    for row in table:   # a value at the edge of its range: the data ask for something the model cannot be
-        if row["eps_r"] > 0.98 * EPS_R_MAX or row["thickness_m"] > 0.98 * THICKNESS_M[1]:
-            warnings.append(f"{row['material']}: eps_r {row['eps_r']:.1f} / thickness {row['thickness_m']:.2f} m "
-                            "ran to the bound of its range")
+    warnings += bound_warnings(table)
     for w in warnings:
         progress.log(f"warning: {w}")
     data, model_attrs = physical_artifact_fields(physical, sharing, result, freqs, pair_settings)

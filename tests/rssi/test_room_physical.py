@@ -63,3 +63,12 @@ def test_material_names_give_itu_starting_values():
     got = name_priors(["glass_partition", "desk", "Metal-Cabinet", "wall_concrete", "woodland"])
     assert set(got) == {0, 2, 3}                      # "woodland" is not wood, "desk" names no material
     assert got[0][0] == 6.31 and got[2][1] == 1e7 and got[3][2] == 0.2
+
+
+def test_materials_at_the_edge_of_their_range_are_named():
+    from rfir_stages.rf_fit.physical_stage import bound_warnings
+
+    rows = [{"material": "wall", "eps_r": 24.9, "thickness_m": 0.2}, {"material": "desk", "eps_r": 3.0,
+            "thickness_m": 0.03}, {"material": "slab", "eps_r": 4.0, "thickness_m": 0.995}]
+    got = bound_warnings(rows)
+    assert len(got) == 2 and got[0].startswith("wall:") and got[1].startswith("slab:")
