@@ -9,6 +9,9 @@ Syntax (metres, degrees):
   set:KEY=V[,KEY=V...]               set material; KEY in a, R, gamma_abs, gamma_phase (rad)
   scale:KEY=V[,KEY=V...]             multiply material by V
   label:NAME                         give the selection the object label NAME (for later label:NAME selections)
+  material:NAME                      physical models: the selection becomes the ITU-R P.2040 material NAME
+                                     (metal, glass, concrete, ...) at the model's frequency, keeping its
+                                     thickness and scattering coefficient
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ _LIMITS = {"rf/opacity": (0.0, 1.0), "rf/roughness": (1.0, math.inf), "rf/gamma_
 
 @dataclass(frozen=True)
 class Operation:
-    """A parsed operation. kind: translate|rotate|delete|duplicate|set|scale|label."""
+    """A parsed operation. kind: translate|rotate|delete|duplicate|set|scale|label|material."""
 
     kind: str
     numbers: tuple = ()
@@ -49,6 +52,8 @@ class EditScene:
     label_names: list = field(default_factory=list)
     origin: np.ndarray = None
     touched: np.ndarray = None
+    num_materials: int = 0                               # materials of a physical model (material/*)
+    new_materials: list = field(default_factory=list)   # (ITU name, material it replaces) appended by edits
 
     def __post_init__(self):
         g = self.count
@@ -78,6 +83,12 @@ def parse_operation(text: str) -> Operation:
         if not rest.strip():
             raise ConfigError(f"{where}: expected label:NAME")
         return Operation("label", name=rest.strip(), text=text)
+    if kind == "material":
+        from rfir_stages.model.materials import material_key
+        try:
+            return Operation("material", name=material_key(rest), text=text)
+        except ValueError as e:
+            raise ConfigError(f"{where}: {e}") from None
     if kind in ("set", "scale"):
         pairs = []
         for item in filter(None, (s.strip() for s in rest.split(","))):
@@ -91,7 +102,7 @@ def parse_operation(text: str) -> Operation:
     arity = {"translate": (3,), "duplicate": (3,), "rotate": (4, 7)}
     if kind not in arity:
         raise ConfigError(f"{where}: unknown operation {kind!r} (expected translate, rotate, delete, duplicate, set, "
-                          "scale or label)")
+                          "scale, label or material)")
     numbers = parse_numbers(rest, where)
     if len(numbers) not in arity[kind]:
         raise ConfigError(f"{where}: {kind} takes {' or '.join(map(str, arity[kind]))} numbers, got {len(numbers)}")
@@ -171,6 +182,14 @@ def apply(scene: EditScene, mask: np.ndarray, op: Operation) -> dict:
             if np.any((new < lo) | (new > hi)):
                 rec["warnings"].append(f"{op.text}: {key} clipped to [{lo:g}, {hi:g}]")
             a[name][idx] = np.clip(new, lo, hi)
+    elif op.kind == "material":
+        if "material/index" not in a:
+            raise ConfigError(f"--op {op.text!r}: re-materialing needs a physical model (material/index); "
+                              "a free model's attributes change with set:KEY=V")
+        if idx.size:
+            was = int(np.bincount(a["material/index"][idx]).argmax())
+            scene.new_materials.append((op.name, was))
+            a["material/index"][idx] = scene.num_materials + len(scene.new_materials) - 1
     elif op.kind == "label":
         if "gaussians/labels" not in a:
             a["gaussians/labels"] = np.full(scene.count, -1, np.int64)

@@ -92,7 +92,8 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
     names = [str(n) for n in art.attrs.get("label_names", [])]
     if "gaussians/labels" in arrays and arrays["gaussians/labels"].size:  # unnamed ids keep their numbers
         names += [f"label_{i}" for i in range(len(names), int(arrays["gaussians/labels"].max()) + 1)]
-    scene = EditScene(arrays, label_names=names)
+    scene = EditScene(arrays, label_names=names,
+                      num_materials=len(art["material/eps_r"]) if "material/eps_r" in art.data else 0)
     before = np.array(arrays["gaussians/means"], copy=True)
     lo, hi = before.min(0), before.max(0)
     selected = np.zeros(len(before), bool)
@@ -156,6 +157,8 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
     free = art.free_for_write()
     for group, content in free.items():   # per-Gaussian datasets follow the edit
         content.update({k: scene.arrays[f"{group}/{k}"] for k in content if f"{group}/{k}" in scene.arrays})
+    if scene.new_materials:
+        append_materials(data, free, scene)
     if is_rssi_model(art.free.get("model@attrs", {})) and "model" in free:  # receivers' transmittances follow
         free["model"].update(refreshed_probe_field(scene.arrays, art.free["model@attrs"]))
     up = art.provenance
@@ -167,3 +170,35 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
     prov.add_input(rf_path)
     prov.wall_time_s = time.time() - t0
     return write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
+
+
+def append_materials(data: dict, free: dict, scene: EditScene) -> None:
+    """Append the materials that `material:NAME` edits created to the physical model's material/* arrays
+    (ITU law at each fitted frequency; thickness and S of the material each replaces) and refresh the
+    attribute-map values (rf/gamma_abs, rf/gamma_phase_rad) of every Gaussian."""
+    import torch
+
+    from rfir_stages.model.materials import itu_law
+    from rfir_stages.model.physical import MaterialValues
+
+    attrs = free.setdefault("model", {}).setdefault("@attrs", {})
+    freqs = np.asarray(data["rf/freq_hz"], np.float64)
+    exponent = float(attrs.get("sigma_exponent", 1.0))
+    f0 = float(freqs[0]) / 1e9
+    names = [str(n) for n in np.atleast_1d(attrs.get("material_names", []))]
+    for key, was in scene.new_materials:
+        eps, sigma = itu_law(key, freqs[0])
+        for name, value in (("eps_r", float(eps)), ("sigma_1ghz_s_per_m", float(sigma) / f0 ** exponent),
+                            ("scattering", float(data["material/scattering"][was])),
+                            ("thickness_m", float(data["material/thickness_m"][was]))):
+            data[f"material/{name}"] = np.append(np.asarray(data[f"material/{name}"], np.float64), value)
+        names.append(key)
+    t = lambda k: torch.as_tensor(np.asarray(data[k], np.float64))  # noqa: E731
+    th = t("material/thickness_m")
+    vals = MaterialValues(t("material/eps_r"), t("material/sigma_1ghz_s_per_m"), exponent, t("material/scattering"),
+                          None if bool((th <= 0).all()) else th.clamp(min=1e-6))
+    r = vals.normal_reflection(torch.as_tensor(freqs)).numpy()                     # [N, F]
+    data["material/gamma_normal_abs"] = np.abs(r)
+    index = scene.arrays["material/index"]
+    data["rf/gamma_abs"], data["rf/gamma_phase_rad"] = np.abs(r[index, 0]), np.angle(r[index, 0])
+    attrs["material_names"] = np.asarray(names, dtype=object)

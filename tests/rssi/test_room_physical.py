@@ -72,3 +72,38 @@ def test_materials_at_the_edge_of_their_range_are_named():
             "thickness_m": 0.03}, {"material": "slab", "eps_r": 4.0, "thickness_m": 0.995}]
     got = bound_warnings(rows)
     assert len(got) == 2 and got[0].startswith("wall:") and got[1].startswith("slab:")
+
+
+def test_re_materialing_the_partition_changes_what_crosses_it(fitted, tmp_path):
+    from rfir_stages.model.room import RoomPredictor
+
+    from .helpers import crosses_partition, links
+
+    r = CliRunner().invoke(app, ["edit", str(fitted / "rf.h5"), "-o", str(tmp_path / "metal.h5"),
+                                 "--select", "label:partition", "--op", "material:metal"])
+    assert r.exit_code == 0, r.output
+    edited = read_artifact(tmp_path / "metal.h5", "rf")
+    assert load_physical(edited).names[-1] == "metal"
+    assert edited["material/gamma_normal_abs"][-1, 0] > 0.99
+    tx, rx, tx_id, rx_id = links()
+    t, x = tx[tx_id], rx[rx_id]
+    before = RoomPredictor(read_artifact(fitted / "rf.h5", "rf")).path_gain_db(t, x)
+    after = RoomPredictor(edited).path_gain_db(t, x)
+    cross = crosses_partition(t, x)
+    assert cross.sum() > 10 and (~cross).sum() > 10
+    assert np.mean(after[cross] - before[cross]) < -10.0          # a metal partition blocks the direct path
+    assert np.mean(np.abs(after[~cross] - before[~cross])) < 3.0   # links on one side keep their level
+
+
+def test_re_materialing_a_free_model_is_one_line(tmp_path):
+    from .helpers import write_measurements as write_meas
+
+    write_scene(tmp_path / "scene.h5", spacing_m=0.6)
+    write_meas(tmp_path / "meas.h5")
+    r = CliRunner().invoke(app, ["--set", "rf_fit.rssi.probe_step_m=0.75", "rf-fit", str(tmp_path / "scene.h5"),
+                                 str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5"), "--iterations", "3"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(app, ["edit", str(tmp_path / "rf.h5"), "-o", str(tmp_path / "e.h5"),
+                                 "--select", "label:partition", "--op", "material:metal"])
+    assert r.exit_code != 0 and "physical model" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "e.h5").exists()
