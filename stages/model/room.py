@@ -14,7 +14,6 @@ fit_physical.fit_materials expects, so the fit (starts, start switching, best st
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,7 +51,9 @@ class RoomSettings:
 
 def label_classes(label_names: list[str]) -> tuple[np.ndarray, list[str]]:
     """(class of each label [L], class names): the name without a trailing _NN (desk_03 -> desk)."""
-    base = [re.sub(r"_\d+$", "", str(n)) for n in label_names]
+    from rfir_stages.predict.rssi_baselines import class_names
+
+    base = class_names(label_names)
     names = sorted(set(base), key=base.index)
     return np.asarray([names.index(b) for b in base], dtype=np.int64), names
 
