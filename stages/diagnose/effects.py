@@ -295,6 +295,15 @@ class NoiseFloor(Effect):
         return _add_power(base_db, np.full(rows.num, 10 ** (x[0] / 10)))
 
 
+def _clip_level(effect, rows, base_db, mask, q_lo: float, q_hi: float) -> np.ndarray:
+    """[level_db]: the clip level among 41 quantiles q_lo..q_hi of the model's training predictions that
+    minimises the absolute residual of effect.correction (saturation from above, a floor from below)."""
+    r = rows.meas_db - base_db
+    levels = np.quantile(base_db[mask], np.linspace(q_lo, q_hi, 41))
+    costs = [np.sum(np.abs(r - effect.correction(np.array([lv]), rows, base_db))[mask]) for lv in levels]
+    return np.array([levels[int(np.argmin(costs))]])
+
+
 class Saturation(Effect):
     """Receiver saturation: the strongest links read lower than predicted, clipped at a level."""
 
@@ -304,10 +313,7 @@ class Saturation(Effect):
         return np.minimum(base_db, x[0]) - base_db
 
     def fit(self, rows, base_db, mask):
-        r = rows.meas_db - base_db
-        levels = np.quantile(base_db[mask], np.linspace(0.5, 1.0, 41))
-        costs = [np.sum(np.abs(r - self.correction(np.array([lv]), rows, base_db))[mask]) for lv in levels]
-        return np.array([levels[int(np.argmin(costs))]])
+        return _clip_level(self, rows, base_db, mask, 0.5, 1.0)
 
 
 class DynamicRange(Effect):
@@ -320,10 +326,7 @@ class DynamicRange(Effect):
         return np.maximum(base_db, x[0]) - base_db
 
     def fit(self, rows, base_db, mask):
-        r = rows.meas_db - base_db
-        levels = np.quantile(base_db[mask], np.linspace(0.0, 0.5, 41))
-        costs = [np.sum(np.abs(r - self.correction(np.array([lv]), rows, base_db))[mask]) for lv in levels]
-        return np.array([levels[int(np.argmin(costs))]])
+        return _clip_level(self, rows, base_db, mask, 0.0, 0.5)
 
 
 class TurntableOffset(Effect):
