@@ -22,6 +22,7 @@ import torch
 
 from rfir_cli.progress import NullProgress
 
+from .device_gains import DeviceGains
 from .physical import AggregatedPairs, MaterialParams
 
 # (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
@@ -92,14 +93,39 @@ def _loss(pred_db, target, cfg: PhysicalFitConfig):
 
 
 def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig,
-                  progress=None, label: str = "physical", priors: dict | None = None) -> PhysicalFitResult:
+                  progress=None, label: str = "physical", priors: dict | None = None,
+                  devices: DeviceGains | None = None) -> PhysicalFitResult:
     """Fit `num_materials` materials (the N of `agg`, or any model with the same `power`) so that the
     predicted path gain [M, K] dB matches target_db. priors: {material index: (eps_r, sigma at 1 GHz,
-    thickness m)}, each such material's value at every start (a name that says "glass")."""
+    thickness m)}, each such material's value at every start (a name that says "glass"). devices:
+    per-device gains fitted beside the materials under their prior (device_gains.py), reset at each start;
+    the fitted values are left in `devices`."""
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
     floor = float(10 ** ((float(target.min()) - FLOOR_BELOW_DB) / 10))
+
+    def pred(params: MaterialParams) -> torch.Tensor:
+        out = predict_db(agg, params, floor)
+        return out if devices is None else out + devices.link_db()
+
+    def objective(params: MaterialParams) -> torch.Tensor:
+        p = pred(params)
+        loss = _loss(p, target, cfg)
+        if devices is not None:
+            loss = loss + devices.penalty(((p - target) ** 2).mean().detach(), len(target))
+        return loss
+
+    def snapshot(params: MaterialParams) -> dict:
+        state = {k: v.detach().clone() for k, v in params.state_dict().items()}
+        if devices is not None:
+            state.update({f"devices.{k}": v.detach().clone() for k, v in devices.state_dict().items()})
+        return state
+
+    def restore(params: MaterialParams, state: dict) -> None:
+        params.load_state_dict({k: v for k, v in state.items() if not k.startswith("devices.")})
+        if devices is not None:
+            devices.load_state_dict({k[len("devices."):]: v for k, v in state.items() if k.startswith("devices.")})
 
     def new(start) -> MaterialParams:
         _, eps, sig, s, th = start
@@ -107,6 +133,10 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
                                 thickness_m=None if cfg.half_space else th, sigma_exponent=cfg.sigma_exponent)
         for i, (p_eps, p_sig, p_th) in (priors or {}).items():
             params.set_values(i, eps_r=p_eps, sigma_1ghz=p_sig, thickness_m=p_th)
+        if devices is not None:
+            with torch.no_grad():
+                for g in devices.gains.values():
+                    g.zero_()
         return params
 
     def run(params: MaterialParams, steps: int, bar) -> tuple[float, dict, list]:
@@ -114,22 +144,24 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
                    "lr": cfg.lr}]
         if cfg.fit_gain:
             groups.append({"params": [params.gain_db], "lr": 0.2})
+        if devices is not None:
+            groups.append({"params": list(devices.gains.values()), "lr": 0.2})
         opt = torch.optim.Adam(groups)
         best, best_state, curve = math.inf, None, []
         for _ in range(steps):
             opt.zero_grad()
-            loss = _loss(predict_db(agg, params, floor), target, cfg)
+            loss = objective(params)
             if float(loss.detach()) < best:
-                best, best_state = float(loss.detach()), {k: v.detach().clone() for k, v in params.state_dict().items()}
+                best, best_state = float(loss.detach()), snapshot(params)
             loss.backward()
             opt.step()
             curve.append(float(loss.detach()))
             bar.update(loss=curve[-1])   # shown beside the bar, and in the plain lines of a log
             bar.advance(1)
         with torch.no_grad():
-            final = float(_loss(predict_db(agg, params, floor), target, cfg))
+            final = float(objective(params))
         if final < best:
-            best, best_state = final, {k: v.detach().clone() for k, v in params.state_dict().items()}
+            best, best_state = final, snapshot(params)
         return best, best_state, curve
 
     total = (len(STARTS) + SWITCH_ROUNDS) * cfg.start_iterations + cfg.iterations
@@ -141,19 +173,19 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
             tried.append((loss, start, state, curve))
         loss, start, state, curve0 = min(tried, key=lambda t: t[0])
         params = new(start)
-        params.load_state_dict(state)
+        restore(params, state)
         for _ in range(SWITCH_ROUNDS):   # one material at a time may prefer another start (metal beside wood)
-            if not _switch_starts(params, lambda: float(_loss(predict_db(agg, params, floor), target, cfg))):
+            if not _switch_starts(params, lambda: float(objective(params))):
                 break
             _, state, more = run(params, cfg.start_iterations, bar)
-            params.load_state_dict(state)
+            restore(params, state)
             curve0 = curve0 + more
         with torch.no_grad():
-            initial = float((predict_db(agg, params, floor) - target).abs().mean())
+            initial = float((pred(params) - target).abs().mean())
         _, state, curve1 = run(params, cfg.iterations, bar)
-        params.load_state_dict(state)
+        restore(params, state)
     with torch.no_grad():
-        mae = float((predict_db(agg, params, floor) - target).abs().mean())
+        mae = float((pred(params) - target).abs().mean())
     return PhysicalFitResult(params, mae, initial, np.asarray(curve0 + curve1, dtype=np.float64), start[0],
                              time.time() - t0,
                              {"start_losses": {t[1][0]: t[0] for t in tried}})

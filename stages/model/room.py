@@ -47,6 +47,9 @@ class RoomSettings:
     # the fit uses at most this many training links, evenly spaced (0: all): materials are a few
     # parameters each, and a fit step costs paths x interactions
     fit_links: int = 1500
+    # a gain per transmitter / receiver / both, fitted under a zero-mean prior (device_gains.py)
+    device_gains: str = "off"
+    device_gain_prior_db: float = 3.0
 
 
 def label_classes(label_names: list[str]) -> tuple[np.ndarray, list[str]]:
@@ -184,6 +187,9 @@ class RoomPredictor:
         attrs = rf.free.get("model@attrs", {})
         model = load_physical(rf)
         self.mats, self.gain_db = model.mats, model.gain_db
+        stored = rf.free.get("model", {})
+        self.device_gains = {k: np.asarray(v) for k, v in stored.items() if k.startswith("device_")}
+        self.device_ends_matched = 0    # link ends of the last path_gain_db call that got a fitted device gain
         kw = {}
         for f in dc_fields(RoomSettings):
             if f"room.{f.name}" in attrs:
@@ -200,17 +206,20 @@ class RoomPredictor:
         return int(min(num_links, chunk_links) * self.BYTES_PER_LINK + num_links * 200)
 
     def path_gain_db(self, tx_m: np.ndarray, rx_m: np.ndarray, chunk_links: int = 512, progress=None) -> np.ndarray:
-        """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m (floored at -250 dB)."""
+        """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m (floored at -250 dB), with the fitted
+        gain of each device the fit saw at that position (device_gains.gains_at)."""
+        from .device_gains import gains_at
         from .predict import FLOOR_DB
 
         tx_m, rx_m = np.asarray(tx_m, np.float64), np.asarray(rx_m, np.float64)
+        device_db, self.device_ends_matched = gains_at(self.device_gains, tx_m, rx_m)
         out = np.empty(len(tx_m))
         with torch.no_grad():
             for lo in range(0, len(tx_m), chunk_links):
                 hi = min(len(tx_m), lo + chunk_links)
                 links = self.room.links(tx_m[lo:hi], rx_m[lo:hi], np.full(hi - lo, self.freq_hz))
                 p = links.power(self.mats, self.gain_db)[:, 0].numpy()
-                out[lo:hi] = np.maximum(10 * np.log10(np.maximum(p, 1e-300)), FLOOR_DB)
+                out[lo:hi] = np.maximum(10 * np.log10(np.maximum(p, 1e-300)) + device_db[lo:hi], FLOOR_DB)
                 if progress is not None:
                     progress.advance(hi - lo)
         return out

@@ -19,6 +19,8 @@ from rfir_cli.artifacts import write_artifact
 from rfir_cli.errors import ConfigError
 from rfir_cli.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
+from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
+from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings, label_classes
@@ -43,6 +45,9 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     settings = RoomSettings(**{k: type(getattr(RoomSettings, k))(v) for k, v in table.items()})
     if settings.polarisation not in ("V", "H") or settings.max_order < 0:
         raise ConfigError("rf_fit.room: polarisation must be 'V' or 'H' and max_order >= 0")
+    if settings.device_gains not in DEVICE_CHOICES or not settings.device_gain_prior_db > 0:
+        raise ConfigError(f"rf_fit.room: device_gains must be one of {', '.join(DEVICE_CHOICES)} and "
+                          "device_gain_prior_db > 0")
     phys = dict(config.get("physical", {}) or {})
     fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys})
     return settings, fit_cfg, sharing
@@ -106,7 +111,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), reflections up to order "
                  f"{settings.max_order}, diffuse {'on' if settings.diffuse else 'off'}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
-                 f"{'fitted' if fit_cfg.fit_gain else '0 dB'}")
+                 f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "
+                 + ("off" if settings.device_gains == "off" else
+                    f"per {settings.device_gains} (prior {settings.device_gain_prior_db:g} dB)"))
     fit = np.arange(len(tx))
     if 0 < settings.fit_links < len(tx):
         fit = np.linspace(0, len(tx) - 1, settings.fit_links).round().astype(np.int64)
@@ -120,8 +127,15 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if priors:
         progress.log("starting values from material names (ITU-R P.2040 at 1 GHz): " + "; ".join(
             f"{names[i]}: eps_r {e:g}, sigma {g:g} S/m, {t * 100:g} cm" for i, (e, g, t) in priors.items()))
+    devices = None if settings.device_gains == "off" else DeviceGains(
+        settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db)
     res = fit_materials(links, len(names), target_db[fit, None], fit_cfg, progress, label="physical room",
-                        priors=priors)
+                        priors=priors, devices=devices)
+    if devices is not None:
+        for side, g in devices.gains.items():
+            g = g.detach().numpy()
+            progress.log(f"device gains ({side}, {len(g)} devices): mean {g.mean():+.2f} dB, spread {g.std():.2f} dB, "
+                         f"range {g.min():+.2f} .. {g.max():+.2f} dB; devices the fit did not see get 0 dB")
     seen = np.zeros(len(names), bool)
     seen[room.material_of_patch[np.unique(links.paths.patch[links.paths.kind > 0].numpy())]] = True
     unseen = [n for n, s in zip(names, seen) if not s]
@@ -156,7 +170,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     prov.add_input(measurements_path)
     prov.wall_time_s = time.time() - t_start
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s, "fit_time_s": res.wall_time_s}
-    free = {"model": {"@attrs": model_attrs},
+    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table())},
             "training": {"loss_curve": res.loss_curve, "train_rows": np.asarray(rows, np.int64),
                          "fit_rows": np.asarray(rows, np.int64)[fit],
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}

@@ -79,10 +79,15 @@ def links(n_tx=(2, 2), n_rx=(6, 5), tx_z=2.0, rx_z=1.0):
     return tx, rx, tx_id, rx_id
 
 
-def write_measurements(path, freq_hz=2.4e9, seed=0, **kw):
+def write_measurements(path, freq_hz=2.4e9, seed=0, tx_gain_db=None, rx_gain_db=None, **kw):
+    """Measurements of `links(**kw)`; tx_gain_db [T] / rx_gain_db [R]: device gains added (dB)."""
     tx, rx, tx_id, rx_id = links(**kw)
     t, r = tx[tx_id], rx[rx_id]
     gain = reference_gain_db(t, r, freq_hz)
+    if tx_gain_db is not None:
+        gain = gain + np.asarray(tx_gain_db)[tx_id]
+    if rx_gain_db is not None:
+        gain = gain + np.asarray(rx_gain_db)[rx_id]
     split = np.zeros(len(t), np.int64)
     split[np.random.default_rng(seed).permutation(len(t))[: len(t) // 5]] = 1
     data = {"tx_pos": t, "rx_pos": r, "freq_hz": np.array([freq_hz]), "path_gain_db": gain[:, None],

@@ -1,0 +1,90 @@
+"""Per-device gains of measured RSSI (docs/physics.md section 8.11): a fixed offset in dB per transmitter
+and per receiver (antenna gain, cable loss, a radio's calibration), added to the physical path gain.
+
+    P_dB(link) = P_physical_dB(link) + g_tx[tx(link)] + g_rx[rx(link)]
+
+The gains are regularised by a zero-mean Gaussian prior of standard deviation `prior_db`: with
+Gaussian dB errors of variance s^2 the negative log posterior per link is
+
+    mean_links (pred - meas)^2 + (s^2 / prior_db^2) (1 / M) sum_devices g^2,
+
+where s^2 is taken as the current mean squared residual (detached), so a device seen by few links
+keeps a gain near 0 and a device the data never saw (an unseen receiver, a new transmitter of a
+radio map) gets exactly 0, the prior mean. Devices are keyed by position (rounded to 1 mm), so
+prediction needs no ids: a position the fit saw gets its gain, any other position none.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+SIDES = ("tx", "rx")
+CHOICES = ("off", "tx", "rx", "both")
+KEY_DECIMALS = 3   # positions rounded to 1 mm identify a device
+
+
+def _keys(points_m: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(points_m, dtype=np.float64).reshape(-1, 3), KEY_DECIMALS)
+
+
+class DeviceGains(nn.Module):
+    """Gains [D_side] dB of the distinct devices of each fitted side.
+
+    positions: {side: [D, 3] m}; index: {side: [M] int64}, each fit link's device on that side."""
+
+    def __init__(self, which: str, tx_m: np.ndarray, rx_m: np.ndarray, prior_db: float):
+        super().__init__()
+        if which not in CHOICES:
+            raise ValueError(f"device gains {which!r} unknown ({', '.join(CHOICES)})")
+        if not prior_db > 0:
+            raise ValueError("the device gains' prior standard deviation must be > 0 dB")
+        self.prior_db = float(prior_db)
+        self.positions, self.index = {}, {}
+        self.gains = nn.ParameterDict()
+        for side, pts in zip(SIDES, (tx_m, rx_m)):
+            if which in (side, "both"):
+                uniq, inv = np.unique(_keys(pts), axis=0, return_inverse=True)
+                self.positions[side] = uniq
+                self.index[side] = torch.as_tensor(inv.reshape(-1), dtype=torch.int64)
+                self.gains[side] = nn.Parameter(torch.zeros(len(uniq), dtype=torch.float64))
+
+    @property
+    def num_devices(self) -> int:
+        return sum(int(g.numel()) for g in self.gains.values())
+
+    def link_db(self) -> torch.Tensor:
+        """Gain of each fit link [M, 1] dB."""
+        out = 0.0
+        for side, g in self.gains.items():
+            out = out + g[self.index[side]]
+        return torch.as_tensor(out, dtype=torch.float64).reshape(-1, 1)
+
+    def penalty(self, residual_mse: torch.Tensor, num_links: int) -> torch.Tensor:
+        """The prior's term of the per-link loss (module docstring); residual_mse detached by the caller."""
+        total = sum((g ** 2).sum() for g in self.gains.values())
+        return residual_mse / self.prior_db ** 2 * total / max(num_links, 1)
+
+    def table(self) -> dict:
+        """{"<side>_pos_m": [D, 3], "<side>_gain_db": [D]} of the fitted sides (artifact fields)."""
+        out = {}
+        for side, g in self.gains.items():
+            out[f"device_{side}_pos_m"] = self.positions[side]
+            out[f"device_{side}_gain_db"] = g.detach().numpy().copy()
+        return out
+
+
+def gains_at(table: dict, tx_m: np.ndarray, rx_m: np.ndarray) -> tuple[np.ndarray, int]:
+    """(gain [N] dB of links tx_m / rx_m [N, 3] from a `DeviceGains.table()`, number of link ends that
+    matched a fitted device): a device position the fit saw adds its gain, any other adds 0."""
+    out = np.zeros(len(np.asarray(tx_m).reshape(-1, 3)))
+    matched = 0
+    for side, pts in zip(SIDES, (tx_m, rx_m)):
+        pos, gain = table.get(f"device_{side}_pos_m"), table.get(f"device_{side}_gain_db")
+        if pos is None or gain is None or len(gain) == 0:
+            continue
+        lookup = {tuple(p): float(g) for p, g in zip(np.asarray(pos, np.float64), np.asarray(gain, np.float64))}
+        add = np.asarray([lookup.get(tuple(k), np.nan) for k in _keys(pts)])
+        matched += int(np.isfinite(add).sum())
+        out += np.nan_to_num(add, nan=0.0)
+    return out, matched
