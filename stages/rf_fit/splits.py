@@ -10,6 +10,14 @@ harder ones. A protocol is a short string:
 - "sector:A:B": aspects in [A, B) degrees (wrapping, e.g. "sector:315:45") test, the rest train.
 - "range:R": rows at range R metres test, the other ranges train.
 
+For links between placed antennas (rssi), written into a file's `split` column by
+`rfir_stages.simulate.measured_like` (rf-fit then reads them with `rf_fit.rssi.split = "file"`):
+
+- "random:F": a share F of the rows, drawn at random with the seed, test.
+- "holdout_box:X0:X1:Y0:Y1": every link whose transmitter lies in the box X0 <= x < X1,
+  Y0 <= y < Y1 (metres; a room) tests: positions the fit never saw, in a room it never saw inside.
+- "holdout_rx:N": every link of N receivers drawn at random with the seed tests (unseen devices).
+
 `split_rows` returns (train_rows, test_rows) as row indices; rf-fit records the protocol and
 its training rows in the rf artifact, and `predict rcs` rebuilds the test rows from the protocol.
 """
@@ -48,8 +56,37 @@ def _range(meas, r: float, where: str) -> np.ndarray:
     return np.abs(np.asarray(rng, np.float64) - r) < 1e-6
 
 
-def protocol_masks(meas, protocol: str, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """(train [L] bool, test [L] bool) for `protocol` over the rows of `meas`."""
+def _random(meas, fraction: float, seed: int) -> np.ndarray:
+    if not 0.0 < fraction < 1.0:
+        raise ValueError
+    n = len(np.asarray(meas["tx_pos"]))
+    test = np.zeros(n, dtype=bool)
+    test[np.random.default_rng(seed).permutation(n)[: int(round(fraction * n))]] = True
+    return test
+
+
+def _box(meas, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
+    if not (x0 < x1 and y0 < y1):
+        raise ValueError
+    tx = np.asarray(meas["tx_pos"], np.float64)
+    return (tx[:, 0] >= x0) & (tx[:, 0] < x1) & (tx[:, 1] >= y0) & (tx[:, 1] < y1)
+
+
+def _receivers(meas, count: int, seed: int, where: str) -> np.ndarray:
+    """Links of `count` receivers drawn at random with `seed` (by rx_id, else by position)."""
+    rx_id = meas.get("rx_id")
+    if rx_id is None:
+        _, rx_id = np.unique(np.round(np.asarray(meas["rx_pos"], np.float64), 3), axis=0, return_inverse=True)
+    rx_id = np.asarray(rx_id).reshape(-1)
+    ids = np.unique(rx_id)
+    if not 0 < count < len(ids):
+        raise StageError(f"split 'holdout_rx:{count}': need 0 < N < {len(ids)} receivers", path=where)
+    held = np.random.default_rng(seed).choice(ids, size=count, replace=False)
+    return np.isin(rx_id, held)
+
+
+def protocol_masks(meas, protocol: str, where: str, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(train [L] bool, test [L] bool) for `protocol` over the rows of `meas`; seed: of the random ones."""
     name, _, arg = protocol.partition(":")
     try:
         if name == "data":
@@ -69,18 +106,25 @@ def protocol_masks(meas, protocol: str, where: str) -> tuple[np.ndarray, np.ndar
             test = _sector(meas, a, b, where)
         elif name == "range":
             test = _range(meas, float(arg), where)
+        elif name == "random":
+            test = _random(meas, float(arg), seed)
+        elif name == "holdout_box":
+            test = _box(meas, *(float(x) for x in arg.split(":")))
+        elif name == "holdout_rx":
+            test = _receivers(meas, int(arg), seed, where)
         else:
             raise ValueError
-    except ValueError:
-        raise ConfigError(f"split {protocol!r}: expected data, every-N (N >= 2), sector:A:B (degrees) "
-                          "or range:R (metres)") from None
+    except (ValueError, TypeError):
+        raise ConfigError(f"split {protocol!r}: expected data, every-N (N >= 2), sector:A:B (degrees), "
+                          "range:R (metres), random:F (0 < F < 1), holdout_box:X0:X1:Y0:Y1 (metres) "
+                          "or holdout_rx:N") from None
     return ~test, test
 
 
-def split_rows(meas, protocol: str, where: str) -> tuple[np.ndarray, np.ndarray]:
+def split_rows(meas, protocol: str, where: str, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(train_rows, test_rows) row indices; a clear error when the training rows are empty (a protocol
     that holds nothing out may still be fitted: every row trains)."""
-    train, test = protocol_masks(meas, protocol, where)
+    train, test = protocol_masks(meas, protocol, where, seed)
     if not train.any():
         raise StageError(f"empty training split: protocol {protocol!r} leaves no row to fit", path=where)
     if protocol != "data" and not test.any():
@@ -98,7 +142,16 @@ def describe(protocol: str) -> str:
     if name == "sector":
         a, b = arg.split(":")
         return f"aspects in [{a}, {b}) deg held out (test), the rest train"
-    return f"rows at range {arg} m held out (test), the other ranges train"
+    if name == "range":
+        return f"rows at range {arg} m held out (test), the other ranges train"
+    if name == "random":
+        return f"a random {float(arg):.0%} of the links held out (test), the rest train"
+    if name == "holdout_box":
+        x0, x1, y0, y1 = arg.split(":")
+        return f"links whose transmitter lies in x [{x0}, {x1}), y [{y0}, {y1}) m held out (test), the rest train"
+    if name == "holdout_rx":
+        return f"every link of {arg} receivers drawn at random held out (test), the rest train"
+    return protocol
 
 
 def validation_rows(protocol: str, aspect_deg: np.ndarray | None, range_m: np.ndarray | None) -> tuple[np.ndarray, str]:

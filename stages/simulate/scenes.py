@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOM_SCENES = ("classroom", "empty")
+ROOM_SCENES = ("classroom", "flat", "empty")
 OBJECT_SCENES = ("lego", "car", "h-target", "plate", "trio")
 SCENES = ROOM_SCENES + OBJECT_SCENES
 
@@ -230,6 +230,87 @@ def classroom() -> SceneSpec:
                      info={"size_m": [lx, ly, lz]})
 
 
+FLAT_SIZE_M = (9.0, 7.0, 2.7)
+# Rooms of the flat as (x0, x1, y0, y1) boxes in metres (the partitions run along their edges).
+FLAT_ROOMS = {"living": (0.0, 5.0, 0.0, 4.2), "kitchen": (0.0, 5.0, 4.2, 7.0),
+              "bedroom": (5.0, 9.0, 0.0, 3.8), "study": (5.0, 9.0, 3.8, 7.0)}
+
+
+def _sofa(x0, y0, w=2.0, d=0.9, seat=0.45, back=0.85, arm=0.2):
+    """Sofa with its back along y = y0 + d (the sitter faces -y): seat block, backrest and two arms."""
+    return boxes([((x0, y0, 0.0), (x0 + w, y0 + d, seat)),
+                  ((x0, y0 + d - 0.2, seat), (x0 + w, y0 + d, back)),
+                  ((x0, y0, seat), (x0 + arm, y0 + d - 0.2, 0.65)),
+                  ((x0 + w - arm, y0, seat), (x0 + w, y0 + d - 0.2, 0.65))])
+
+
+def flat() -> SceneSpec:
+    """A furnished flat of 9 x 7 x 2.7 m: four rooms (FLAT_ROOMS) inside a concrete shell.
+
+    A brick wall at x = 5 (two door openings) splits living room and kitchen (west) from bedroom
+    and study (east); plasterboard partitions at y = 4.2 (west, one door opening) and y = 3.8 (east,
+    none). Glass windows in the outer walls, a wooden entrance door, and furniture of wood,
+    chipboard and metal (a fridge, kitchen units, a filing cabinet, a television). Interior walls are
+    single two-sided rectangles with their slab thickness (as the classroom's shell);
+    info["floorplan"] maps what a floor plan shows (shell, walls, windows, entrance door) to the names a
+    plan gives them (no material); info["interior_walls"] are the walls a plan places less exactly.
+    """
+    lx, ly, lz = FLAT_SIZE_M
+    b = _Builder()
+    win_s = [(1.0, 2.6, 0.9, 2.2), (6.2, 7.8, 0.9, 2.2)]      # y = 0 wall (living, bedroom), along +x
+    win_n = [(1.0, 2.5, 0.9, 2.2)]                            # y = 7 wall (study), along -x from x = 9
+    win_w = [(0.7, 2.0, 0.9, 2.2)]                            # x = 0 wall (kitchen), along -y from y = 7
+    entrance = (4.3, 5.2, 0.0, 2.05)                          # y = 7 wall, along -x from x = 9 (kitchen)
+    grey = (0.86, 0.85, 0.82)
+    b.add("floor", rect_xy(0, lx, 0, ly, 0.0, up=True), "concrete", "tiles", (0.55, 0.50, 0.45), 0.2)
+    b.add("ceiling", rect_xy(0, lx, 0, ly, lz, up=False), "concrete", "plaster", (0.93, 0.92, 0.90), 0.2)
+    b.add("outer_wall_south", wall((0, 0, 0), (1, 0, 0), (0, 1, 0), lx, lz, win_s), "concrete", "plaster", grey, 0.25)
+    b.add("outer_wall_east", wall((lx, 0, 0), (0, 1, 0), (-1, 0, 0), ly, lz), "concrete", "plaster", grey, 0.25)
+    b.add("outer_wall_north", wall((lx, ly, 0), (-1, 0, 0), (0, -1, 0), lx, lz, win_n + [entrance]), "concrete",
+          "plaster", grey, 0.25)
+    b.add("outer_wall_west", wall((0, ly, 0), (0, -1, 0), (1, 0, 0), ly, lz, win_w), "concrete", "plaster", grey, 0.25)
+    panes = [((u0, 0.0, z0), (1, 0, 0), (0, 1, 0), u1 - u0, z1 - z0) for u0, u1, z0, z1 in win_s]
+    panes += [((lx - u0, ly, z0), (-1, 0, 0), (0, -1, 0), u1 - u0, z1 - z0) for u0, u1, z0, z1 in win_n]
+    panes += [((0.0, ly - u0, z0), (0, -1, 0), (1, 0, 0), u1 - u0, z1 - z0) for u0, u1, z0, z1 in win_w]
+    for i, args in enumerate(panes):
+        b.add(f"window_{i:02d}", wall(*args), "glass", "glass", (0.70, 0.82, 0.88), 0.006)
+    b.add("entrance_door", wall((lx - entrance[0], ly, 0.0), (-1, 0, 0), (0, -1, 0), entrance[1] - entrance[0],
+                                entrance[3]), "wood", "wood", (0.50, 0.33, 0.20), 0.04)
+    # interior walls: brick x = 5 (doors living->bedroom, kitchen->study), plasterboard y = 4.2 and y = 3.8
+    b.add("brick_wall", wall((5.0, 0, 0), (0, 1, 0), (-1, 0, 0), ly, lz, [(2.6, 3.5, 0.0, 2.05), (5.3, 6.2, 0.0, 2.05)]),
+          "brick", "brick", (0.66, 0.36, 0.27), 0.12)
+    b.add("partition_west", wall((0, 4.2, 0), (1, 0, 0), (0, -1, 0), 5.0, lz, [(3.6, 4.5, 0.0, 2.05)]),
+          "plasterboard", "plaster", (0.90, 0.89, 0.84), 0.025)
+    b.add("partition_east", wall((5.0, 3.8, 0), (1, 0, 0), (0, -1, 0), 4.0, lz), "plasterboard", "plaster",
+          (0.88, 0.90, 0.86), 0.025)
+    wood, dark = (0.60, 0.43, 0.27), (0.40, 0.27, 0.16)
+    steel = (0.80, 0.81, 0.83)
+    # living room (x 0..5, y 0..4.2)
+    b.add("sofa", _sofa(0.6, 3.0), "chipboard", "fabric", (0.35, 0.40, 0.50), 0.02)
+    b.add("coffee_table", _desk(1.6, 2.1, w=1.0, d=0.55, h=0.45), "wood", "wood", wood, 0.03)
+    b.add("dining_table", _desk(3.6, 1.4, w=1.6, d=0.9), "wood", "wood", wood, 0.03)
+    b.add("tv", box((1.0, 0.05, 0.8), (2.2, 0.12, 1.5)), "metal", "metal", (0.10, 0.10, 0.12), 0.002)
+    # kitchen (x 0..5, y 4.2..7)
+    b.add("fridge", box((0.05, 4.3, 0.0), (0.75, 5.0, 1.8)), "metal", "metal", steel, 0.002)
+    b.add("kitchen_units", box((0.05, 5.0, 0.0), (0.65, 6.9, 0.9)), "metal", "metal", steel, 0.002)
+    b.add("kitchen_table", _desk(2.6, 5.6, w=1.2, d=0.8), "wood", "wood", wood, 0.03)
+    # bedroom (x 5..9, y 0..3.8)
+    b.add("bed", box((6.8, 1.2, 0.0), (8.9, 2.8, 0.5)), "wood", "wood", dark, 0.03)
+    b.add("wardrobe", box((5.1, 0.1, 0.0), (5.7, 1.9, 2.0)), "chipboard", "wood", (0.85, 0.80, 0.70), 0.02)
+    # study (x 5..9, y 3.8..7)
+    b.add("desk", _desk(7.6, 6.55, w=1.4, d=0.7), "wood", "wood", wood, 0.03)
+    b.add("bookshelf", box((8.6, 4.0, 0.0), (8.95, 5.4, 1.9)), "wood", "wood", dark, 0.03)
+    b.add("filing_cabinet", box((5.1, 6.4, 0.0), (5.6, 6.95, 1.1)), "metal", "metal", steel, 0.002)
+    # what a floor plan shows, under the names a plan gives (no material named): true name -> plan name
+    plan = {"floor": "floor", "ceiling": "ceiling",
+            **{f"outer_wall_{k}": f"outer_wall_{i:02d}" for i, k in enumerate(("south", "east", "north", "west"))},
+            **{f"window_{i:02d}": f"window_{i:02d}" for i in range(len(panes))}, "entrance_door": "door",
+            "brick_wall": "thick_wall_00", "partition_west": "thin_wall_00", "partition_east": "thin_wall_01"}
+    return SceneSpec("flat", "room", b.objects, np.array([[0.0, 0.0, 0.0], [lx, ly, lz]]),
+                     info={"size_m": [lx, ly, lz], "rooms": {k: list(v) for k, v in FLAT_ROOMS.items()},
+                           "floorplan": plan, "interior_walls": ["brick_wall", "partition_west", "partition_east"]})
+
+
 def empty() -> SceneSpec:
     """No objects at all: free space (Friis checks). Bounds are nominal."""
     return SceneSpec("empty", "room", [], np.array([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]]))
@@ -400,7 +481,7 @@ def car(length_m: float = CAR_LENGTH_M) -> SceneSpec:
                                                                    "length_m": length_m})
 
 
-_BUILDERS = {"classroom": classroom, "lego": lego, "car": car, "h-target": h_target, "plate": plate, "trio": trio,
+_BUILDERS = {"classroom": classroom, "flat": flat, "lego": lego, "car": car, "h-target": h_target, "plate": plate, "trio": trio,
              "empty": empty, "ground-plate": ground_plate}
 
 

@@ -123,12 +123,29 @@ def _defaults() -> dict:
     return load_defaults().get("simulate", {})
 
 
-def parse_settings(config: dict | None, quick: bool | None = None) -> SimulateSettings:
-    """Build settings from the [simulate] table; quick=True applies [simulate.quick_sizes]."""
+RSSI_KEYS = {"freqs_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m",
+             "test_fraction", "samples_per_src", "max_num_paths_per_src"}
+
+
+def _scene_rssi(rs: dict, scene: str | None) -> dict:
+    """The [simulate.rssi] table with [simulate.rssi.scenes.<scene>] laid over it (a scene's own grids)."""
+    rs = dict(rs)
+    per_scene = rs.pop("scenes", {}) or {}
+    own = per_scene.get(scene, {}) if scene else {}
+    unknown = sorted(set(own) - RSSI_KEYS)
+    if unknown:
+        raise ConfigError(f"simulate.rssi.scenes.{scene}: unknown key(s) {', '.join(unknown)}")
+    return {**rs, **own}
+
+
+def parse_settings(config: dict | None, quick: bool | None = None, scene: str | None = None) -> SimulateSettings:
+    """Build settings from the [simulate] table; quick=True applies [simulate.quick_sizes]; scene: apply
+    that scene's [simulate.rssi.scenes.<scene>] keys."""
     c = config if config is not None else _defaults()
     try:
         ph, me = c.get("physics", {}), c.get("measurement", {})
-        rc, wb, rs, qk = c.get("rcs", {}), c.get("wideband", {}), c.get("rssi", {}), c.get("quick_sizes", {})
+        rc, wb, qk = c.get("rcs", {}), c.get("wideband", {}), c.get("quick_sizes", {})
+        rs = _scene_rssi(c.get("rssi", {}), scene)
         po = c.get("po", {})
         tasks = c.get("tasks", "auto")
         s = SimulateSettings(

@@ -58,13 +58,13 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
     quick: overrides config["quick"] when given.
     """
     progress = progress or NullProgress()
-    settings = parse_settings(config, quick=quick)
     try:
         spec = build_scene(scene)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     except ImportError as exc:
         raise StageError(str(exc)) from None
+    settings = parse_settings(config, quick=quick, scene=spec.name)
     if settings.scene_edits:
         from .scene_edits import apply_scene_edits
 
