@@ -106,12 +106,15 @@ def _baselines(pred, rf, geom_labels, provider, tx, rx, y, train, test) -> dict:
     out = {}
     ld = bl.fit_log_distance(d[train], y[train])
     out["baseline_log_distance_mae_db"] = float(np.mean(np.abs(bl.predict_log_distance(ld, d[test]) - y[test])))
+    out["baseline_log_distance_mae_train_db"] = float(np.mean(np.abs(bl.predict_log_distance(ld, d[train]) - y[train])))
     out["baseline_log_distance_params"] = ld
     names = rf.attrs.get("label_names")
     counts, classes = bl.crossing_counts(provider, geom_labels, None if names is None else list(names), tx, rx)
     mw = bl.fit_multiwall(d[train], counts[train], y[train], classes)
     out["baseline_multiwall_mae_db"] = float(np.mean(np.abs(bl.predict_multiwall(mw, d[test], counts[test], classes)
                                                              - y[test])))
+    out["baseline_multiwall_mae_train_db"] = float(np.mean(np.abs(
+        bl.predict_multiwall(mw, d[train], counts[train], classes) - y[train])))
     out["baseline_multiwall_params"] = mw
     out["test_links_crossing_objects"] = int((counts[test].sum(1) > 0).sum())
     out["baseline_nearest_links_mae_db"] = float(np.mean(np.abs(bl.nearest_links(tx, rx, y, train, test) - y[test])))
@@ -182,6 +185,9 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         labels = rf.get("gaussians/labels")
         metrics.update(_baselines(pg, rf, labels, pred.provider, txs, rx, measured, train, test))
         warnings += baselines_beating_model(metrics)   # printed and in the results JSON
+        warnings += baselines_beating_model({"mae_db": metrics["mae_train_db"], **{
+            k.replace("_mae_train_db", "_mae_db"): v for k, v in metrics.items() if k.endswith("_mae_train_db")}},
+            rows="training")
     elif measured is not None:
         metrics = {"mae_db_this_tx": float(np.mean(np.abs(pg - measured))), "num_points": int(len(rx))}
 
