@@ -3,7 +3,8 @@
 rfir: `rfir rf-fit` then `rfir predict rcs|rssi` (whose JSON also scores the simple baselines on
 the same split: nearest aspect, linear interpolation, log-distance, multi-wall, nearest links).
 NeRF2-style and WRF-GS-style fields: scripts/baseline_nerf2.py and scripts/baseline_wrfgs.py.
-Ray tracing: scripts/baseline_raytrace.py (Sionna RT on a mesh with one guessed ITU material).
+Ray tracing: scripts/baseline_raytrace.py (Sionna RT on a mesh with one guessed ITU material) and
+rfir_stages.baselines.sionna_calibrated (materials per object class calibrated through Sionna's gradients).
 """
 from __future__ import annotations
 
@@ -130,3 +131,14 @@ def raytrace(r: Plan, label: str, mesh: Path, meas: Path, material: str = "concr
     step = r.step(f"{label}__raytrace", [r.python, str(SCRIPTS / "baseline_raytrace.py"), str(mesh), str(meas),
                                         "--material", material, "--results", str(j)], j)
     return Result(r, j, step).cell("mae_db")
+
+
+def raytrace_calibrated(r: Plan, label: str, mesh: Path, meas: Path, split: str, iterations: int,
+                        links: int) -> Callable[[], Cell]:
+    """Sionna RT on `mesh`, one material per object class (one for all on a mesh without labels) calibrated
+    by gradient descent on `links` training links of the split, scored on its test links."""
+    j = r.json_path(f"{label}__raytrace_calibrated")
+    step = r.step(f"{label}__raytrace_calibrated",
+                  [r.python, "-m", "rfir_stages.baselines.sionna_calibrated", str(mesh), str(meas), "--split", split,
+                   "--iterations", str(iterations), "--links", str(links), "--results", str(j)], j)
+    return Result(r, j, step).cell()

@@ -46,6 +46,8 @@ CODE: dict[str, tuple[str, ...]] = {
     "scripts/baseline_nerf2.py": (*_CORE, "scripts/baseline_nerf2.py", "stages/baselines"),
     "scripts/baseline_wrfgs.py": (*_CORE, "scripts/baseline_wrfgs.py", "stages/baselines"),
     "scripts/baseline_raytrace.py": (*_CORE, "scripts/baseline_raytrace.py", "stages/simulate"),
+    "rfir_stages.baselines.sionna_calibrated": (*_CORE, "stages/baselines", "stages/simulate", "stages/geom",
+                                                "stages/rf_fit", "stages/predict", "configs/simulate.toml"),
 }
 _SOURCE_SUFFIXES = {".py", ".toml", ".cpp", ".cu", ".h", ".cuh"}
 
