@@ -3,8 +3,8 @@ class, its relative permittivity and conductivity fitted to training links by gr
 Sionna's differentiable path solver (Dr.Jit automatic differentiation).
 
     python -m rfir_stages.baselines.sionna_calibrated MESH.ply MEASUREMENTS.h5 --split random|holdout_tx
-        --results results/NAME.json [--iterations 40] [--links 400] [--tx-per-step 4] [--depth 2]
-        [--samples 10000] [--lr 0.2] [--material concrete] [--thickness 0.2] [--seed 0]
+        --results results/NAME.json [--iterations 40] [--links 400] [--tx-per-step 4] [--depth D]
+        [--samples N] [--lr 0.1] [--lr-decay 0.1] [--material concrete] [--thickness 0.2] [--seed 0]
 
 What a radio engineer does first with a ray tracer and a few measurements:
 - classes: a labelled mesh (`rfir simulate`'s meshes/<scene>_gt.ply, face labels, names in the
@@ -13,7 +13,8 @@ What a radio engineer does first with a ray tracer and a few measurements:
   one global material; the results say so.
 - start: every class made of the guessed ITU material (`--material`, Sionna's ITU-R P.2040 values at
   the measurement frequency) as slabs `--thickness` m thick; the thickness stays at the guess.
-- parameters per class c: eps_r = 1 + exp(u_c) (Sionna needs eps_r >= 1), sigma = exp(v_c) S/m.
+- parameters per class c: eps_r = 1 + exp(u_c) (Sionna needs eps_r >= 1), sigma = exp(v_c) S/m; Adam
+  with a step size decaying geometrically by `--lr-decay` over the run.
 - loss: mean |P_dB(predicted) - P_dB(measured)| over a fixed random subsample of about `--links`
   training links (every training link of a random set of receivers, `link_groups`), grouped by
   transmitter; each Adam step solves `--tx-per-step` transmitter groups (one Sionna
@@ -21,8 +22,8 @@ What a radio engineer does first with a ray tracer and a few measurements:
   the gradient of every group.
 - power per link as the simulator combines paths (rfir_stages.simulate.solve): specular and
   refracted paths summed coherently with their delay phase exp(-j 2 pi f tau), diffuse paths summed
-  as power. The calibration solves use fewer bounces and rays than the prediction (`--depth`,
-  `--samples`) to keep the CPU cost to minutes; the gradient of Sionna's Monte-Carlo path search
+  as power. The calibration solves use the prediction's bounces and rays by default (`--depth`,
+  `--samples`; fewer bias the materials toward making up the missing paths); the gradient of Sionna's Monte-Carlo path search
   itself is not taken (paths are found, then their fields differentiated).
 - prediction: every link of the file with the fitted materials and `rfir simulate`'s default physics
   (configs/simulate.toml, as the guessed-material ray-tracing baseline uses), scored on the split's
@@ -38,7 +39,7 @@ import re
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,11 +57,12 @@ class CalibSettings:
     material: str = "concrete"    # guessed ITU material every class starts from
     thickness_m: float = 0.2      # slab thickness Sionna assumes (kept fixed)
     iterations: int = 40          # Adam steps
-    lr: float = 0.2               # Adam step size on u = log(eps_r - 1) and v = log(sigma)
+    lr: float = 0.1               # Adam step size on u = log(eps_r - 1) and v = log(sigma), first step
+    lr_decay: float = 0.1         # last step's size / first step's (geometric in between)
     links: int = 400              # training links in the calibration subsample
     tx_per_step: int = 4          # transmitter groups solved per Adam step
-    max_depth: int = 2            # bounces of the calibration solves
-    samples_per_src: int = 10000  # rays per transmitter of the calibration solves
+    max_depth: int | None = None        # bounces of the calibration solves (None: the prediction's)
+    samples_per_src: int | None = None  # rays per transmitter of the calibration solves (None: the prediction's)
     seed: int = 0
 
 
@@ -311,7 +313,7 @@ def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, f
     t0 = time.time()
     initial = full_mae(theta)
     say(f"calibrate: {len(mats.classes)} classes, {n_links} links ({len(rx_sub)} receivers x {len(groups)} "
-        f"transmitters), start "
+        f"transmitters), depth {s.max_depth}, {s.samples_per_src} rays per transmitter, start "
         f"{s.material} (eps_r {eps0:.3g}, sigma {sig0:.3g} S/m), subsample MAE {initial:.3f} dB ({time.time() - t0:.0f} s)")
     losses = []
     order = []
@@ -327,7 +329,8 @@ def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, f
             raise StageError(f"calibration gradient not finite at step {it + 1}; lower --lr")
         m1 = b1 * m1 + (1 - b1) * g
         m2 = b2 * m2 + (1 - b2) * g * g
-        theta = theta - s.lr * (m1 / (1 - b1 ** (it + 1))) / (np.sqrt(m2 / (1 - b2 ** (it + 1))) + 1e-8)
+        lr = s.lr * s.lr_decay ** (it / max(int(s.iterations) - 1, 1))   # smaller steps settle the batch noise
+        theta = theta - lr * (m1 / (1 - b1 ** (it + 1))) / (np.sqrt(m2 / (1 - b2 ** (it + 1))) + 1e-8)
         losses.append(loss)
         say(f"calibrate: step {it + 1}/{s.iterations}  batch MAE {loss:.3f} dB  ({time.time() - t0:.0f} s)")
     final = full_mae(theta)
@@ -352,7 +355,8 @@ def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=pr
     t0 = time.time()
     if split not in SPLITS:
         raise ConfigError(f"--split {split!r}: expected one of {', '.join(SPLITS)}")
-    if s.iterations < 0 or s.links < 1 or s.tx_per_step < 1 or s.max_depth < 1 or s.samples_per_src < 1:
+    if (s.iterations < 0 or s.links < 1 or s.tx_per_step < 1 or (s.max_depth or 1) < 1
+            or (s.samples_per_src or 1) < 1):
         raise ConfigError("need --iterations >= 0, --links >= 1, --tx-per-step >= 1, --depth >= 1, --samples >= 1")
     if not s.thickness_m > 0:
         raise ConfigError("--thickness must be > 0 m")
@@ -372,6 +376,8 @@ def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=pr
 
     settings = parse_settings(None)
     effects = settings.material_effects()
+    physics = settings.physics_for("rssi")
+    s = replace(s, max_depth=s.max_depth or physics.max_depth, samples_per_src=s.samples_per_src or physics.samples_per_src)
     spec = class_spec(mesh, face_class, classes, s.material, s.thickness_m)
     work = Path(results_path).with_suffix("")
     with tempfile.TemporaryDirectory(prefix="rfir-calibrated-") as tmp:   # the scene's XML + PLY, read at load
@@ -381,7 +387,6 @@ def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=pr
     fit = calibrate(scene, mats, tx, rx, tx_id, rx_id, y, subsample, float(freqs[0]), s, say)
 
     mats.set(fit["theta"], grad=False)
-    physics = settings.physics_for("rssi")
     say(f"predict: {len(tx)} transmitters x {len(rx)} receivers, simulate's default physics (depth "
         f"{physics.max_depth}, {physics.samples_per_src} rays per transmitter)")
     t_pred = time.time()
@@ -437,13 +442,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--thickness", type=float, default=d.thickness_m, help="slab thickness, m (kept fixed)")
     ap.add_argument("--iterations", type=int, default=d.iterations)
     ap.add_argument("--lr", type=float, default=d.lr)
+    ap.add_argument("--lr-decay", type=float, default=d.lr_decay, help="last step size / first")
     ap.add_argument("--links", type=int, default=d.links, help="training links in the calibration subsample")
     ap.add_argument("--tx-per-step", type=int, default=d.tx_per_step)
-    ap.add_argument("--depth", type=int, default=d.max_depth, help="bounces of the calibration solves")
-    ap.add_argument("--samples", type=int, default=d.samples_per_src, help="rays per transmitter (calibration)")
+    ap.add_argument("--depth", type=int, default=d.max_depth,
+                    help="bounces of the calibration solves (default: the prediction's, configs/simulate.toml)")
+    ap.add_argument("--samples", type=int, default=d.samples_per_src, help="rays per transmitter of the calibration "
+                    "solves (default: the prediction's)")
     ap.add_argument("--seed", type=int, default=d.seed)
     a = ap.parse_args(argv)
-    s = CalibSettings(a.material, a.thickness, a.iterations, a.lr, a.links, a.tx_per_step, a.depth, a.samples, a.seed)
+    s = CalibSettings(material=a.material, thickness_m=a.thickness, iterations=a.iterations, lr=a.lr,
+                      lr_decay=a.lr_decay, links=a.links, tx_per_step=a.tx_per_step, max_depth=a.depth,
+                      samples_per_src=a.samples, seed=a.seed)
     try:
         out = run(a.mesh, a.measurements, a.split, a.results, s, say=lambda m: print(m, flush=True))
     except RfirError as exc:
