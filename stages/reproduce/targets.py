@@ -177,9 +177,22 @@ def _geom_mesh(r: Plan) -> Path:
     return mesh
 
 
+def _rssi_physical(r: Plan, label: str, scene: Path, meas: Path, split: str) -> M.Result:
+    """rfir's RSSI model (the physical room model, the default) on the classroom; one step shared by the targets."""
+    physical = {"rf_fit.rssi.model": "physical"}
+    if r.quick:
+        physical.update({"rf_fit.physical.iterations": 30, "rf_fit.physical.start_iterations": 10})
+    return M.rfir_rssi(r, label + "_physical", scene, meas, split, None, physical)
+
+
+def _rssi_los_nlos(r: Plan, label: str, scene: Path, meas: Path, split: str) -> M.Result:
+    """The paper's LoS/NLoS model (free materials per Gaussian) on the classroom."""
+    return M.rfir_rssi(r, label, scene, meas, split, 30 if r.quick else None, {"rf_fit.rssi.model": "free"})
+
+
 def target_rssi(r: Plan) -> Table:
     """Classroom RSSI (Sionna RT, 2.4 GHz): random 80/20 links and 4 unseen transmitters."""
-    t = Table("RSSI: classroom 2.4 GHz", ["rfir", "rfir (physical room)", "NeRF2-style", "WRF-GS-style", "ray tracing (geom mesh)",
+    t = Table("RSSI: classroom 2.4 GHz", ["rfir", "rfir (LoS/NLoS)", "NeRF2-style", "WRF-GS-style", "ray tracing (geom mesh)",
                                           "ray tracing (geom mesh, calibrated)", "ray tracing (true mesh)",
                                           "ray tracing (true mesh, calibrated)", "log-distance", "multi-wall",
                                           "nearest links"])
@@ -191,12 +204,9 @@ def target_rssi(r: Plan) -> Table:
     calibrated = (r.sizes["calibrated_iterations"], r.sizes["calibrated_links"])
     for split in splits:
         label = f"rssi_classroom_{split}"
-        ours = M.rfir_rssi(r, label, scene, meas, split, 30 if r.quick else None)
-        physical = {"rf_fit.rssi.model": "physical"}
-        if r.quick:
-            physical.update({"rf_fit.physical.iterations": 30, "rf_fit.physical.start_iterations": 10})
-        room = M.rfir_rssi(r, label + "_physical", scene, meas, split, None, physical)
-        row = {"rfir": ours.cell(), "rfir (physical room)": room.cell(),
+        ours = _rssi_los_nlos(r, label, scene, meas, split)
+        room = _rssi_physical(r, label, scene, meas, split)
+        row = {"rfir": room.cell(), "rfir (LoS/NLoS)": ours.cell(),
                "NeRF2-style": M.nerf2(r, label, meas, "rssi", split, minutes, 0, s["epochs"]),
                "WRF-GS-style": M.wrfgs(r, label, meas, scene, "rssi", split, minutes, 0, s["epochs"]),
                "log-distance": ours.metric("baseline_log_distance_mae_db"),
@@ -215,8 +225,8 @@ def target_rssi(r: Plan) -> Table:
             row["ray tracing (true mesh)"] = row["ray tracing (geom mesh)"] = Cell(note="random split only")
             row["ray tracing (geom mesh, calibrated)"] = Cell(note="random split only")
         t.add(f"classroom, {'random 80/20' if split == 'random' else '4 unseen Tx'}", row)
-    t.notes += ["rfir: the LoS/NLoS model with free materials per Gaussian; rfir (physical room): paths through and "
-                "off the surfaces with fitted physical materials per object class (docs/rssi.md)",
+    t.notes += ["rfir: the physical room model (paths through and off the surfaces, fitted physical materials per "
+                "object class; docs/rssi.md); rfir (LoS/NLoS): the paper's model with free materials per Gaussian",
                 "ray tracing: Sionna RT, every face concrete (a user's guess; the true materials are mixed); calibrated: "
                 "eps_r and sigma per object class fitted by gradient descent through Sionna's differentiable solver on "
                 "a subsample of the training links, slab thickness kept at the guess; on the geom mesh (no labels) one "
@@ -241,10 +251,10 @@ def target_ablation(r: Plan) -> Table:
                                          "without LoS weighting": Cell(note="RSSI only")})
     if not r.quick:
         cmeas, cscene = _classroom(r)
-        full = M.rfir_rssi(r, "rssi_classroom_random", cscene, cmeas, "random", None).cell()
+        full = _rssi_los_nlos(r, "rssi_classroom_random", cscene, cmeas, "random").cell()
         now = M.rfir_rssi(r, "ablation_classroom_no_weighting", cscene, cmeas, "random", None,
-                          {"rf_fit.rssi.weighting": "false"}).cell()
-        t.add("classroom RSSI, random", {"rfir": full, "without LoS weighting": now,
+                          {"rf_fit.rssi.model": "free", "rf_fit.rssi.weighting": "false"}).cell()
+        t.add("classroom RSSI, random (LoS/NLoS model)", {"rfir": full, "without LoS weighting": now,
                                          "without path-loss term": Cell(note="RCS only"),
                                          "without phase term": Cell(note="RCS only")})
     return t
@@ -284,15 +294,15 @@ def target_edit(r: Plan) -> Table:
                                                            "rotate:0,0,1,45,0,0,0"])
     if not r.quick:
         meas, scene = _classroom(r)
-        M.rfir_rssi(r, "rssi_classroom_random", scene, meas, "random", None)
-        rf = r.data / "fits" / "rssi_classroom_random.h5"
+        _rssi_physical(r, "rssi_classroom_random", scene, meas, "random")
+        rf = r.data / "fits" / "rssi_classroom_random_physical.h5"
         for name, edit, ops in (
                 ("classroom_remove_whiteboard", "whiteboard:delete", ["--select", "label:whiteboard", "--op", "delete"]),
                 ("classroom_move_desk_row", "desk_0[0369]|chair_0[0369]:translate:0,1,0",
                  ["--select", "label:desk_0[0369]", "--op", "translate:0,1,0",
                   "--select", "label:chair_0[0369]", "--op", "translate:0,1,0"]),
                 ("classroom_back_wall_metal", "wall_back:material:metal",
-                 ["--select", "label:wall_back", "--op", "set:gamma_abs=1,a=1"])):
+                 ["--select", "label:wall_back", "--op", "material:metal"])):
             after = _simulate(r, f"edit_{name}", "classroom", {}, ["--no-photos", "--scene-edit", edit])
             _edit_row(r, t, name, rf, meas, after, ops)
     t.notes += ["rfir: the fit of the unedited scene plus `rfir edit`, scored against the simulator on the "

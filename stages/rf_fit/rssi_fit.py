@@ -30,7 +30,7 @@ from .rssi_model import (RssiModel, build_probe_field, friis_los, link_terms, lo
 
 CACHE_BYTES = 24  # per link and Gaussian: float32 amplitude and lobe, complex64 phase, + temporaries
 RSSI_MODELS = ("free", "physical")
-RSSI_DEFAULTS = {"model": "free", "split": "file", "holdout_tx": 4, "weighting": True, "probe_step_m": 0.5, "hidden": 16,
+RSSI_DEFAULTS = {"model": "physical", "split": "file", "holdout_tx": 4, "weighting": True, "probe_step_m": 0.5, "hidden": 16,
                  "batch_links": 1024, "los_lr": 0.01, "nlos_init_db": -6.0}
 
 

@@ -10,7 +10,8 @@ from rfir_cli.main import app
 
 from .helpers import write_measurements, write_scene
 
-FAST = ["--set", "rf_fit.rssi.batch_links=64", "--set", "rf_fit.rssi.probe_step_m=0.75"]
+# the paper's LoS/NLoS model (rf_fit.rssi.model = "free"; the default is the physical room model)
+FAST = ["--set", "rf_fit.rssi.model=free", "--set", "rf_fit.rssi.batch_links=64", "--set", "rf_fit.rssi.probe_step_m=0.75"]
 
 
 def test_baselines_training_error_is_reported_and_compared(tmp_path):

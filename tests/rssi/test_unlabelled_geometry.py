@@ -17,7 +17,8 @@ def _unlabelled_scene(path):
 def test_label_recipe_on_unlabelled_geometry_falls_back_with_a_word(tmp_path):
     _unlabelled_scene(tmp_path / "scene.h5")
     write_measurements(tmp_path / "meas.h5")
-    r = CliRunner().invoke(app, ["--recipe", "rssi", "--set", "rf_fit.rssi.probe_step_m=0.75", "rf-fit",
+    r = CliRunner().invoke(app, ["--recipe", "rssi", "--set", "rf_fit.rssi.model=free", "--set",
+                                 "rf_fit.rssi.probe_step_m=0.75", "rf-fit",
                                  str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5"),
                                  "--iterations", "5"])
     assert r.exit_code == 0, r.output
