@@ -12,12 +12,13 @@ Change history
 - 1.0.0 (2026-11-23): first release: measurements, cameras, calib, scene, rf, predictions.
 - 1.1.0 (2026-11-25): optional measurement set-up attributes of `measurements` (antenna_tx,
   antenna_rx, their pattern tables, polarisation, power, tx_power_dbm).
+- 1.2.0 (2026-11-25): optional residual/* fields of `rf` (the residual on top of the physical model).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.1.0"
+SCHEMA_VERSION = "1.2.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -192,6 +193,17 @@ _register(KindSpec(
         F("material/thickness_m", "float", ("N",), "m", "slab thickness (0: half-space)", required=False),
         F("material/gamma_normal_abs", "float", ("N", "F"), "1", "|Gamma| at normal incidence per fitted frequency",
           required=False),
+        # the residual on top of the physical model (rfir_stages.model.residual), T training links
+        F("residual/tx_pos", "float", ("T", 3), "m", "smooth / blend residual: transmitter of each training link",
+          required=False, frame="world"),
+        F("residual/rx_pos", "float", ("T", 3), "m", "smooth / blend residual: receiver of each training link",
+          required=False, frame="world"),
+        F("residual/weights_db", "float", ("T", "F"), "dB", "smooth / blend residual: (K + eta I)^-1 r per fitted "
+          "frequency", required=False),
+        F("residual/mean_db", "float", ("F",), "dB", "blend residual: mean measured path gain (0 for smooth)",
+          required=False),
+        F("residual/surfel", "float", ("G", 2), "1", "gaussian residual: real, imaginary part of each surfel's "
+          "factor r (its specular term times 1 + r)", required=False),
     ),
     required_attrs=("task",),
     free_groups=("model", "training", "effects"),

@@ -9,8 +9,12 @@ Datasets (schema: rfir_cli.schema, kind "rf"; N materials, G Gaussians, F fitted
 - rf/gamma_abs, rf/gamma_phase_rad [G]: each Gaussian's material's normal-incidence coefficient at
   the first fitted frequency (what attribute maps show); rf/opacity [G]: the RF opacity of the
   traced visibility; rf/roughness [G]: 1 (no lobe exponent in this model).
+- residual/* (residual.py): the smooth / blend form's training links residual/tx_pos,
+  residual/rx_pos [T, 3], weights residual/weights_db [T, F] and mean residual/mean_db [F]; or the
+  gaussian form's factor residual/surfel [G, 2] (real, imaginary parts).
 Attributes of group model: family = "physical", sigma_exponent, polarisation, gain_db,
-material_names, and the PairSettings (pairs.*).
+material_names, the PairSettings (pairs.*) and the residual's residual.form ("off", "smooth",
+"blend", "gaussian"), residual.chosen, residual.weight, residual.length_deg, residual.range_length.
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ import numpy as np
 import torch
 
 from .physical import MaterialValues, PairSettings
+from .residual import ResidualFit, load_residual, residual_fields
 
 FAMILY = "physical"
 
@@ -30,9 +35,10 @@ def is_physical_model(rf) -> bool:
 
 
 def physical_fields(mats: MaterialValues, material_of_gaussian: torch.Tensor, areas_m2: torch.Tensor,
-                    freqs_hz: np.ndarray, settings: PairSettings, names: list[str], gain_db: float
-                    ) -> tuple[dict, dict]:
-    """(datasets, model attributes) of a fitted physical model (see the module docstring)."""
+                    freqs_hz: np.ndarray, settings: PairSettings, names: list[str], gain_db: float,
+                    residual: ResidualFit | None = None, train_tx_m=None, train_rx_m=None) -> tuple[dict, dict]:
+    """(datasets, model attributes) of a fitted physical model (see the module docstring); residual:
+    fitted on the training links train_tx_m / train_rx_m [T, 3] m (None: none)."""
     idx = np.asarray(material_of_gaussian, dtype=np.int64)
     f = torch.as_tensor(np.asarray(freqs_hz, dtype=np.float64))
     r_normal = mats.normal_reflection(f).detach().numpy()                      # [N, F]
@@ -54,12 +60,21 @@ def physical_fields(mats: MaterialValues, material_of_gaussian: torch.Tensor, ar
              "material_names": np.asarray(names, dtype=object),
              "model_doc": "surfel physical optics with physical materials (docs/physics.md section 8)"}
     attrs.update({f"pairs.{fl.name}": getattr(settings, fl.name) for fl in fields(PairSettings)})
+    r_data, r_attrs = residual_fields(residual or ResidualFit("off"), train_tx_m, train_rx_m)
+    data.update(r_data)
+    attrs.update(r_attrs)
     return data, attrs
+
+
+def has_residual(rf) -> bool:
+    """A physical model with a residual on top (residual.py)."""
+    return is_physical_model(rf) and str(rf.free.get("model@attrs", {}).get("residual.form", "off")) != "off"
 
 
 @dataclass
 class PhysicalModel:
-    """A loaded physical model: materials, each Gaussian's material [G], areas [G] m^2, settings."""
+    """A loaded physical model: materials, each Gaussian's material [G], areas [G] m^2, settings, the
+    residual on top (form "off": none)."""
 
     mats: MaterialValues
     material_of_gaussian: torch.Tensor
@@ -67,6 +82,7 @@ class PhysicalModel:
     settings: PairSettings
     gain_db: float
     names: list
+    residual: ResidualFit
 
 
 def load_physical(rf) -> PhysicalModel:
@@ -82,4 +98,5 @@ def load_physical(rf) -> PhysicalModel:
     names = [str(s) for s in np.atleast_1d(attrs.get("material_names", []))]
     gain = float(attrs.get("gain_db", 0.0))
     return PhysicalModel(mats, torch.as_tensor(np.asarray(rf["material/index"], dtype=np.int64)),
-                         t("material/area_m2"), PairSettings(**kw), gain if math.isfinite(gain) else 0.0, names)
+                         t("material/area_m2"), PairSettings(**kw), gain if math.isfinite(gain) else 0.0, names,
+                         load_residual(rf))

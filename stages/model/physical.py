@@ -284,11 +284,21 @@ class MaterialParams(nn.Module):
 
 
 def scattered_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
-                    gain_db: torch.Tensor | float = 0.0, freq_hz: torch.Tensor | None = None) -> torch.Tensor:
+                    gain_db: torch.Tensor | float = 0.0, freq_hz: torch.Tensor | None = None,
+                    surfel_factor: torch.Tensor | None = None) -> torch.Tensor:
     """Received power [M, K] (P_T = 1 W; path gain) of the model in the module docstring.
 
     material_of_gaussian [G] int64: the material of each Gaussian. freq_hz [K] (default: the
-    frequencies the pairs were built for; only the phase, the footprint and Gamma depend on it)."""
+    frequencies the pairs were built for; only the phase, the footprint and Gamma depend on it).
+    surfel_factor [G] complex: each surfel's specular term times (1 + surfel_factor) (the per-Gaussian
+    residual of residual.py; None: the physical model alone)."""
+    field, diffuse = scattered_field(pairs, material_of_gaussian, mats, freq_hz, surfel_factor)
+    return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
+
+
+def specular_terms(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
+                   freq_hz: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(first-order specular term of each pair [P, K] complex, Gamma [P, K]) (module docstring)."""
     f = pairs.freq_hz if freq_hz is None else freq_hz.double()
     k0 = 2 * math.pi * f / C0                                      # [K]
     mat = material_of_gaussian[pairs.gauss]                        # [P]
@@ -301,19 +311,33 @@ def scattered_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
     spec_amp = base * 0.5 * (pairs.cos_i + pairs.cos_o) * torch.sqrt(1.0 - s**2)
     foot = torch.exp(-0.5 * pairs.qsq[:, None] * k0[None] ** 2)
     phase = torch.exp(-1j * (pairs.d_i + pairs.d_o)[:, None] * k0[None])
-    terms = 1j * (spec_amp[:, None] * foot) * gamma * phase
+    return 1j * (spec_amp[:, None] * foot) * gamma * phase, gamma
+
+
+def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
+                    freq_hz: torch.Tensor | None = None, surfel_factor: torch.Tensor | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(coherent field [M, K] complex: first and second order, diffuse power [M, K]) without the
+    system gain; arguments as scattered_power."""
+    f = pairs.freq_hz if freq_hz is None else freq_hz.double()
+    k0 = 2 * math.pi * f / C0                                      # [K]
+    terms, gamma = specular_terms(pairs, material_of_gaussian, mats, freq_hz)
+    if surfel_factor is not None:
+        terms = terms * (1.0 + surfel_factor[pairs.gauss])[:, None]
     field = torch.zeros((pairs.num_links, f.numel()), dtype=torch.complex128).index_add(0, pairs.link, terms)
     if pairs.double is not None and pairs.double.num:
         if freq_hz is not None and not torch.equal(f, pairs.double.freq_hz):
             raise ValueError("the double bounces were built for other frequencies")
         field = field + _double_bounce_field(pairs.double, material_of_gaussian, mats, k0)
     lam = C0 / f                                                   # [K] m
+    s = mats.scattering[material_of_gaussian[pairs.gauss]]
+    base = pairs.gain * pairs.vis * pairs.area / (4 * math.pi * pairs.d_i * pairs.d_o)   # [P]
     # G_T G_R V^2 S^2 |Gamma|^2 A cos_i cos_o lambda^2 / (16 pi^3 d_i^2 d_o^2) = base^2 S^2 |Gamma|^2 cos_i cos_o
     # lambda^2 / (pi A)
     diff_terms = (base**2 * s**2 * pairs.cos_i * pairs.cos_o / (math.pi * pairs.area))[:, None] \
         * gamma.abs() ** 2 * lam[None] ** 2
     diffuse = torch.zeros((pairs.num_links, f.numel()), dtype=torch.float64).index_add(0, pairs.link, diff_terms)
-    return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
+    return field, diffuse
 
 
 def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, mats: MaterialValues,

@@ -3,7 +3,9 @@
 Any frequency: the material laws carry eps_r and sigma to it and the phases follow k. Frequencies
 outside 0.1-100 GHz (where ITU-R P.2040 laws are given) are predicted with a printed warning.
 Predicted power below FLOOR_DB (links that see no lit surfel: a plate edge-on) is reported at
-FLOOR_DB, never as -inf or -3000 dB, and counted in the log.
+FLOOR_DB, never as -inf or -3000 dB, and counted in the log. The artifact's residual
+(residual.py) is applied on top: the gaussian form inside the field sum, the smooth form in dB (zero
+at frequencies that were not fitted, said in the log), the smooth and blend forms in dB.
 """
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_c
 from rfir_stages.rf_fit.occlusion import make_provider
 
 from .artifact import load_physical
-from .physical import build_pairs, scattered_power
+from .physical import build_pairs, scattered_field
+from .residual import kernel_form_at
 from .second_order import planar_patches
 
 FLOOR_DB = -250.0
@@ -24,8 +27,9 @@ VALID_GHZ = (0.1, 100.0)
 
 
 def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto", chunk_links: int = 64,
-                        progress=None) -> np.ndarray:
-    """Path gain [L, K] dB for links tx/rx [L, 3] m at freqs [K] Hz."""
+                        progress=None, with_physics_only: bool = False):
+    """Path gain [L, K] dB for links tx/rx [L, 3] m at freqs [K] Hz; with_physics_only: (that, the
+    physical model's alone, without the residual)."""
     progress = progress or NullProgress()
     model = load_physical(rf)
     ant = antenna_from_attrs(rf.free.get("model@attrs", {}))
@@ -40,16 +44,31 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
     labels = rf.get("gaussians/labels")
     patches = planar_patches(geom, model.areas_m2, None if labels is None else torch.as_tensor(np.asarray(labels)),
                              model.settings.min_patch_area_m2) if model.settings.second_order else None
+    res = model.residual
+    surfel = res.params["surfel"] if res.form == "gaussian" else None
+    gain = 10 ** (model.gain_db / 10)
     out = np.zeros((len(tx), len(freqs)))
+    phys = np.zeros_like(out) if surfel is not None and with_physics_only else out
     with progress.task("predict (physical)", total=len(tx)) as bar, torch.no_grad():
         for a in range(0, len(tx), chunk_links):
             links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
             pairs = build_pairs(geom, links, ant, ant, provider, model.settings, model.areas_m2, patches)
-            power = scattered_power(pairs, model.material_of_gaussian, model.mats, model.gain_db)
-            out[a:a + chunk_links] = 10 * np.log10(power.numpy() + 1e-300)
+            for dest, factor in ((out, surfel), (phys, None)) if phys is not out else ((out, surfel),):
+                field, diffuse = scattered_field(pairs, model.material_of_gaussian, model.mats, surfel_factor=factor)
+                dest[a:a + chunk_links] = 10 * np.log10(((field.abs() ** 2 + diffuse) * gain).numpy() + 1e-300)
             bar.advance(links.num)
     low = out < FLOOR_DB
     if low.any():
         progress.log(f"predict: {int(low.sum())} of {low.size} predicted path gains are below {FLOOR_DB:g} dB "
                      "(no lit surfel seen); reported at that floor")
-    return np.maximum(out, FLOOR_DB)
+    out, phys = np.maximum(out, FLOOR_DB), np.maximum(phys, FLOOR_DB)
+    if res.form in ("smooth", "blend"):
+        out, missing = kernel_form_at(res, np.asarray(tx, float), np.asarray(rx, float), centre.numpy(), phys, freqs,
+                                      np.asarray(rf["rf/freq_hz"], np.float64))
+        if missing:
+            progress.log(f"predict: {', '.join(f'{f / 1e9:g}' for f in missing)} GHz was not fitted: the physical "
+                         "model alone there (the residual is zero at frequencies it was not fitted at)")
+        out = np.maximum(out, FLOOR_DB)
+    if res.form != "off":
+        progress.log(f"predict: residual {res.form} ({res.chosen}) applied on top of the physical model")
+    return (out, phys) if with_physics_only else out

@@ -23,7 +23,7 @@ from rfir_cli.errors import ConfigError, StageError
 from rfir_cli.physics.closed_forms import rcs_from_path_gain
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
-from rfir_stages.model.artifact import is_physical_model
+from rfir_stages.model.artifact import has_residual, is_physical_model
 from rfir_stages.rf_fit.antennas import AntennaPattern, antenna_from_attrs
 from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_from_artifact, make_links, radar_links,
                                       scene_centre)
@@ -186,9 +186,16 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     _, _, _, ant, _ = load_model(rf)
 
     t0 = time.time()
-    pg_db = predict_path_gain_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
-                                 chunk_links=int(config.get("chunk_links", 64)), progress=progress,
-                                 cull_rel=float(config.get("cull_rel", 0.0)))
+    physics_db = None
+    if has_residual(rf):   # a physical model with a residual: the physics alone is scored beside it
+        from rfir_stages.model.predict import predict_physical_db
+        pg_db, physics_db = predict_physical_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
+                                                chunk_links=int(config.get("chunk_links", 64)), progress=progress,
+                                                with_physics_only=True)
+    else:
+        pg_db = predict_path_gain_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
+                                     chunk_links=int(config.get("chunk_links", 64)), progress=progress,
+                                     cull_rel=float(config.get("cull_rel", 0.0)))
     render_s = time.time() - t0
     from rfir_stages.diagnose.apply import apply_recorded_effects   # effects named by `rfir diagnose`
 
@@ -197,6 +204,11 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
 
     metrics = _metrics(rcs, meas_rcs, split, asp, rng) if meas_rcs is not None else {}
+    if physics_db is not None and metrics.get("num_test"):
+        physics_db = apply_recorded_effects(rf, physics_db, tx, rx, freqs, aspect_rad=asp, range_m=rng)
+        rcs_phys = 10 * np.log10(rcs_from_path_gain(10 ** (physics_db / 10), rng[:, None], freqs[None], g0, g0))
+        test = split == 1
+        metrics["mae_db_physics_only"] = float(np.mean(np.abs(rcs_phys[test] - meas_rcs[test])))
     data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg_db, "rcs_dbsm": rcs,
             "aspect_rad": asp, "range_m": rng}
     if meas_rcs is not None:

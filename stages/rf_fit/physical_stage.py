@@ -2,7 +2,8 @@
 
 The geometry of every (training link, lit surfel) pair is traced once (`PhysicalSetup`); each
 material sharing ("label", "segment", "global") sums it into its aggregated form once, and fits on
-any subset of the training links then cost links x materials x angle nodes per step.
+any subset of the training links then cost links x materials x angle nodes per step. The residual
+(rfir_stages.model.residual) is fitted on top of the final materials (`PhysicalSetup.fit_residual`).
 """
 from __future__ import annotations
 
@@ -17,10 +18,39 @@ from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
 from rfir_stages.model.physical import EPS_R_MAX, POLARISATIONS, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
+from rfir_stages.model.residual import (FORMS, ResidualConfig, ResidualFit, fit_gaussian, fit_smooth, link_coords,
+                                        physics_db, residual_folds)
 from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "segment", "global")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
+RESIDUAL_LISTS = {"residual_weights": "weights", "residual_lengths_deg": "lengths_deg",
+                  "residual_range_lengths": "range_lengths", "residual_gaussian_weights": "gaussian_weights"}
+
+
+def residual_config(table: dict) -> ResidualConfig:
+    """The residual settings of the [rf_fit.physical] table (ConfigError naming the key when wrong)."""
+    form = str(table.get("residual", "auto"))
+    if form not in FORMS:
+        raise ConfigError(f"rf_fit.physical.residual = {form!r}: expected one of {', '.join(FORMS)}")
+    raw = table.get("residual_weight", "auto")
+    try:
+        weight = None if raw == "auto" else float(raw)
+    except (TypeError, ValueError):
+        weight = -1.0
+    if weight is not None and not weight > 0:
+        raise ConfigError(f"rf_fit.physical.residual_weight = {raw!r}: expected \"auto\" or a number > 0 "
+                          "(inf: the physics alone)")
+    kw = {"form": form, "weight": weight}
+    for key, name in RESIDUAL_LISTS.items():
+        if key in table:
+            vals = [float(v) for v in table[key]]
+            if not vals or min(vals) <= 0:
+                raise ConfigError(f"rf_fit.physical.{key} = {table[key]!r}: expected a list of numbers > 0")
+            kw[name] = tuple(vals)
+    if "residual_iterations" in table:
+        kw["iterations"] = int(table["residual_iterations"])
+    return ResidualConfig(**kw)
 
 
 def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSettings, dict]:
@@ -40,6 +70,7 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
                          colocated_tol_m=float(render_cfg.colocated_tol_m), polarisation=pol,
                          second_order=bool(table.get("second_order", True)),
                          min_patch_area_m2=float(table.get("min_patch_area_m2", 2e-3)))
+    residual_config(table)   # refused here, before any tracing, when wrong
     return fit_cfg, pairs, table
 
 
@@ -67,6 +98,7 @@ class PhysicalSetup:
     trace_s: float
     label_names: list | None = None
     aggregated: dict = field(default_factory=dict)    # sharing -> (AggregatedPairs, index [G], names)
+    residual_cfg: ResidualConfig = field(default_factory=ResidualConfig)
 
     @staticmethod
     def trace(geom, links, ant, provider, settings: PairSettings, labels, table: dict, seed: int,
@@ -75,7 +107,7 @@ class PhysicalSetup:
         areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
         pairs = build_pairs(geom, links, ant, ant, provider, settings, areas, labels=labels)
         return PhysicalSetup(geom, labels, pairs, areas, int(table.get("num_segments", 8)), seed, time.time() - t0,
-                             label_names)
+                             label_names, residual_cfg=residual_config(table))
 
     def for_sharing(self, sharing: str):
         if sharing not in self.aggregated:
@@ -96,6 +128,32 @@ class PhysicalSetup:
         with torch.no_grad():   # links that see no lit surfel score at the prediction floor, never at -3000 dB
             power = agg.select_links(rows).power(params.values(), params.gain_db).numpy()
         return np.maximum(10 * np.log10(np.maximum(power, 1e-300)), FLOOR_DB)
+
+    def fit_residual(self, sharing: str, result: PhysicalFitResult, target_db: np.ndarray, tx_m: np.ndarray,
+                     rx_m: np.ndarray, protocol: str, aspect_deg: np.ndarray | None, range_m: np.ndarray | None,
+                     progress) -> ResidualFit:
+        """The residual on top of the fitted materials (held fixed), chosen by validation on the training
+        rows (target_db [M, K]; tx/rx [M, 3] m; aspect/range of those rows); the physics alone is a
+        candidate and its validation MAE is reported."""
+        cfg = self.residual_cfg
+        if cfg.form == "off" or (cfg.weight is not None and not np.isfinite(cfg.weight)):
+            return ResidualFit("off", chosen="physics only (rf_fit.physical.residual)")
+        _, idx, _ = self.for_sharing(sharing)
+        with torch.no_grad():
+            vals = result.params.values()
+            gain = float(result.params.gain_db)
+        phys = physics_db(self.pairs, idx, vals, gain)
+        folds, how = residual_folds(protocol, aspect_deg, range_m, len(target_db))
+        if cfg.form != "gaussian":
+            centre = 0.5 * (self.geom.means.min(0).values + self.geom.means.max(0).values).numpy()
+            fit = fit_smooth(link_coords(tx_m, rx_m, centre), phys, target_db, folds, cfg, how)
+        else:
+            fit = fit_gaussian(self.pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)
+        best = min(fit.validation.values())
+        progress.log(f"rf-fit: residual ({cfg.form}) validation MAE on {sum(len(f) for f in folds)} training links "
+                     f"({how}): physics only {fit.validation['physics only']:.2f} dB, best {best:.2f} dB -> "
+                     f"{fit.chosen} ({fit.wall_time_s:.0f} s)")
+        return fit
 
     def unseen_materials(self, sharing: str) -> list[str]:
         """Materials no training link sees (they keep their starting values)."""
@@ -124,9 +182,23 @@ def bound_warnings(rows: list[dict]) -> list[str]:
             "range" for r in rows if r["eps_r"] > 0.98 * EPS_R_MAX or r["thickness_m"] > 0.98 * THICKNESS_M[1]]
 
 
+def residual_training_attrs(fit: ResidualFit) -> dict:
+    """Training attributes of the residual: its form, the chosen candidate and every candidate's
+    validation MAE (the physics alone among them)."""
+    out = {"residual_form": fit.form, "residual_chosen": fit.chosen, "residual_validation": fit.how,
+           "residual_time_s": float(fit.wall_time_s)}
+    if fit.validation:
+        out["residual_val_mae_physics_only_db"] = float(fit.validation["physics only"])
+        out["residual_val_mae_db"] = float(fit.validation[fit.chosen])
+        out["residual_candidates"] = "; ".join(f"{k}: {v:.3f} dB" for k, v in fit.validation.items())
+    return out
+
+
 def physical_artifact_fields(setup: PhysicalSetup, sharing: str, result: PhysicalFitResult, freqs_hz: np.ndarray,
-                             settings: PairSettings) -> tuple[dict, dict]:
-    """(datasets, model attributes) for the rf artifact (rfir_stages.model.artifact)."""
+                             settings: PairSettings, residual: ResidualFit | None = None, tx_m=None, rx_m=None
+                             ) -> tuple[dict, dict]:
+    """(datasets, model attributes) for the rf artifact (rfir_stages.model.artifact); residual: fitted
+    on the training links tx_m / rx_m [M, 3] m."""
     _, idx, names = setup.for_sharing(sharing)
     return physical_fields(result.params.values(), idx, setup.areas_m2, freqs_hz, settings, names,
-                           float(result.params.gain_db.detach()))
+                           float(result.params.gain_db.detach()), residual, tx_m, rx_m)

@@ -30,7 +30,7 @@ from .links import check_overlap, check_positions, geometry_from_artifact, make_
 from .occlusion import make_provider
 from .params import RFParams
 from .physical_stage import (PhysicalSetup, bound_warnings, material_table, physical_artifact_fields, physical_config,
-                             sharing_candidates)
+                             residual_training_attrs, sharing_candidates)
 from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows, validation_folds
@@ -411,6 +411,11 @@ def _run_physical(physical: PhysicalSetup, scattering: dict, target: np.ndarray,
                          f"than the refit ({result.train_mae_db:.3f} dB): kept")
             result = dataclasses.replace(result, params=cand.params, train_mae_db=err)
     refit_s = time.time() - t_fit
+    asp, rng = meas.get("aspect_rad"), meas.get("range_m")   # the residual on top (rfir_stages.model.residual)
+    tx, rx = np.asarray(meas["tx_pos"])[rows], np.asarray(meas["rx_pos"])[rows]
+    residual = physical.fit_residual(sharing, result, target, tx, rx, protocol,
+                                     None if asp is None else np.degrees(np.asarray(asp)[rows]),
+                                     None if rng is None else np.asarray(rng)[rows], progress)
     _, _, names = physical.for_sharing(sharing)
     table = material_table(result, names, freqs)
     warnings = list(warnings or [])
@@ -421,7 +426,7 @@ def _run_physical(physical: PhysicalSetup, scattering: dict, target: np.ndarray,
     warnings += bound_warnings(table)
     for w in warnings:
         progress.log(f"warning: {w}")
-    data, model_attrs = physical_artifact_fields(physical, sharing, result, freqs, pair_settings)
+    data, model_attrs = physical_artifact_fields(physical, sharing, result, freqs, pair_settings, residual, tx, rx)
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
     data["rf/freq_hz"] = np.asarray(freqs, dtype=np.float64)
     model_attrs.update(ant.describe())
@@ -430,7 +435,9 @@ def _run_physical(physical: PhysicalSetup, scattering: dict, target: np.ndarray,
                            "sharing": sharing, "train_mae_db": result.train_mae_db,
                            "initial_mae_db": result.initial_mae_db, "start_material": result.start,
                            "warnings": "; ".join(warnings)})
-    timings = {"trace": trace_s, "select": select_s, "fit": refit_s, "total": time.time() - t_start}
+    training_attrs.update(residual_training_attrs(residual))
+    timings = {"trace": trace_s, "select": select_s, "fit": refit_s, "residual": residual.wall_time_s,
+               "total": time.time() - t_start}
     training_attrs.update(_timing_attrs(timings))
     prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
     prov.add_input(scene_path)

@@ -1,0 +1,350 @@
+"""A regularised residual on top of the fitted physical model (docs/rf-model.md "Residual").
+
+The materials are fitted first and then held fixed; the residual adds freedom the physics lacks
+(facets the surfels miss, edge waves, small errors of level), with a weight chosen by validation on
+training rows only. Weight infinity (the physics alone) is always a candidate, and its validation
+error is reported beside the chosen one.
+
+Two forms:
+- "smooth": a correction in dB that varies smoothly with the link geometry, the posterior mean of a
+  zero-mean Gaussian process fitted to the training residual r = measured - physical (dB), one per
+  fitted frequency:
+      delta(x) = k(x, X) (K + eta I)^-1 r,
+      k(x, x') = exp(-(a_tx^2 + a_rx^2) / (4 l^2)) exp(-(ln rho - ln rho')^2 / (2 l_rho^2)),
+  a_tx, a_rx the angles between the two links' transmitter (receiver) directions seen from the scene
+  centre (for a monostatic radar on a turntable: the aspect difference), rho the antennas' mean
+  distance from the centre. Lengths l, l_rho and the weight eta (noise over prior variance) are chosen
+  by validation (`choose`: the physics alone unless a candidate beats it by two standard errors).
+  Zero prior mean: farther than a few l from every training link the correction is zero and the
+  physics predicts alone (a held-out sector); at a frequency that was not fitted it is zero too.
+- "blend": near the training links the measurement itself, interpolated by the same kernel, far from
+  them the physics:
+      pred(x) = s(x) I(x) + (1 - s(x)) phys(x),  I(x) = mean(y) + k(x, X) (K + eta I)^-1 (y - mean(y)),
+      s(x) = k(x, X) (K + eta I)^-1 k(X, x) in [0, 1]
+  (s: the share of the prior variance the training links explain at x). The smooth form adds the
+  physics' own fine structure between training aspects (pred = interpolated y + phys(x) -
+  interpolated phys), which hurts where that structure is wrong (a null of the physics the object
+  does not have, 1 degree off); the blend does not, and still gives way to the physics in a
+  held-out sector. "auto" offers both forms' candidates to the same validation.
+- "gaussian": a complex factor per surfel, each surfel's specular term times (1 + r_g), fitted by Adam
+  on the dB error with the penalty lambda sum_g |r_g|^2 / (links x frequencies); surfels no training
+  link lights get no gradient and stay at 0. Its correction of a held-out aspect is a coherent sum of
+  per-surfel changes whose phases turn with aspect, not a local interpolation of the training rows.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.linalg import cho_factor, cho_solve
+
+from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms
+
+FORMS = ("auto", "smooth", "blend", "gaussian", "off")
+KERNEL_FORMS = {"auto": ("smooth", "blend"), "smooth": ("smooth",), "blend": ("blend",)}
+KFOLDS = 5          # interpolation protocols: every 5th training aspect held out in turn
+FLOOR_DB = -250.0   # as predict.FLOOR_DB (a link that sees no lit surfel)
+MIN_FOLD_LINKS = 50  # the gaussian form validates on its first fold alone when that holds this many links
+
+
+@dataclass
+class ResidualConfig:
+    """[rf_fit.physical] residual settings (configs/rf_fit.toml documents each)."""
+
+    form: str = "auto"
+    weight: float | None = None              # None: chosen by validation; inf: physics only
+    weights: tuple = (0.03, 0.3, 3.0)        # smooth / blend: eta candidates
+    lengths_deg: tuple = (1.0, 2.0, 4.0, 8.0)
+    range_lengths: tuple = (0.1, 1.0)        # l_rho, in ln(range)
+    gaussian_weights: tuple = (0.3, 3.0, 30.0)
+    iterations: int = 150
+    lr: float = 0.05
+
+
+@dataclass
+class ResidualFit:
+    """A fitted residual. form "off": none. params: smooth / blend: {"tx_m", "rx_m" [T, 3], "weights_db"
+    [T, F], "mean_db" [F] (blend; 0 for smooth), "length_deg", "range_length", "weight"}; gaussian:
+    {"surfel" [G] complex, "weight"}.
+    validation: {candidate name: pooled validation MAE dB}, with "physics only" always present."""
+
+    form: str
+    params: dict = field(default_factory=dict)
+    validation: dict = field(default_factory=dict)
+    chosen: str = "physics only"
+    how: str = ""
+    wall_time_s: float = 0.0
+
+
+# ----- link coordinates and the kernel (smooth form) -----
+
+def link_coords(tx_m: np.ndarray, rx_m: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(transmitter direction [L, 3], receiver direction [L, 3], ln of the mean antenna distance [L])
+    seen from the scene centre [3] m."""
+    vt, vr = np.asarray(tx_m, float) - centre, np.asarray(rx_m, float) - centre
+    dt, dr = np.linalg.norm(vt, axis=1), np.linalg.norm(vr, axis=1)
+    return vt / dt[:, None], vr / dr[:, None], np.log(0.5 * (dt + dr))
+
+
+def kernel(a, b, length_rad: float, range_length: float) -> np.ndarray:
+    """k(a_i, b_j) [La, Lb] for coordinates a, b from link_coords (module docstring)."""
+    at = np.arccos(np.clip(a[0] @ b[0].T, -1.0, 1.0))
+    ar = np.arccos(np.clip(a[1] @ b[1].T, -1.0, 1.0))
+    dr = a[2][:, None] - b[2][None]
+    return np.exp(-(at**2 + ar**2) / (4 * length_rad**2) - dr**2 / (2 * range_length**2))
+
+
+def _pick(c, rows):
+    return tuple(x[rows] for x in c)
+
+
+def smooth_weights(coords, resid_db: np.ndarray, length_rad: float, range_length: float, eta: float) -> np.ndarray:
+    """(K + eta I)^-1 r [T, F] for training coordinates and residuals r [T, F] dB."""
+    k = kernel(coords, coords, length_rad, range_length)
+    k[np.diag_indices_from(k)] += eta
+    return cho_solve(cho_factor(k, lower=True), resid_db)
+
+
+def smooth_correction(coords_train, weights_db: np.ndarray, coords, length_rad: float, range_length: float,
+                      chunk: int = 4096) -> np.ndarray:
+    """delta [L, F] dB at coordinates `coords` (link_coords) from smooth_weights' output."""
+    out = np.zeros((len(coords[0]), weights_db.shape[1]))
+    for a in range(0, len(out), chunk):
+        sl = slice(a, a + chunk)
+        out[sl] = kernel(_pick(coords, sl), coords_train, length_rad, range_length) @ weights_db
+    return out
+
+
+# ----- validation folds -----
+
+def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.ndarray | None,
+                   num_rows: int) -> tuple[list[np.ndarray], str]:
+    """Folds of training rows for choosing the residual, shaped like the protocol's test: the
+    held-out sector's neighbours or each training range in turn (splits.validation_folds); for the
+    interpolation protocols (data, every-N) whole training aspects (every range of them), every
+    KFOLDS-th aspect in turn, so that no fold is predicted from its own aspect at another range."""
+    from rfir_stages.rf_fit.splits import validation_folds
+    name = protocol.partition(":")[0]
+    if name in ("sector", "range") or aspect_deg is None:
+        return validation_folds(protocol, aspect_deg, range_m)
+    key = np.round(np.mod(np.asarray(aspect_deg, float), 360.0), 6)
+    uniq, inv = np.unique(key, return_inverse=True)
+    k = min(KFOLDS, len(uniq))
+    if k < 2:
+        return [np.arange(0, num_rows, 10)], "every 10th training row"
+    return [np.flatnonzero(inv % k == j) for j in range(k)], f"{k}-fold, every {k}th training aspect in turn"
+
+
+# ----- fitting -----
+
+def physics_db(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues, gain_db: float,
+               surfel_factor: torch.Tensor | None = None) -> np.ndarray:
+    """Predicted path gain [M, K] dB of the pairs' links (the exact pair sum, as prediction computes it)."""
+    with torch.no_grad():
+        f, d = scattered_field(pairs, material_of_gaussian, mats, surfel_factor=surfel_factor)
+        p = (f.abs() ** 2 + d).numpy() * 10 ** (gain_db / 10)
+    return np.maximum(10 * np.log10(np.maximum(p, 1e-300)), FLOOR_DB)
+
+
+def choose(errors: dict) -> tuple[str, dict]:
+    """(chosen candidate, {candidate: validation MAE dB}) from each candidate's absolute validation
+    errors (same entries; "physics only" first). The lowest MAE wins only when it beats the physics
+    alone by more than two standard errors of their paired difference; otherwise the physics alone
+    is kept (a residual that fits noise must not be chosen by the luck of the folds)."""
+    scores = {k: float(np.mean(v)) for k, v in errors.items()}
+    best = min(scores, key=scores.get)
+    if best != "physics only":
+        d = (errors[best] - errors["physics only"]).ravel()
+        if not d.mean() < -2.0 * d.std(ddof=1) / math.sqrt(max(d.size, 2)):
+            best = "physics only"
+    return best, scores
+
+
+def kernel_predict(kind: str, coords_fit, y_fit: np.ndarray, phys_fit: np.ndarray, coords_new, phys_new: np.ndarray,
+                   length_rad: float, range_length: float, eta: float) -> tuple[np.ndarray, dict]:
+    """(prediction [V, F] dB at coords_new, the fitted {"weights_db", "mean_db"}) of the smooth or blend
+    form from training rows (y_fit measured, phys_fit physical, [T, F] dB)."""
+    if kind == "smooth":
+        mean = np.zeros(y_fit.shape[1])
+        w = smooth_weights(coords_fit, y_fit - phys_fit, length_rad, range_length, eta)
+    else:
+        mean = y_fit.mean(0)
+        w = smooth_weights(coords_fit, y_fit - mean, length_rad, range_length, eta)
+    params = {"weights_db": w, "mean_db": mean}
+    return blend_at(kind, coords_fit, params, coords_new, phys_new, length_rad, range_length, eta), params
+
+
+def blend_at(kind: str, coords_fit, params: dict, coords_new, phys_new: np.ndarray, length_rad: float,
+             range_length: float, eta: float, chunk: int = 2048) -> np.ndarray:
+    """Prediction [V, F] dB of a fitted smooth / blend form (module docstring) where the physics gives
+    phys_new [V, F] (columns: the fitted frequencies)."""
+    corr = smooth_correction(coords_fit, params["weights_db"], coords_new, length_rad, range_length)
+    if kind == "smooth":
+        return phys_new + corr
+    k = kernel(coords_fit, coords_fit, length_rad, range_length)
+    k[np.diag_indices_from(k)] += eta
+    factor = cho_factor(k, lower=True)
+    share = np.zeros(len(phys_new))
+    for a in range(0, len(share), chunk):
+        kn = kernel(_pick(coords_new, slice(a, a + chunk)), coords_fit, length_rad, range_length)   # [v, T]
+        share[a:a + chunk] = np.sum(kn * cho_solve(factor, kn.T).T, 1)
+    share = np.clip(share, 0.0, 1.0)[:, None]
+    return share * (params["mean_db"][None] + corr) + (1.0 - share) * phys_new
+
+
+def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[np.ndarray], cfg: ResidualConfig,
+               how: str) -> ResidualFit:
+    """Choose the kernel form (smooth / blend, as cfg.form allows) and its (l, l_rho, eta) by validation
+    over `folds` (physics only among the candidates, `choose`) and fit it on every training row.
+    coords: link_coords of the training rows; [M, K] arrays."""
+    t0 = time.time()
+    m = len(target_db)
+    val_all = np.concatenate(folds)
+    errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
+    grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
+            for lr in cfg.range_lengths for eta in ((cfg.weight,) if cfg.weight is not None else cfg.weights)]
+    grid = [g for g in grid if math.isfinite(g[3])]
+    for kind, ld, lr, eta in grid:
+        pred = []
+        for val in folds:
+            rows = np.setdiff1d(np.arange(m), val)
+            pred.append(kernel_predict(kind, _pick(coords, rows), target_db[rows], phys_db[rows], _pick(coords, val),
+                                       phys_db[val], math.radians(ld), lr, eta)[0])
+        errors[f"{kind} l={ld:g} deg, l_rho={lr:g}, eta={eta:g}"] = np.abs(np.concatenate(pred) - target_db[val_all])
+    chosen, scores = choose(errors)
+    out = ResidualFit("off", validation=scores, chosen=chosen, how=how)
+    if chosen != "physics only":
+        kind, ld, lr, eta = grid[list(scores).index(chosen) - 1]
+        _, params = kernel_predict(kind, coords, target_db, phys_db, _pick(coords, slice(0, 0)), phys_db[:0],
+                                   math.radians(ld), lr, eta)
+        out.form = kind
+        out.params = dict(params, length_deg=ld, range_length=lr, weight=eta)
+    out.wall_time_s = time.time() - t0
+    return out
+
+
+class _SurfelResidual:
+    """The gaussian form on fixed training pairs: field = field_phys + sum_p term_p r_g(p)."""
+
+    def __init__(self, pairs: PairGeometry, material_of_gaussian, mats: MaterialValues, gain_db: float,
+                 num_gaussians: int):
+        with torch.no_grad():
+            self.field0, self.diffuse0 = scattered_field(pairs, material_of_gaussian, mats)
+            self.terms, _ = specular_terms(pairs, material_of_gaussian, mats)
+        self.link, self.gauss, self.num_g = pairs.link, pairs.gauss, num_gaussians
+        self.gain = 10 ** (gain_db / 10)
+
+    def db(self, r: torch.Tensor, floor: float) -> torch.Tensor:
+        extra = torch.zeros_like(self.field0).index_add(0, self.link, self.terms * r[self.gauss][:, None])
+        return 10 * torch.log10(((self.field0 + extra).abs() ** 2 + self.diffuse0) * self.gain + floor)
+
+    def fit(self, target_db: np.ndarray, rows: np.ndarray, lam: float, cfg: ResidualConfig) -> torch.Tensor:
+        """r [G] complex minimising the dB MSE on `rows` + lam sum |r|^2 / (rows x frequencies)."""
+        target = torch.as_tensor(target_db[rows])
+        floor = float(10 ** ((float(target.min()) - 30.0) / 10))
+        rows_t = torch.as_tensor(rows)
+        re = torch.zeros(self.num_g, dtype=torch.float64, requires_grad=True)
+        im = torch.zeros(self.num_g, dtype=torch.float64, requires_grad=True)
+        opt = torch.optim.Adam([re, im], lr=cfg.lr)
+        n = float(target.numel())
+        for _ in range(cfg.iterations):
+            opt.zero_grad()
+            r = torch.complex(re, im)
+            loss = ((self.db(r, floor)[rows_t] - target) ** 2).sum() / n + lam * (re**2 + im**2).sum() / n
+            loss.backward()
+            opt.step()
+        return torch.complex(re, im).detach()
+
+
+def fit_gaussian(pairs: PairGeometry, material_of_gaussian, mats: MaterialValues, gain_db: float, num_gaussians: int,
+                 phys_db: np.ndarray, target_db: np.ndarray, folds: list[np.ndarray], cfg: ResidualConfig,
+                 how: str) -> ResidualFit:
+    """Choose lambda of the gaussian form by validation over `folds` (physics only among them) and
+    fit it on every training row. pairs: those of the training links (rows of target_db [M, K])."""
+    t0 = time.time()
+    model = _SurfelResidual(pairs, material_of_gaussian, mats, gain_db, num_gaussians)
+    m = len(target_db)
+    if len(folds[0]) >= MIN_FOLD_LINKS:   # each fold costs a full fit: one fold when it is large enough
+        folds = folds[:1]
+    val_all = np.concatenate(folds)
+    errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
+    lams = [x for x in ((cfg.weight,) if cfg.weight is not None else cfg.gaussian_weights) if math.isfinite(x)]
+    for lam in lams:
+        pred = []
+        for val in folds:
+            r = model.fit(target_db, np.setdiff1d(np.arange(m), val), lam, cfg)
+            with torch.no_grad():
+                pred.append(np.maximum(model.db(r, 0.0).numpy()[val], FLOOR_DB))
+        errors[f"gaussian lambda={lam:g}"] = np.abs(np.concatenate(pred) - target_db[val_all])
+    chosen, scores = choose(errors)
+    out = ResidualFit("off", validation=scores, chosen=chosen, how=how)
+    if chosen != "physics only":
+        lam = lams[list(scores).index(chosen) - 1]
+        out.form = "gaussian"
+        out.params = {"weight": lam, "surfel": model.fit(target_db, np.arange(m), lam, cfg)}
+    out.wall_time_s = time.time() - t0
+    return out
+
+
+# ----- the artifact -----
+
+def residual_fields(fit: ResidualFit, train_tx_m: np.ndarray, train_rx_m: np.ndarray) -> tuple[dict, dict]:
+    """(datasets, model attributes) of a residual for the rf artifact (schema: residual/*)."""
+    attrs = {"residual.form": fit.form, "residual.chosen": fit.chosen}
+    data = {}
+    if fit.form in ("smooth", "blend"):
+        data = {"residual/tx_pos": np.asarray(train_tx_m, float), "residual/rx_pos": np.asarray(train_rx_m, float),
+                "residual/weights_db": np.asarray(fit.params["weights_db"], float),
+                "residual/mean_db": np.asarray(fit.params["mean_db"], float)}
+        attrs.update({"residual.length_deg": float(fit.params["length_deg"]),
+                      "residual.range_length": float(fit.params["range_length"]),
+                      "residual.weight": float(fit.params["weight"])})
+    elif fit.form == "gaussian":
+        r = fit.params["surfel"].numpy()
+        data = {"residual/surfel": np.stack([r.real, r.imag], 1)}
+        attrs["residual.weight"] = float(fit.params["weight"])
+    return data, attrs
+
+
+def load_residual(rf) -> ResidualFit:
+    """The residual of an rf artifact (form "off" when it has none)."""
+    attrs = rf.free.get("model@attrs", {})
+    form = str(attrs.get("residual.form", "off"))
+    if form in ("smooth", "blend"):
+        return ResidualFit(form, {"tx_m": np.asarray(rf["residual/tx_pos"], float),
+                                  "rx_m": np.asarray(rf["residual/rx_pos"], float),
+                                  "weights_db": np.asarray(rf["residual/weights_db"], float),
+                                  "mean_db": np.asarray(rf["residual/mean_db"], float),
+                                  "length_deg": float(attrs["residual.length_deg"]),
+                                  "range_length": float(attrs["residual.range_length"]),
+                                  "weight": float(attrs["residual.weight"])}, chosen=str(attrs.get("residual.chosen", "")))
+    if form == "gaussian":
+        s = np.asarray(rf["residual/surfel"], float)
+        return ResidualFit(form, {"surfel": torch.complex(torch.as_tensor(s[:, 0]), torch.as_tensor(s[:, 1])),
+                                  "weight": float(attrs["residual.weight"])}, chosen=str(attrs.get("residual.chosen", "")))
+    return ResidualFit("off")
+
+
+def kernel_form_at(fit: ResidualFit, tx_m: np.ndarray, rx_m: np.ndarray, centre: np.ndarray, phys_db: np.ndarray,
+                   freqs_hz: np.ndarray, fitted_hz: np.ndarray) -> tuple[np.ndarray, list]:
+    """(prediction [L, K] dB of the smooth / blend form at links tx/rx [L, 3] and freqs [K], where the
+    physics predicts phys_db [L, K]; the frequencies that were not fitted, where the physics stays)."""
+    p = fit.params
+    out = np.array(phys_db, dtype=float, copy=True)
+    cols, missing = [], []
+    for f in np.asarray(freqs_hz, float):
+        hit = np.flatnonzero(np.abs(np.asarray(fitted_hz) - f) <= 1e-6 * f)
+        cols.append(int(hit[0]) if hit.size else -1)
+        if not hit.size:
+            missing.append(f)
+    have = [k for k, c in enumerate(cols) if c >= 0]
+    if have:
+        sel = [cols[k] for k in have]
+        params = {"weights_db": p["weights_db"][:, sel], "mean_db": p["mean_db"][sel]}
+        out[:, have] = blend_at(fit.form, link_coords(p["tx_m"], p["rx_m"], centre), params,
+                                link_coords(tx_m, rx_m, centre), out[:, have], math.radians(p["length_deg"]),
+                                p["range_length"], p["weight"])
+    return out, missing

@@ -1,0 +1,218 @@
+"""The residual on top of the physical model (rfir_stages.model.residual): it vanishes as its weight
+grows, recovers a known perturbation on held-out links, stays at zero where no training link
+constrains it, and validation keeps the physics alone when the data are physical."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs
+from rfir_stages.model.residual import (ResidualConfig, blend_at, fit_gaussian, fit_smooth, kernel_predict, link_coords,
+                                        physics_db, residual_folds, smooth_correction, smooth_weights)
+from rfir_stages.rf_fit.links import make_links
+
+from .helpers import ISO, monostatic, plate_mesh, surfels
+
+F_HZ = 2.4e9
+METAL = MaterialValues(torch.tensor([1.0], dtype=torch.float64), torch.tensor([1e7], dtype=torch.float64), 1.0,
+                       torch.tensor([0.05], dtype=torch.float64), None)
+SETTINGS = PairSettings(visibility=False, second_order=False)
+CENTRE = np.zeros(3)
+
+
+def _two_plates():
+    """Plate A facing +x at x = 0.1, plate B facing +y at y = -0.1 (surfels; A first)."""
+    va, fa = plate_mesh((0.1, 0.0, 0.0), (0, 1, 0), (0, 0, 1), 0.2, 0.15)
+    vb, fb = plate_mesh((0.0, -0.1, 0.0), (1, 0, 0), (0, 0, 1), 0.2, 0.15)
+    geom, g = surfels(np.concatenate([va, vb]), np.concatenate([fa, fb + 4]), 0.035,
+                      labels=np.array([0, 0, 1, 1]))
+    return geom, np.asarray(g["gaussians/labels"]), g
+
+
+@pytest.fixture(scope="module")
+def scene():
+    geom, labels, _ = _two_plates()
+    aspects = np.arange(0.0, 360.0, 1.0)
+    pos, links = monostatic(aspects, 3.0, F_HZ, elevation_m=0.02)
+    pairs = build_pairs(geom, links, ISO, ISO, None, SETTINGS)
+    idx = torch.zeros(geom.num, dtype=torch.int64)
+    return {"geom": geom, "labels": labels, "aspects": aspects, "pos": pos, "pairs": pairs, "idx": idx,
+            "phys": physics_db(pairs, idx, METAL, 0.0)}
+
+
+def _kernel_predict(s, train, test, target, cfg, protocol="data"):
+    """(fit, prediction at the test rows [T, 1] dB) of the smooth / blend forms chosen by validation."""
+    coords = link_coords(s["pos"], s["pos"], CENTRE)
+    pick = lambda rows: tuple(c[rows] for c in coords)  # noqa: E731
+    folds, how = residual_folds(protocol, s["aspects"][train], None, len(train))
+    fit = fit_smooth(pick(train), s["phys"][train], target[train], folds, cfg, how)
+    if fit.form == "off":
+        return fit, s["phys"][test]
+    p = fit.params
+    return fit, blend_at(fit.form, pick(train), p, pick(test), s["phys"][test], math.radians(p["length_deg"]),
+                         p["range_length"], p["weight"])
+
+
+def _perturbation(aspects_deg):
+    """A smooth error of the physics, dB: what the smooth form should learn."""
+    return (1.0 + 2.0 * np.sin(np.radians(2 * aspects_deg)))[:, None]
+
+
+def test_smooth_weight_to_infinity_is_the_physics_alone(scene):
+    coords = link_coords(scene["pos"], scene["pos"], CENTRE)
+    resid = _perturbation(scene["aspects"])
+    for eta in (1e3, 1e6, 1e9):
+        w = smooth_weights(coords, resid, math.radians(4.0), 0.1, eta)
+        delta = smooth_correction(coords, w, coords, math.radians(4.0), 0.1)
+        assert np.abs(delta).max() < 100.0 * 3.0 / eta     # |delta| <= sum_j k |r_j| / eta, shrinking as 1/eta
+    w = smooth_weights(coords, resid, math.radians(4.0), 0.1, 1e-6)
+    assert np.abs(smooth_correction(coords, w, coords, math.radians(4.0), 0.1) - resid).max() < 0.01  # interpolates
+
+
+@pytest.mark.parametrize("form, share", [("smooth", 0.2), ("blend", 0.5)])
+def test_kernel_residual_recovers_a_smooth_error_on_held_out_aspects(scene, form, share):
+    """The smooth form learns the error itself; the blend interpolates the measurement, which carries
+    the plates' sinc nulls as well (a looser bound)."""
+    target = scene["phys"] + _perturbation(scene["aspects"])
+    train, test = np.arange(0, 360, 2), np.arange(1, 360, 2)
+    fit, pred = _kernel_predict(scene, train, test, target, ResidualConfig(form=form))
+    physics_mae = np.mean(np.abs(scene["phys"][test] - target[test]))
+    mae = np.mean(np.abs(pred - target[test]))
+    assert fit.form == form and fit.validation[fit.chosen] < fit.validation["physics only"]
+    assert physics_mae > 1.0 and mae < share * physics_mae, (physics_mae, mae)
+
+
+@pytest.mark.parametrize("form", ["smooth", "blend"])
+def test_kernel_residual_gives_way_to_the_physics_inside_a_held_out_sector(scene, form):
+    """Training aspects outside [45, 135) deg; the error is everywhere. Deep in the sector (more than
+    30 deg from any training aspect) the prediction must be the physics': no correction there."""
+    target = scene["phys"] + _perturbation(scene["aspects"])
+    a = scene["aspects"]
+    train = np.flatnonzero((a < 45) | (a >= 135))
+    deep = np.flatnonzero((a >= 75) & (a < 105))
+    coords = link_coords(scene["pos"], scene["pos"], CENTRE)
+    pick = lambda rows: tuple(c[rows] for c in coords)  # noqa: E731
+    # the longest reach the default grid offers: l = 8 deg, l_rho = 1, eta = 0.03
+    pred_train, params = kernel_predict(form, pick(train), target[train], scene["phys"][train], pick(train),
+                                        scene["phys"][train], math.radians(8.0), 1.0, 0.03)
+    assert np.mean(np.abs(pred_train - scene["phys"][train])) > 0.5        # it does correct where it was fitted
+    pred_deep = blend_at(form, pick(train), params, pick(deep), scene["phys"][deep], math.radians(8.0), 1.0, 0.03)
+    assert np.abs(pred_deep - scene["phys"][deep]).max() < 0.05, np.abs(pred_deep - scene["phys"][deep]).max()
+    # and whatever validation chooses
+    _, pred_deep = _kernel_predict(scene, train, deep, target, ResidualConfig(form=form), protocol="sector:45:135")
+    assert np.abs(pred_deep - scene["phys"][deep]).max() < 0.05
+
+
+def test_selection_keeps_the_physics_when_the_data_are_physical(scene):
+    train = np.arange(0, 360, 2)
+    fit, _ = _kernel_predict(scene, train, train, scene["phys"].copy(), ResidualConfig())
+    assert fit.form == "off" and fit.chosen == "physics only"
+    noisy = scene["phys"] + np.random.default_rng(0).normal(0.0, 0.5, scene["phys"].shape)   # noise: nothing to learn
+    fit, _ = _kernel_predict(scene, train, train, noisy, ResidualConfig())
+    assert fit.form == "off", fit.validation
+
+
+def _gaussian_case(scene, rows_train, r_true, lams=(1.0,), iterations=150, lr=0.05):
+    pairs, idx = scene["pairs"], scene["idx"]
+    target = physics_db(pairs, idx, METAL, 0.0, surfel_factor=r_true)
+    train_pairs = pairs.select_links(rows_train)
+    folds, how = residual_folds("data", scene["aspects"][rows_train], None, len(rows_train))
+    cfg = ResidualConfig(form="gaussian", gaussian_weights=lams, iterations=iterations, lr=lr)
+    fit = fit_gaussian(train_pairs, idx, METAL, 0.0, scene["geom"].num, scene["phys"][rows_train],
+                       target[rows_train], folds, cfg, how)
+    return fit, target
+
+
+def test_gaussian_residual_recovers_a_surfel_perturbation(scene):
+    """Plate A reflects half the field the material says (r = -0.5 on its surfels): fitted on the even
+    aspects, the residual lowers the error on the odd ones."""
+    r_true = torch.where(torch.as_tensor(scene["labels"]) == 0, -0.5, 0.0).to(torch.complex128)
+    train, test = np.arange(0, 360, 3), np.arange(1, 360, 3)
+    fit, target = _gaussian_case(scene, train, r_true, lams=(0.1,), iterations=60, lr=0.1)
+    assert fit.form == "gaussian"
+    pred = physics_db(scene["pairs"], scene["idx"], METAL, 0.0, surfel_factor=fit.params["surfel"])
+    physics_mae = np.mean(np.abs(scene["phys"][test] - target[test]))
+    mae = np.mean(np.abs(pred[test] - target[test]))
+    assert physics_mae > 1.0 and mae < 0.5 * physics_mae, (physics_mae, mae)
+
+
+def test_gaussian_residual_is_zero_on_surfels_no_training_link_lights(scene):
+    """Training links in plate B's plane (B edge-on: no training link lights it) with a 2 dB error:
+    the residual of A's surfels learns it, B's surfels must stay exactly at 0."""
+    geom = scene["geom"]
+    xs = np.linspace(2.0, 4.0, 12)
+    pos = np.stack([xs, np.full_like(xs, -0.1), np.zeros_like(xs)], 1)   # in plate B's plane: B edge-on
+    links = make_links(pos, pos, np.array([F_HZ]), torch.zeros(3, dtype=torch.float64), "rcs")
+    pairs = build_pairs(geom, links, ISO, ISO, None, SETTINGS)
+    lit = torch.zeros(geom.num, dtype=torch.bool)
+    lit[pairs.gauss] = True
+    on_b = torch.as_tensor(scene["labels"]) == 1
+    assert not lit[on_b].any() and lit[~on_b].any()
+    target = physics_db(pairs, scene["idx"], METAL, 0.0) + 2.0
+    folds = [np.arange(j, 12, 3) for j in range(3)]
+    cfg = ResidualConfig(form="gaussian", gaussian_weights=(0.01,), iterations=60)
+    fit = fit_gaussian(pairs, scene["idx"], METAL, 0.0, geom.num, physics_db(pairs, scene["idx"], METAL, 0.0), target,
+                       folds, cfg, "3-fold")
+    assert fit.form == "gaussian"
+    r = fit.params["surfel"]
+    assert r[~on_b].abs().max() > 0.05            # it learned the level on plate A
+    assert torch.all(r[on_b] == 0)                # and nothing on plate B, which no training link lights
+
+
+def test_gaussian_weight_to_infinity_is_the_physics_alone(scene):
+    r_true = torch.where(torch.as_tensor(scene["labels"]) == 0, -0.5, 0.0).to(torch.complex128)
+    train = np.arange(0, 360, 4)
+    fit, _ = _gaussian_case(scene, train, r_true, lams=(1e9,), iterations=40)
+    if fit.form == "gaussian":
+        assert fit.params["surfel"].abs().max() < 1e-3
+        pred = physics_db(scene["pairs"], scene["idx"], METAL, 0.0, surfel_factor=fit.params["surfel"])
+        assert np.abs(pred - scene["phys"]).max() < 0.02
+    cfg_off = ResidualConfig(form="gaussian", weight=math.inf)
+    fit = fit_gaussian(scene["pairs"].select_links(train), scene["idx"], METAL, 0.0, scene["geom"].num,
+                       scene["phys"][train], scene["phys"][train] + 1.0, [np.arange(0, len(train), 5)], cfg_off, "")
+    assert fit.form == "off" and list(fit.validation) == ["physics only"]
+
+
+def test_gaussian_selection_keeps_the_physics_when_the_data_are_physical(scene):
+    train = np.arange(0, 360, 4)
+    fit, _ = _gaussian_case(scene, train, None, lams=(0.1, 1.0), iterations=40)
+    assert fit.form == "off" and fit.chosen == "physics only", fit.validation
+
+
+def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tmp_path):
+    """End to end on data from the physical model itself with a smooth error of 1 + 2 sin(2 aspect) dB:
+    rf-fit chooses a kernel residual, the artifact passes `rfir check` and round-trips, predict rcs
+    scores the odd aspects below the physics alone (reported beside it)."""
+    from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+    from rfir_stages.geom import write_scene_artifact
+    from rfir_stages.model.materials import C0
+    from rfir_stages.predict.rcs import run_rcs
+    from rfir_stages.rf_fit import run
+    from rfir_stages.rf_fit.links import radar_links
+
+    geom, _, fields = _two_plates()
+    write_scene_artifact(tmp_path / "scene.h5", fields)
+    centre = 0.5 * (geom.means.min(0).values + geom.means.max(0).values).numpy()
+    tx, rx, asp, rng = radar_links(np.radians(np.arange(0.0, 360.0, 2.0)), np.array([3.0]), centre)
+    links = make_links(tx, rx, np.array([F_HZ]), torch.as_tensor(centre), "rcs")
+    pairs = build_pairs(geom, links, ISO, ISO, None, SETTINGS)
+    pg = physics_db(pairs, torch.zeros(geom.num, dtype=torch.int64), METAL, 0.0) + _perturbation(np.degrees(asp))
+    rcs = pg + 10 * np.log10((4 * math.pi) ** 3 * rng[:, None] ** 4 / (C0 / F_HZ) ** 2)
+    write_artifact(tmp_path / "meas.h5", "measurements",
+                   {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.array([F_HZ]), "path_gain_db": pg, "rcs_dbsm": rcs,
+                    "aspect_rad": asp, "range_m": rng, "split": (np.arange(len(asp)) % 2).astype(np.int64)},
+                   attrs={"task": "rcs", "scene": "test"})
+    cfg = {"model": "physical", "antenna": "isotropic", "checkpoint_every": 0, "visibility": False,
+           "physical": {"sharing": "global", "iterations": 60, "start_iterations": 15, "second_order": False,
+                        "residual": "auto"}}
+    res = run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf.h5", cfg)
+    assert validate_artifact(tmp_path / "rf.h5") == []                   # `rfir check` passes
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    training = rf.free["training@attrs"]
+    assert rf.free["model@attrs"]["residual.form"] in ("smooth", "blend"), training["residual_candidates"]
+    assert training["residual_val_mae_db"] < training["residual_val_mae_physics_only_db"]
+    assert np.asarray(rf["residual/weights_db"]).shape == (90, 1)
+    out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=tmp_path / "meas.h5")
+    assert out.metrics["mae_db"] < 0.5 * out.metrics["mae_db_physics_only"], out.metrics
+    assert res.train_mae_db > 0.5                                        # the materials alone cannot fit the error
