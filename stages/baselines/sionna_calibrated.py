@@ -4,7 +4,8 @@ Sionna's differentiable path solver (Dr.Jit automatic differentiation).
 
     python -m rfir_stages.baselines.sionna_calibrated MESH.ply MEASUREMENTS.h5 --split random|holdout_tx
         --results results/NAME.json [--iterations 40] [--links 400] [--tx-per-step 4] [--depth D]
-        [--samples N] [--lr 0.1] [--lr-decay 0.1] [--material concrete] [--thickness 0.2] [--seed 0]
+        [--samples N] [--lr 0.1] [--lr-decay 0.1] [--material concrete] [--thickness 0.2]
+        [--learn-thickness] [--seed 0]
 
 What a radio engineer does first with a ray tracer and a few measurements:
 - classes: a labelled mesh (`rfir simulate`'s meshes/<scene>_gt.ply, face labels, names in the
@@ -12,7 +13,8 @@ What a radio engineer does first with a ray tracer and a few measurements:
   (`class_names`: desk_03 -> desk). A mesh without labels (e.g. `rfir geom`'s mesh from photos) gets
   one global material; the results say so.
 - start: every class made of the guessed ITU material (`--material`, Sionna's ITU-R P.2040 values at
-  the measurement frequency) as slabs `--thickness` m thick; the thickness stays at the guess.
+  the measurement frequency) as slabs `--thickness` m thick; the thickness stays at the guess unless
+  `--learn-thickness` (then thickness = exp(w_c) m is calibrated too).
 - parameters per class c: eps_r = 1 + exp(u_c) (Sionna needs eps_r >= 1), sigma = exp(v_c) S/m; Adam
   with a step size decaying geometrically by `--lr-decay` over the run.
 - loss: mean |P_dB(predicted) - P_dB(measured)| over a fixed random subsample of about `--links`
@@ -55,7 +57,8 @@ class CalibSettings:
     """Calibration settings (units: m, S/m, dB)."""
 
     material: str = "concrete"    # guessed ITU material every class starts from
-    thickness_m: float = 0.2      # slab thickness Sionna assumes (kept fixed)
+    thickness_m: float = 0.2      # slab thickness Sionna assumes at the start
+    learn_thickness: bool = False  # calibrate each class's thickness too (else it stays at thickness_m)
     iterations: int = 40          # Adam steps
     lr: float = 0.1               # Adam step size on u = log(eps_r - 1) and v = log(sigma), first step
     lr_decay: float = 0.1         # last step's size / first step's (geometric in between)
@@ -162,8 +165,8 @@ def itu_values(material: str, freq_hz: float) -> tuple[float, float]:
 
 
 class ClassMaterials:
-    """One Sionna RadioMaterial per class, parametrised by theta [C, 2] = (u, v):
-    eps_r = 1 + exp(u), sigma = exp(v) S/m."""
+    """One Sionna RadioMaterial per class, parametrised by theta [C, 3] = (u, v, w):
+    eps_r = 1 + exp(u), sigma = exp(v) S/m, slab thickness = exp(w) m."""
 
     def __init__(self, scene, classes: list[str], thickness_m: float, effects):
         import sionna.rt as rt
@@ -181,14 +184,17 @@ class ClassMaterials:
         self._vars = None
 
     @staticmethod
-    def to_theta(eps_r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-        return np.stack([np.log(np.maximum(np.asarray(eps_r) - 1.0, 1e-6)), np.log(np.maximum(sigma, 1e-9))], -1)
+    def to_theta(eps_r, sigma, thickness_m) -> np.ndarray:
+        """theta [C, 3] of eps_r, sigma S/m, thickness m [C] each."""
+        return np.stack([np.log(np.maximum(np.asarray(eps_r, np.float64) - 1.0, 1e-6)),
+                         np.log(np.maximum(np.asarray(sigma, np.float64), 1e-9)),
+                         np.log(np.maximum(np.asarray(thickness_m, np.float64), 1e-6))], -1)
 
     @staticmethod
-    def values(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(eps_r [C], sigma [C] S/m) of theta [C, 2]."""
+    def values(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(eps_r [C], sigma [C] S/m, thickness [C] m) of theta [C, 3]."""
         theta = np.asarray(theta, np.float64)
-        return 1.0 + np.exp(theta[:, 0]), np.exp(theta[:, 1])
+        return 1.0 + np.exp(theta[:, 0]), np.exp(theta[:, 1]), np.exp(theta[:, 2])
 
     def set(self, theta: np.ndarray, grad: bool) -> None:
         """Put theta into the materials; with grad, as Dr.Jit variables whose gradients `grad_theta` reads."""
@@ -196,22 +202,23 @@ class ClassMaterials:
         import mitsuba as mi
 
         self._vars = []
-        for mat, (u, v) in zip(self.mats, np.asarray(theta, np.float64)):
+        for mat, row in zip(self.mats, np.asarray(theta, np.float64)):
             # opaque: a literal constant would be compiled into Dr.Jit's kernels, so every new value
             # would recompile them (seconds per solve)
-            gu, gv = mi.Float(float(u)), mi.Float(float(v))
-            dr.make_opaque(gu, gv)
+            g = [mi.Float(float(x)) for x in row]
+            dr.make_opaque(*g)
             if grad:
-                dr.enable_grad(gu, gv)
-                self._vars.append((gu, gv))
-            eps, sigma = 1.0 + dr.exp(gu), dr.exp(gv)
-            dr.make_opaque(eps, sigma)
-            mat.relative_permittivity, mat.conductivity = eps, sigma
+                dr.enable_grad(*g)
+                self._vars.append(g)
+            eps, sigma, thick = 1.0 + dr.exp(g[0]), dr.exp(g[1]), dr.exp(g[2])
+            dr.make_opaque(eps, sigma, thick)
+            mat.relative_permittivity, mat.conductivity, mat.thickness = eps, sigma, thick
 
     def grad_theta(self) -> np.ndarray:
+        """d loss / d theta [C, 3] after dr.backward."""
         import drjit as dr
 
-        return np.array([[float(dr.grad(gu)[0]), float(dr.grad(gv)[0])] for gu, gv in self._vars])
+        return np.array([[float(dr.grad(x)[0]) for x in g] for g in self._vars])
 
 
 # --------------------------------------------------------------------------------------------
@@ -280,7 +287,9 @@ def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, f
                                                                 for m in mats.mats),
               refraction=True, diffraction=False, seed=7)
     eps0, sig0 = itu_values(s.material, freq_hz)
-    theta = ClassMaterials.to_theta(np.full(len(mats.classes), eps0), np.full(len(mats.classes), sig0))
+    n_c = len(mats.classes)
+    theta = ClassMaterials.to_theta(np.full(n_c, eps0), np.full(n_c, sig0), np.full(n_c, s.thickness_m))
+    learned = np.array([True, True, bool(s.learn_thickness)])    # Adam moves these columns of theta
     m1, m2 = np.zeros_like(theta), np.zeros_like(theta)
     b1, b2 = 0.9, 0.999
     rng = np.random.default_rng(s.seed)
@@ -324,7 +333,7 @@ def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, f
         mats.set(theta, grad=True)
         n_b = sum(len(groups[k]) for k in batch)
         loss = sum(group_loss(groups[k], 1.0 / n_b, True) for k in batch)
-        g = mats.grad_theta()
+        g = mats.grad_theta() * learned
         if not np.all(np.isfinite(g)):
             raise StageError(f"calibration gradient not finite at step {it + 1}; lower --lr")
         m1 = b1 * m1 + (1 - b1) * g
@@ -395,7 +404,7 @@ def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=pr
     pred_all = 10 * np.log10(np.maximum(power[:, 0], 1e-25))          # no path: -250 dB
     pred = pred_all[tx_id * len(rx) + rx_id]                           # simulate_rssi's rows are Tx-major
     assert np.all(sim_tx[tx_id * len(rx) + rx_id] == tx_id) and np.all(sim_rx[tx_id * len(rx) + rx_id] == rx_id)
-    eps, sigma = ClassMaterials.values(fit["theta"])
+    eps, sigma, thick = ClassMaterials.values(fit["theta"])
     err = np.abs(pred - y)
     out = {
         "name": work.name, "task": "rssi",
@@ -409,8 +418,8 @@ def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=pr
                     "links_without_path": int(np.sum(pred <= -240)),
                     "calibration_subsample_mae_before_db": fit["initial_subsample_mae_db"],
                     "calibration_subsample_mae_after_db": fit["final_subsample_mae_db"]},
-        "materials": {c: {"eps_r": float(e), "sigma_s_per_m": float(g), "thickness_m": s.thickness_m}
-                      for c, e, g in zip(classes, eps, sigma)},
+        "materials": {c: {"eps_r": float(e), "sigma_s_per_m": float(g), "thickness_m": float(d)}
+                      for c, e, g, d in zip(classes, eps, sigma, thick)},
         "start_material": fit["start"],
         "settings": {**asdict(s), "subsample_links": fit["subsample_links"],
                      "calibration_physics": "specular, refraction" + (", diffuse" if effects.scattering_coefficient
@@ -439,7 +448,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", choices=SPLITS, default="random")
     ap.add_argument("--results", required=True)
     ap.add_argument("--material", default=d.material, help="guessed ITU material every class starts from")
-    ap.add_argument("--thickness", type=float, default=d.thickness_m, help="slab thickness, m (kept fixed)")
+    ap.add_argument("--thickness", type=float, default=d.thickness_m, help="slab thickness at the start, m")
+    ap.add_argument("--learn-thickness", action="store_true", help="calibrate each class's slab thickness too")
     ap.add_argument("--iterations", type=int, default=d.iterations)
     ap.add_argument("--lr", type=float, default=d.lr)
     ap.add_argument("--lr-decay", type=float, default=d.lr_decay, help="last step size / first")
@@ -452,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=d.seed)
     a = ap.parse_args(argv)
     s = CalibSettings(material=a.material, thickness_m=a.thickness, iterations=a.iterations, lr=a.lr,
-                      lr_decay=a.lr_decay, links=a.links, tx_per_step=a.tx_per_step, max_depth=a.depth,
+                      lr_decay=a.lr_decay, learn_thickness=a.learn_thickness, links=a.links,
+                      tx_per_step=a.tx_per_step, max_depth=a.depth,
                       samples_per_src=a.samples, seed=a.seed)
     try:
         out = run(a.mesh, a.measurements, a.split, a.results, s, say=lambda m: print(m, flush=True))
@@ -463,7 +474,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"sionna-calibrated: test MAE {m['mae_db']:.3f} dB, train MAE {m['mae_train_db']:.3f} dB "
           f"({m['num_test']} test links), {out['wall_time_s']:.0f} s; results {a.results}")
     for c, v in out["materials"].items():
-        print(f"  {c:16s} eps_r {v['eps_r']:7.3f}  sigma {v['sigma_s_per_m']:.4g} S/m")
+        print(f"  {c:16s} eps_r {v['eps_r']:7.3f}  sigma {v['sigma_s_per_m']:.4g} S/m  "
+              f"thickness {v['thickness_m']:.4g} m")
     return 0
 
 

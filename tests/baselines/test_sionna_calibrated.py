@@ -66,12 +66,13 @@ def test_mesh_classes_follow_the_room_model_and_fall_back_to_one_material():
 
 
 def test_material_parametrisation_round_trips_and_respects_bounds():
-    eps, sigma = np.array([1.5, 5.24, 80.0]), np.array([1e-4, 0.0916, 1e7])
-    e2, s2 = sc.ClassMaterials.values(sc.ClassMaterials.to_theta(eps, sigma))
+    eps, sigma, thick = np.array([1.5, 5.24, 80.0]), np.array([1e-4, 0.0916, 1e7]), np.array([0.006, 0.2, 1.0])
+    e2, s2, t2 = sc.ClassMaterials.values(sc.ClassMaterials.to_theta(eps, sigma, thick))
     np.testing.assert_allclose(e2, eps, rtol=1e-12)
     np.testing.assert_allclose(s2, sigma, rtol=1e-12)
-    e3, s3 = sc.ClassMaterials.values(np.array([[-50.0, -50.0], [3.0, 2.0]]))
-    assert np.all(e3 >= 1.0) and np.all(s3 > 0)                 # Sionna's eps_r >= 1, sigma >= 0
+    np.testing.assert_allclose(t2, thick, rtol=1e-12)
+    e3, s3, t3 = sc.ClassMaterials.values(np.array([[-50.0, -50.0, -50.0], [3.0, 2.0, 1.0]]))
+    assert np.all(e3 >= 1.0) and np.all(s3 > 0) and np.all(t3 > 0)   # Sionna's eps_r >= 1, sigma >= 0, d >= 0
 
 
 def test_itu_start_values_are_sionnas_itu_table():
@@ -98,7 +99,7 @@ def test_differentiable_power_equals_the_simulators_path_combination(tmp_path):
     scene = load_radio_scene(sc.class_spec(mesh, face_class, classes, "concrete", 0.2), tmp_path / "radio", F_HZ,
                              effects)
     mats = sc.ClassMaterials(scene, classes, 0.2, effects)
-    mats.set(sc.ClassMaterials.to_theta(np.array([4.0]), np.array([0.05])), grad=True)
+    mats.set(sc.ClassMaterials.to_theta(np.array([4.0]), np.array([0.05]), np.array([0.2])), grad=True)
     set_devices(scene, TX[:1], RX)
     solver = rt.PathSolver()
     solver.loop_mode = "evaluated"
@@ -111,7 +112,8 @@ def test_differentiable_power_equals_the_simulators_path_combination(tmp_path):
     np.testing.assert_allclose(got, 10 * np.log10(ref.power[:, 0]), atol=2e-3)
     dr.backward(dr.sum(sc.power_db_dr(paths, F_HZ, len(RX)), axis=None))
     g = mats.grad_theta()
-    assert np.all(np.isfinite(g)) and g[0, 1] < 0      # more conductivity: less power through the wall
+    # more conductivity or a thicker lossy slab: less power through the wall
+    assert np.all(np.isfinite(g)) and g[0, 1] < 0 and g[0, 2] < 0
 
 
 @pytest.mark.slow
