@@ -98,7 +98,7 @@ def _test_train_rows(rf, meas) -> tuple[np.ndarray, np.ndarray, str]:
     if split is None:
         raise StageError("the measurements have no 'split' to score against", path=meas.path)
     split = np.asarray(split)
-    return np.flatnonzero(split == 1), np.flatnonzero(split == 0), "random split of the file (split column)"
+    return np.flatnonzero(split == 1), np.flatnonzero(split == 0), "the file's split column (test rows: split == 1)"
 
 
 def _baselines(pred, rf, geom_labels, provider, tx, rx, y, train, test) -> dict:

@@ -102,6 +102,11 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     from .stage import RfFitResult
 
     settings, fit_cfg, sharing = room_config(config)
+    if settings.device_gains != "off" and not fit_cfg.fit_gain:
+        # the gains' prior is zero-mean: without a system gain the common level of the data would go into
+        # the gains of the devices the fit saw, and an unseen device would miss it
+        fit_cfg.fit_gain = True
+        progress.log("device gains on: the system gain is fitted too (the gains are offsets about it)")
     material, names, sharing = room_materials(sharing, scene, geom)
     labels = scene.get("gaussians/labels")
     t0 = time.time()
@@ -115,7 +120,11 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  + ("off" if settings.device_gains == "off" else
                     f"per {settings.device_gains} (prior {settings.device_gain_prior_db:g} dB)"))
     fit = np.arange(len(tx))
-    if 0 < settings.fit_links < len(tx):
+    if settings.device_gains != "off" and 0 < settings.fit_links < len(tx):
+        # every device's gain needs its own links: a subsample leaves a few per device
+        progress.log(f"device gains on: fitting on all {len(tx)} training links (rf_fit.room.fit_links = "
+                     f"{settings.fit_links} applies without device gains)")
+    elif 0 < settings.fit_links < len(tx):
         fit = np.linspace(0, len(tx) - 1, settings.fit_links).round().astype(np.int64)
         progress.log(f"fitting on {len(fit)} of the {len(tx)} training links, evenly spaced "
                      f"(rf_fit.room.fit_links = {settings.fit_links})")
