@@ -24,7 +24,9 @@ from .script import Edit
 # Datasets known not to be per-Gaussian even when their first dimension happens to equal G (tiny scenes).
 NOT_PER_GAUSSIAN = {"rf/freq_hz", "model/s_tx_db", "model/nlos_gain_db", "model/probe_values", "model/probe_origin_m",
                     "model/probe_shape", "training/loss_curve", "training/train_rows", "training/holdout_tx_ids"}
-NOT_PER_GAUSSIAN_PREFIXES = ("model/los.",)  # the RSSI LoS network's weights
+# the RSSI LoS network's weights; the per-device gains; the residual's training links (residual/surfel is per Gaussian)
+NOT_PER_GAUSSIAN_PREFIXES = ("model/los.", "model/device_", "residual/tx_pos", "residual/rx_pos", "residual/weights_db",
+                             "residual/mean_db")
 _MOVES = ("translate", "rotate", "duplicate")
 
 
@@ -119,6 +121,9 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
                     raise StageError(f"edit {i} ({edit.op.text}) deletes every Gaussian; nothing would be left to predict")
             records.append(rec)
             bar.advance(1)
+    if "residual/tx_pos" in art.data and any(r["op"] is not None for r in records):
+        warnings.append("the model's residual (a correction near its training links, fitted on the unedited scene) "
+                        "is kept as it is: the edit changes the physics under it, not the residual")
     result = EditResult(None, len(before), scene.count, records, warnings)
     if plot_path is not None:
         from .plot import top_view
