@@ -100,7 +100,8 @@ def test_re_materialing_a_free_model_is_one_line(tmp_path):
 
     write_scene(tmp_path / "scene.h5", spacing_m=0.6)
     write_meas(tmp_path / "meas.h5")
-    r = CliRunner().invoke(app, ["--set", "rf_fit.rssi.probe_step_m=0.75", "rf-fit", str(tmp_path / "scene.h5"),
+    r = CliRunner().invoke(app, ["--set", "rf_fit.rssi.model=free", "--set", "rf_fit.rssi.probe_step_m=0.75", "rf-fit",
+                                 str(tmp_path / "scene.h5"),
                                  str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5"), "--iterations", "3"])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(app, ["edit", str(tmp_path / "rf.h5"), "-o", str(tmp_path / "e.h5"),
