@@ -53,17 +53,25 @@ def set_args(pairs: dict | None) -> list[str]:
 
 
 def rfir_rcs(r: Plan, label: str, scene: Path, meas: Path, protocol: str, freq_hz: float,
-             iterations: int, sets: dict | None = None) -> Result:
-    """rf-fit on the protocol's training rows at one frequency, predict rcs on its test rows."""
-    fits = r.data / "fits"
-    rf = fits / f"{label}.h5"
+             iterations: int | None, sets: dict | None = None) -> Result:
+    """rf-fit on the protocol's training rows at one frequency, predict rcs on its test rows.
+    iterations None: the model's own step count from the config (the physical model's is
+    rf_fit.physical.iterations; `--iterations` sets the free model's rf_fit.iterations)."""
+    rf = r.data / "fits" / f"{label}.h5"
+    steps = [] if iterations is None else ["--iterations", str(iterations)]
     t_fit = r.step(f"{label}__rfir_fit", [r.rfir, "--seed", "0", *set_args(sets), "rf-fit", str(scene), str(meas),
-                                         "-o", str(rf), "--split", protocol, "--freq-hz", f"{freq_hz:g}",
-                                         "--iterations", str(iterations)], rf)
+                                         "-o", str(rf), "--split", protocol, "--freq-hz", f"{freq_hz:g}", *steps], rf)
+    return rfir_predict_rcs(r, label, rf, meas, t_fit)
+
+
+def rfir_predict_rcs(r: Plan, label: str, rf: Path, meas: Path, t_fit: str, freqs_hz: list[float] = ()) -> Result:
+    """`rfir predict rcs` of a fit (step `t_fit`) on the test rows of its protocol; freqs_hz: the
+    measured frequencies to predict (default: the fitted ones; a physical model predicts any)."""
     j = r.json_path(f"{label}__rfir")
+    freqs = ["--freqs", ",".join(f"{f:g}" for f in freqs_hz)] if freqs_hz else []
     t_pred = r.step(f"{label}__rfir_predict", [r.rfir, "--seed", "0", "predict", "rcs", str(rf), "-o",
-                                               str(fits / f"{label}_pred.h5"), "--measurements", str(meas),
-                                               "--plots", str(r.out / "plots" / label), "--results", str(j)], j)
+                                               str(r.data / "fits" / f"{label}_pred.h5"), "--measurements", str(meas),
+                                               *freqs, "--plots", str(r.out / "plots" / label), "--results", str(j)], j)
     return Result(r, j, t_fit, t_pred)
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 
@@ -137,3 +138,48 @@ def test_table_cli_names_a_missing_result(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "rcs_lego_2.4_data__rfir.json" in err and "cannot read the step result" in err
     assert not (tmp_path / "o" / "ablation.md").exists()
+
+
+def test_the_po_target_declares_the_physics_rows():
+    """rcs-po: lego and trio on physical-optics data, the physical model on four protocols at 2.4 GHz and the
+    even/odd fit predicted at 5.8 GHz; the quick variant adds one row on the rcs target's data."""
+    plan, tables = declare(["rcs-po"], False, overrides=["reproduce.full.po_ranges_m=[3.0]"])
+    table, labels = tables["rcs-po"]
+    rows = [label for label, _ in table.rows]
+    assert len(rows) == 10 and "trio 2.4 GHz, sector 45-135 deg held out" in rows
+    assert "lego, fit 2.4 GHz, predict 5.8 GHz (odd aspects)" in rows
+    data = plan.steps["data__trio_po"]
+    assert "--rcs-backend po" in data.command and "simulate.rcs.freqs_hz=[2.4e9,5.8e9]" in data.command
+    assert "simulate.rcs.ranges_m=[3]" in data.command                       # configs/reproduce.toml, overridden
+    fits = [plan.steps[lbl] for lbl in labels if lbl.endswith("__rfir_fit")]
+    assert len(fits) == 8
+    for fit in fits:
+        assert "--set rf_fit.model=physical" in fit.command and "--freq-hz 2.4e+09" in fit.command
+        assert "--iterations" not in fit.command       # the physical model's own steps (rf_fit.physical)
+    unseen = plan.steps["rcs_po_trio_2.4to5.8_data__rfir_predict"]
+    assert unseen.inputs == ["data/reproduce/fits/rcs_po_trio_2.4_data.h5", "data/reproduce/trio_po/measurements.h5"]
+    assert "--freqs 5.8e+09" in unseen.command
+    assert any("physical optics" in n for n in table.notes) and any("rf_fit.model=physical" in n for n in table.notes)
+    quick, qtables = declare(["rcs", "rcs-po"], True)
+    qlabels = qtables["rcs-po"][1]
+    assert [label for label, _ in qtables["rcs-po"][0].rows] == ["lego 2.4 GHz, sector 45-135 deg held out"]
+    assert "data__lego" in qlabels and "data__lego" in qtables["rcs"][1]    # the rcs target's data, no new run
+    assert len([lbl for lbl in qlabels if not lbl.startswith("data__")]) == 2
+
+
+def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
+    plan, tables = declare(["rcs-po"], False, tmp_path / "d", tmp_path / "o")
+    for step in plan.steps.values():
+        if step.outputs[0].endswith(".json"):
+            j = Path(step.outputs[0])
+            j.parent.mkdir(parents=True, exist_ok=True)
+            j.write_text(json.dumps({"metrics": {"mae_db": 2.0, "baseline_nearest_mae_db": 3.0,
+                                                 "baseline_linear_mae_db": 1.5}}))
+    md = to_markdown(tables["rcs-po"][0].resolved())
+    row = next(line for line in md.splitlines() if line.startswith("| trio, fit 2.4 GHz, predict 5.8 GHz"))
+    cells = [c.strip() for c in row.split("|")[2:-1]]
+    assert cells[0] == "**2.00**"                                       # the only prediction of the row
+    assert cells[1] == cells[2] == "not run: predicts only the frequency it was trained on"
+    assert cells[3].startswith("not run") and "(3.00 with the 5.8 GHz training rows" in cells[3]
+    assert "| trio 2.4 GHz, even/odd aspects | 2.00 | 2.00 | 2.00 | 3.00 | **1.50** |" in md
+    assert "rfir lowest on 2 of 10 rows" in md

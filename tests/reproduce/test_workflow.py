@@ -46,7 +46,7 @@ def _smk(cwd: Path, *args: str, snakefile: str = "Snakefile") -> str:
 
 def _planned(output: str) -> set[str]:
     """Rules of the jobs a dry run would run (the target rule `all` left out)."""
-    return set(re.findall(r"^(?:local)?rule (\w+):", output, re.MULTILINE)) - {"all"}
+    return set(re.findall(r"^(?:local)?rule ([\w-]+):", output, re.MULTILINE)) - {"all"}
 
 
 def _tiny_run(folder: Path) -> None:
@@ -85,7 +85,7 @@ def repo_copy(tmp_path):
 def test_the_workflow_plans_every_target(repo_copy, quick):
     out = _smk(repo_copy, "-n", "--config", f"quick={quick}", snakefile="workflow/Snakefile")
     jobs = _planned(out)
-    assert {f"table_{t}" for t in ("rcs", "wideband", "rssi", "extrapolation", "edit", "ablation")} <= jobs
+    assert {f"table_{t}" for t in ("rcs", "rcs-po", "wideband", "rssi", "extrapolation", "edit", "ablation")} <= jobs
     assert "step_wideband_htarget__rfir_fit" in jobs
     assert ("step_data__classroom_geom" in jobs) == (quick == "false")   # photos -> geom only in the full run
 
@@ -94,3 +94,12 @@ def test_the_slurm_profile_dry_runs(repo_copy):
     out = _smk(repo_copy, "rcs", "-n", "--profile", "workflow/profiles/slurm", "--config", "quick=true",
                snakefile="workflow/Snakefile")
     assert "table_rcs" in _planned(out) and "step_rcs_lego_2p4_data__rfir_fit" in _planned(out)
+
+
+def test_the_physics_rows_dry_run(repo_copy):
+    """`make reproduce-rcs-po`: the physical-optics data of both objects, the physical fits and the
+    unseen-frequency prediction, and nothing of the other targets."""
+    jobs = _planned(_smk(repo_copy, "rcs-po", "-n", snakefile="workflow/Snakefile"))
+    assert {"table_rcs-po", "step_data__lego_po", "step_data__trio_po", "step_rcs_po_trio_2p4_every_30__rfir_fit",
+            "step_rcs_po_lego_2p4to5p8_data__rfir_predict", "step_rcs_po_trio_2p4_sector_45_135__wrfgs"} <= jobs
+    assert not any(j.startswith(("table_rcs", "step_rcs_lego")) and j != "table_rcs-po" for j in jobs)
