@@ -125,7 +125,7 @@ def main(argv=None) -> None:
     cases = [run_case("plate", a.plate_n, a.aspects), run_case("dihedral", a.dihedral_n, a.aspects)]
     a.out.mkdir(parents=True, exist_ok=True)
     tmp = a.out / "fullwave_vs_po.json.part"
-    tmp.write_text(json.dumps({"command": "python -m rfir_stages.fullwave.compare --out results/fullwave "
+    tmp.write_text(json.dumps({"command": f"python -m rfir_stages.fullwave.compare --out {a.out} "
                                f"--aspects {a.aspects} --plate-n {a.plate_n} --dihedral-n {a.dihedral_n}",
                                "cases": cases}, indent=1))
     tmp.replace(a.out / "fullwave_vs_po.json")

@@ -43,6 +43,7 @@ CODE: dict[str, tuple[str, ...]] = {
     "rfir_stages.diagnose.blind": (*_CORE, *_MODEL, "stages/diagnose", "stages/rf_fit", "stages/predict",
                                    "stages/simulate", "stages/po", "configs/rf_fit.toml", "configs/simulate.toml",
                                    "configs/predict.toml"),
+    "rfir_stages.fullwave.compare": (*_CORE, "stages/fullwave", "stages/po", "stages/model"),
     "scripts/baseline_nerf2.py": (*_CORE, "scripts/baseline_nerf2.py", "stages/baselines"),
     "scripts/baseline_wrfgs.py": (*_CORE, "scripts/baseline_wrfgs.py", "stages/baselines"),
     "scripts/baseline_raytrace.py": (*_CORE, "scripts/baseline_raytrace.py", "stages/simulate"),

@@ -415,9 +415,23 @@ def declare_diagnose(r: Plan) -> str:
                   out / "diagnose_blind.md", [out / "diagnose_blind.json"])
 
 
+FULLWAVE = "fullwave_po"
+
+
+def declare_fullwave(r: Plan) -> str:
+    """The full-wave check of the PO backend (stages/fullwave/compare.py, docs/po.md): boundary elements
+    against `rfir_stages.po` on a 0.3 m PEC plate and a dihedral, 360 aspects at 2.4 GHz; writes
+    OUT/fullwave/fullwave_vs_po.{json,png} (curves, gaps by aspect region, timings). Full variant only."""
+    out = r.out / "fullwave"
+    return r.step(FULLWAVE, [r.python, "-m", "rfir_stages.fullwave.compare", "--out", str(out), "--aspects", "360",
+                             "--plate-n", "16", "--dihedral-n", "12"],
+                  out / "fullwave_vs_po.json", [out / "fullwave_vs_po.png"])
+
+
 def declare(names: list[str], quick: bool, data: Path | None = None, out: Path | None = None,
             overrides: list[str] = ()) -> tuple[Plan, dict[str, tuple[Table, list[str]]]]:
-    """The plan of the named targets and of the diagnose set (every step, inputs linked) and, per
+    """The plan of the named targets, the diagnose set and (full variant) the full-wave check (every step,
+    inputs linked) and, per
     target, its deferred table and the labels of its steps. data / out default to plan.default_dirs(quick); overrides:
     `reproduce.<full|quick>.<key>=value` settings over configs/reproduce.toml."""
     d, o = default_dirs(quick)
@@ -433,6 +447,8 @@ def declare(names: list[str], quick: bool, data: Path | None = None, out: Path |
         plan.used = []
         tables[name] = (TARGETS[name](plan), list(plan.used))
     declare_diagnose(plan)
+    if not quick:
+        declare_fullwave(plan)
     plan.link_inputs()
     return plan, tables
 

@@ -165,6 +165,10 @@ def test_the_po_target_declares_the_physics_rows():
     assert [label for label, _ in qtables["rcs-po"][0].rows] == ["lego 2.4 GHz, sector 45-135 deg held out"]
     assert "data__lego" in qlabels and "data__lego" in qtables["rcs"][1]    # the rcs target's data, no new run
     assert len([lbl for lbl in qlabels if not lbl.startswith("data__")]) == 2
+    # the full-wave check of the PO backend is a step of the full variant only (the `fullwave` rule)
+    assert plan.steps["fullwave_po"].outputs == ["results/reproduce/fullwave/fullwave_vs_po.json",
+                                                 "results/reproduce/fullwave/fullwave_vs_po.png"]
+    assert "fullwave_po" not in quick.steps
 
 
 def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
