@@ -21,14 +21,14 @@ def code_of(step):
 
 
 def declared(paths):
-    """A path ending in "/" is a folder output."""
+    """Outputs: a path ending in "/" is a folder output."""
     return [directory(p.rstrip("/")) if p.endswith("/") else p for p in paths]
 
 
 for _step in PLAN.steps.values():
     rule:
         name: rule_name(_step.label)
-        input: declared(_step.inputs)
+        input: [p.rstrip("/") for p in _step.inputs]     # a folder input: its path, no flag
         output: declared(_step.outputs)
         params: cmd=_step.command, code=code_of(_step)
         log: str(PLAN.log_path(_step.label))
