@@ -11,8 +11,8 @@ Received complex amplitude and power for a batch of links (P_T = 1 W, path gain 
   cos_i = n.w_i > 0 and cos_o = n.w_o > 0: the receiver on the same side; no transmission here);
   m = material of l (one per label, per segment or per scene);
 - A_l: surfel area (surfels.surfel_areas), so a plate at broadside gives 4 pi A^2 / lambda^2
-  whatever the Gaussian density; F_l(k) = exp(-0.5 k^2 q^T Sigma_w q), q = w_i + w_o, the
-  footprint factor (surfels.footprint_covariance);
+  whatever the Gaussian density; F_l(k) = sinc(k q.c_1) sinc(k q.c_2), q = w_i + w_o, the
+  footprint factor of the surfel's cell (surfels.footprint_cells);
 - Gamma_m(theta, pol): the co-polarised Fresnel (slab) coefficient of the material at the local
   incidence angle (materials.co_polar_reflection; the TE share from the antennas' polarisation);
 - V_l = V_tx V_rx: the traced visibility of the surfel's mean from each antenna (frozen, with
@@ -39,7 +39,7 @@ from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0, co_polar_reflection, fresnel, permittivity
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
-from .surfels import footprint_covariance, surfel_areas
+from .surfels import footprint_cells, footprint_factor, surfel_areas
 
 EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
 LOG10_SIGMA = (-4.0, 7.0)   # conductivity at 1 GHz in [1e-4, 1e7] S/m (1e7: metal)
@@ -52,7 +52,8 @@ class PairGeometry:
     """Geometry of every (link, lit surfel) pair; P pairs, M links, K frequencies.
 
     link, gauss [P] int64; d_i, d_o [P] m; cos_i, cos_o [P]; te_share [P] in [0, 1]; gain [P] =
-    sqrt(G_T G_R); vis [P] = V_tx V_rx; qsq [P] m^2 = q^T Sigma_w q; area [P] m^2; freq_hz [K]."""
+    sqrt(G_T G_R); vis [P] = V_tx V_rx; q_cell [P, 2] m = C_l q (surfels.footprint_cells); area [P] m^2;
+    freq_hz [K]."""
 
     num_links: int
     link: torch.Tensor
@@ -64,7 +65,7 @@ class PairGeometry:
     te_share: torch.Tensor
     gain: torch.Tensor
     vis: torch.Tensor
-    qsq: torch.Tensor
+    q_cell: torch.Tensor
     area: torch.Tensor
     freq_hz: torch.Tensor
     double: "DoubleBounce | None" = None    # second-order items (second_order.py), None: first order only
@@ -97,7 +98,7 @@ class PairGeometry:
         pick = lambda t: t[keep]  # noqa: E731
         return PairGeometry(int(rows.numel()), new_id[self.link][keep], pick(self.gauss), pick(self.d_i),
                             pick(self.d_o), pick(self.cos_i), pick(self.cos_o), pick(self.te_share), pick(self.gain),
-                            pick(self.vis), pick(self.qsq), pick(self.area), self.freq_hz,
+                            pick(self.vis), pick(self.q_cell), pick(self.area), self.freq_hz,
                             None if self.double is None else self.double.select_links(rows))
 
 
@@ -149,11 +150,11 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
     with torch.no_grad():
         area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) \
             if areas_m2 is None else areas_m2.double()
-        sigma_w = footprint_covariance(geom.log_scales, geom.rotations, geom.normals, area)
+        cells = footprint_cells(geom.log_scales, geom.rotations, geom.normals, area)
         parts = []
         for a in range(0, links.num, settings.link_chunk):
             b = min(links.num, a + settings.link_chunk)
-            parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, sigma_w, settings))
+            parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, cells, settings))
         cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
         vis = torch.ones_like(cat["d_i"])
         if settings.visibility and provider is not None and cat["link"].numel():
@@ -166,18 +167,18 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         keep = vis > 1e-6
         cat = {k: v[keep] for k, v in cat.items()}
         pairs = PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
-                             cat["te"], cat["gain"], vis[keep], cat["qsq"], area[cat["gauss"]],
+                             cat["te"], cat["gain"], vis[keep], cat["q_cell"], area[cat["gauss"]],
                              links.freq_hz.double())
         if settings.second_order:
             if patches is None:
                 patches = planar_patches(geom, area, labels, settings.min_patch_area_m2)
             pairs.double = build_double_bounce(
-                geom, links, tx_ant, rx_ant, patches, area, sigma_w,
+                geom, links, tx_ant, rx_ant, patches, area, cells,
                 lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation, settings.colocated_tol_m)
         return pairs
 
 
-def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, sigma_w, settings: PairSettings) -> dict:
+def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, cells, settings: PairSettings) -> dict:
     """Lit pairs of links a..b-1 (dense over Gaussians, then filtered)."""
     tx, rx = links.tx_m[a:b], links.rx_m[a:b]
     to_tx = tx[:, None] - geom.means[None]          # [m, G, 3]
@@ -195,12 +196,12 @@ def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, sigma_w, 
     m_idx, g_idx = lit.nonzero(as_tuple=True)
     wi, wo, nn_ = w_i[m_idx, g_idx], w_o[m_idx, g_idx], n[m_idx, g_idx]
     q = wi + wo
-    qsq = torch.einsum("pi,pij,pj->p", q, sigma_w[g_idx], q)
+    q_cell = torch.einsum("pcj,pj->pc", cells[g_idx], q)
     g_t = tx_ant.gain(-wi, links.tx_axis[a:b][m_idx])
     g_r = rx_ant.gain(-wo, links.rx_axis[a:b][m_idx])
     return {"link": m_idx + a, "gauss": g_idx, "d_i": d_i[m_idx, g_idx], "d_o": d_o[m_idx, g_idx],
             "cos_i": cos_i[m_idx, g_idx], "cos_o": cos_o[m_idx, g_idx], "te": _te_share(wi, nn_, settings.polarisation),
-            "gain": torch.sqrt(g_t * g_r), "qsq": qsq}
+            "gain": torch.sqrt(g_t * g_r), "q_cell": q_cell}
 
 
 def _sigmoid_range(theta: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
@@ -309,7 +310,7 @@ def specular_terms(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats
     s = mats.scattering[mat]
     base = pairs.gain * pairs.vis * pairs.area / (4 * math.pi * pairs.d_i * pairs.d_o)   # [P]
     spec_amp = base * 0.5 * (pairs.cos_i + pairs.cos_o) * torch.sqrt(1.0 - s**2)
-    foot = torch.exp(-0.5 * pairs.qsq[:, None] * k0[None] ** 2)
+    foot = footprint_factor(pairs.q_cell, k0)
     phase = torch.exp(-1j * (pairs.d_i + pairs.d_o)[:, None] * k0[None])
     return 1j * (spec_amp[:, None] * foot) * gamma * phase, gamma
 
@@ -445,7 +446,7 @@ class AggregatedPairs:
                 cos_i, cos_o = pairs.cos_i[sl], pairs.cos_o[sl]
                 base = pairs.gain[sl] * pairs.vis[sl] * pairs.area[sl] / (4 * math.pi * pairs.d_i[sl] * pairs.d_o[sl])
                 c = (1j * base * 0.5 * (cos_i + cos_o))[:, None] \
-                    * torch.exp(-0.5 * pairs.qsq[sl][:, None] * k0[None] ** 2) \
+                    * footprint_factor(pairs.q_cell[sl], k0) \
                     * torch.exp(-1j * (pairs.d_i[sl] + pairs.d_o[sl])[:, None] * k0[None])
                 d = base**2 * cos_i * cos_o / (math.pi * pairs.area[sl])
                 pos = torch.arccos(cos_i.clamp(0.0, 1.0)) / step

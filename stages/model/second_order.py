@@ -35,6 +35,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0
+from .surfels import footprint_factor
 
 PARALLEL_COS = 0.98     # normals this close belong to one plane (and such patches form no dihedral)
 COPLANAR_M = 0.0015     # ... when their offsets along the normal differ by less (the faces of a 3 mm sheet stay apart)
@@ -139,7 +140,7 @@ def empty_double_bounce(num_links: int, freq_hz: torch.Tensor) -> DoubleBounce:
 
 
 def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
-                        patches: Patches, areas_m2: torch.Tensor, sigma_w: torch.Tensor, vis_lookup,
+                        patches: Patches, areas_m2: torch.Tensor, cells: torch.Tensor, vis_lookup,
                         polarisation: str = "V", colocated_tol_m: float = 0.01) -> DoubleBounce:
     """Double-bounce items of every link (see the module docstring).
 
@@ -167,7 +168,7 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
         xb = x[mb]                                                        # [B, 3]
         side_b = (xb - pa_pt) @ na                                        # B's surfels relative to plane A
         item = _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, trees[pa], patches.members[pa],
-                           reach[pa], vis_lookup, tx_ant, rx_ant, sigma_w, areas_m2, k0, polarisation, _te_share,
+                           reach[pa], vis_lookup, tx_ant, rx_ant, cells, areas_m2, k0, polarisation, _te_share,
                            patches.point[pa], radius[pa])
         if item is not None:
             parts.append(item)
@@ -195,7 +196,7 @@ def dihedral_partners(patches: Patches, radius: np.ndarray) -> list[list[int]]:
 
 
 def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, members_a, reach_a, vis_lookup,
-                tx_ant, rx_ant, sigma_w, areas_m2, k0, polarisation, te_share, centre_a, radius_a):
+                tx_ant, rx_ant, cells, areas_m2, k0, polarisation, te_share, centre_a, radius_a):
     """Items of the double bounces off patch A, then one of the surfels mb of its partners, for every
     co-located link."""
     tx = links.tx_m.numpy()
@@ -266,9 +267,9 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     g_t = tx_ant.gain(u_c, links.tx_axis[torch.as_tensor(link)])
     g_r = rx_ant.gain(-w_o, links.rx_axis[torch.as_tensor(link)])
     q = w_i + w_o
-    qsq = torch.einsum("pi,pij,pj->p", q, sigma_w[torch.as_tensor(gb)], q)
+    q_cell = torch.einsum("pcj,pj->pc", cells[torch.as_tensor(gb)], q)
     amp = torch.sqrt(g_t * g_r) * v * areas_m2[torch.as_tensor(gb)] * 0.5 * (cos_b + cos_o) / (4 * math.pi * d_i * d_o)
-    coef = (1j * amp)[:, None] * torch.exp(-0.5 * qsq[:, None] * k0[None] ** 2) \
+    coef = (1j * amp)[:, None] * footprint_factor(q_cell, k0) \
         * torch.exp(-1j * (d_i + d_o)[:, None] * k0[None])
     return {"link": torch.as_tensor(link), "ga": torch.as_tensor(ga), "gb": torch.as_tensor(gb),
             "cos_a": cos_a, "cos_b": cos_b, "te_a": te_share(-u_c, na_t, polarisation),
