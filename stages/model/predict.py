@@ -3,7 +3,9 @@
 Any frequency: the material laws carry eps_r and sigma to it and the phases follow k. Frequencies
 outside 0.1-100 GHz (where ITU-R P.2040 laws are given) are predicted with a printed warning.
 Predicted power below FLOOR_DB (links that see no lit surfel: a plate edge-on) is reported at
-FLOOR_DB, never as -inf or -3000 dB, and counted in the log. The artifact's residual
+FLOOR_DB, never as -inf or -3000 dB, and counted in the log. Many frequencies (a band) are
+evaluated in frequency chunks, each link traced once; above band.EXACT_MAX_FREQS of them with the
+fit's aggregated form (band.py). The artifact's residual
 (residual.py) is applied on top: the gaussian form inside the field sum, the smooth form in dB (zero
 at frequencies that were not fitted, said in the log), the smooth and blend forms in dB.
 """
@@ -18,7 +20,8 @@ from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_c
 from rfir_stages.rf_fit.occlusion import make_provider
 
 from .artifact import load_physical
-from .physical import build_pairs, scattered_field
+from .band import EXACT_MAX_FREQS, band_field, band_power
+from .physical import build_pairs
 from .residual import kernel_form_at
 from .second_order import planar_patches
 
@@ -49,13 +52,20 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
     gain = 10 ** (model.gain_db / 10)
     out = np.zeros((len(tx), len(freqs)))
     phys = np.zeros_like(out) if surfel is not None and with_physics_only else out
+    if surfel is None and len(freqs) > EXACT_MAX_FREQS:
+        progress.log(f"predict: {len(freqs)} frequencies: the fit's aggregated form (reflection coefficients on "
+                     "2-degree angle nodes; band.py)")
     with progress.task("predict (physical)", total=len(tx)) as bar, torch.no_grad():
         for a in range(0, len(tx), chunk_links):
             links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
             pairs = build_pairs(geom, links, ant, ant, provider, model.settings, model.areas_m2, patches)
             for dest, factor in ((out, surfel), (phys, None)) if phys is not out else ((out, surfel),):
-                field, diffuse = scattered_field(pairs, model.material_of_gaussian, model.mats, surfel_factor=factor)
-                dest[a:a + chunk_links] = 10 * np.log10(((field.abs() ** 2 + diffuse) * gain).numpy() + 1e-300)
+                if factor is None and len(freqs) > EXACT_MAX_FREQS:   # a band: the fit's aggregated form
+                    power = band_power(pairs, model.material_of_gaussian, model.mats)
+                else:
+                    field, diffuse = band_field(pairs, model.material_of_gaussian, model.mats, surfel_factor=factor)
+                    power = field.abs() ** 2 + diffuse
+                dest[a:a + chunk_links] = 10 * np.log10((power * gain).numpy() + 1e-300)
             bar.advance(links.num)
     low = out < FLOOR_DB
     if low.any():

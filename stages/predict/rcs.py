@@ -35,7 +35,7 @@ from rfir_stages.rf_fit.splits import protocol_masks
 from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, baselines_beating_model, range_baselines
 from .plots import attribute_views, rcs_vs_aspect
-from .wideband import is_wideband_model, predict_wideband_db, spectrum_plots
+from .wideband import default_freqs, is_band_fit, is_wideband_model, predict_wideband_db, spectrum_plots
 
 
 @dataclass
@@ -143,7 +143,6 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     rf = read_artifact(rf_path, "rf")
     geom = geometry_from_artifact(rf)
     centre = scene_centre(geom).numpy()
-    fitted = np.asarray(rf["rf/freq_hz"], np.float64)
     meas = None
     if measurements_path is not None:
         meas = read_artifact(measurements_path, "measurements")
@@ -155,7 +154,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         asp, rng = np.asarray(meas["aspect_rad"]), np.asarray(meas["range_m"])
         f_all = np.asarray(meas["freq_hz"], np.float64)
         # a physical model predicts any measured frequency that is asked for; others only fitted ones
-        want = fitted if freqs_hz is None else np.asarray(freqs_hz, np.float64)
+        want = default_freqs(rf, f_all) if freqs_hz is None else np.asarray(freqs_hz, np.float64)
         cols = np.flatnonzero([np.any(np.abs(want - f) <= 1e-6 * f) for f in f_all])
         if cols.size == 0:
             raise StageError("none of the measured frequencies was fitted "
@@ -179,7 +178,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     else:
         aspects = np.radians(np.arange(0.0, 360.0, 1.0) if aspects_deg is None else np.asarray(aspects_deg, float))
         ranges = np.asarray([3.0] if ranges_m is None else ranges_m, float)
-        freqs = fitted if freqs_hz is None else np.asarray(freqs_hz, np.float64)
+        freqs = default_freqs(rf) if freqs_hz is None else np.asarray(freqs_hz, np.float64)
         tx, rx, asp, rng = radar_links(aspects, ranges, centre, float(config.get("separation_m", 0.002)))
         meas_rcs, split = None, None
     check_positions(geom, np.concatenate([tx, rx]), "links", float(config.get("min_clearance_m", 0.02)))
@@ -226,7 +225,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     result = PredictResult(out_path, len(tx), freqs.tolist(), time.time() - t_start, render_s, metrics)
     if plots_dir is not None:
         result.plots = _plots(Path(plots_dir), rf, asp, rng, freqs, rcs, meas_rcs, split)
-        if is_wideband_model(rf):
+        if is_wideband_model(rf) or is_band_fit(rf):
             result.plots += spectrum_plots(Path(plots_dir), asp, rng, freqs, rcs, meas_rcs, split)
     if results_path is not None:
         result.results_json = _results(Path(results_path), name or out_path.stem, rf, rf_path, measurements_path,

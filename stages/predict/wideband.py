@@ -1,6 +1,8 @@
 """Prediction with a wideband `rf` artifact (docs/physics.md section 7) and spectrum plots.
 
-A wideband artifact (rf-fit on a "wideband" measurement file; stages/rf_fit/wideband_stage.py)
+A physical model fitted on a band (docs/wideband.md) is predicted by rfir_stages.model.predict like
+any physical model; `default_freqs` gives its band when no frequency is asked for.
+A free wideband artifact (rf-fit on a "wideband" measurement file; stages/rf_fit/wideband_stage.py)
 holds the base materials, the system gain s_tx(f) as knots and the modulation network in its free
 group model/ (`wideband.*` datasets and attributes). It predicts any frequency inside the fitted
 band [wideband.f_min_hz, wideband.f_max_hz] (each with its own k) and refuses others.
@@ -27,6 +29,24 @@ BAND_TOL = 1e-9  # relative tolerance on the band edges
 def is_wideband_model(rf) -> bool:
     """True for an rf artifact written by the wideband fit."""
     return bool(int(rf.free.get("model@attrs", {}).get("wideband", 0)))
+
+
+def is_band_fit(rf) -> bool:
+    """True for a physical model fitted on a band (rf-fit on wideband measurements, docs/wideband.md)."""
+    return "band.num_freqs" in rf.free.get("model@attrs", {})
+
+
+def default_freqs(rf, measured_hz=None) -> np.ndarray:
+    """Frequencies [K] Hz predicted when none are asked for: a band fit's whole band (the measured
+    frequencies inside it, or its num_freqs evenly spaced without measurements); otherwise the fitted ones."""
+    if not is_band_fit(rf):
+        return np.asarray(rf["rf/freq_hz"], np.float64)
+    attrs = rf.free["model@attrs"]
+    lo, hi = float(attrs["band.f_min_hz"]), float(attrs["band.f_max_hz"])
+    if measured_hz is None:
+        return np.linspace(lo, hi, int(attrs["band.num_freqs"]))
+    f = np.asarray(measured_hz, np.float64)
+    return f[(f >= lo * (1 - BAND_TOL)) & (f <= hi * (1 + BAND_TOL))]
 
 
 def band_hz(rf) -> tuple[float, float]:

@@ -99,6 +99,8 @@ class PhysicalSetup:
     label_names: list | None = None
     aggregated: dict = field(default_factory=dict)    # sharing -> (AggregatedPairs, index [G], names)
     residual_cfg: ResidualConfig = field(default_factory=ResidualConfig)
+    agg_chunk: int = 1 << 20                          # pairs per chunk when aggregating (fewer for a band)
+    extra_attrs: dict = field(default_factory=dict)   # more model attributes for the artifact (a band's)
 
     @staticmethod
     def trace(geom, links, ant, provider, settings: PairSettings, labels, table: dict, seed: int,
@@ -113,7 +115,8 @@ class PhysicalSetup:
         if sharing not in self.aggregated:
             idx, names = material_index(sharing, self.geom.num, self.labels, self.geom.means, self.geom.normals,
                                         self.num_segments, self.seed, self.label_names)
-            self.aggregated[sharing] = (AggregatedPairs.build(self.pairs, idx, len(names)), idx, names)
+            self.aggregated[sharing] = (AggregatedPairs.build(self.pairs, idx, len(names), chunk=self.agg_chunk),
+                                       idx, names)
         return self.aggregated[sharing]
 
     def fit(self, sharing: str, rows: np.ndarray | None, target_db: np.ndarray, cfg: PhysicalFitConfig,
@@ -200,5 +203,7 @@ def physical_artifact_fields(setup: PhysicalSetup, sharing: str, result: Physica
     """(datasets, model attributes) for the rf artifact (rfir_stages.model.artifact); residual: fitted
     on the training links tx_m / rx_m [M, 3] m."""
     _, idx, names = setup.for_sharing(sharing)
-    return physical_fields(result.params.values(), idx, setup.areas_m2, freqs_hz, settings, names,
-                           float(result.params.gain_db.detach()), residual, tx_m, rx_m)
+    data, attrs = physical_fields(result.params.values(), idx, setup.areas_m2, freqs_hz, settings, names,
+                                  float(result.params.gain_db.detach()), residual, tx_m, rx_m)
+    attrs.update(setup.extra_attrs)
+    return data, attrs

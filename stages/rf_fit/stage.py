@@ -22,6 +22,7 @@ from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
+from rfir_stages.model.band import aggregate_chunk
 
 from .antennas import antenna_choice
 from .fit import FLOOR_DB, FitConfig, FitResult, fit, mae_db, predict_db
@@ -35,7 +36,7 @@ from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows, validation_folds
 from .splits import MIN_VALIDATION_LINKS
-from .wideband_stage import is_wideband_request, run_wideband
+from .wideband_stage import band_config, band_model, is_wideband_request, run_wideband
 
 MODELS = ("auto", "free", "physical")
 SCATTERING = ("auto", "coherent", "incoherent")
@@ -133,9 +134,13 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         from rfir_stages.importers.select import select_rows
         rows, _ = select_rows(meas, select, str(measurements_path), rows)
         progress.log(f"rf-fit: {select.describe()} keeps {len(rows)} training rows")
-    if is_wideband_request(task, config):  # docs/physics.md section 7: stages/rf_fit/wideband_stage.py
-        return run_wideband(scene, meas, geom, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg,
-                            rows=rows, seed=seed, config_toml=config_toml, progress=progress, t_start=t_start)
+    band_attrs = {}
+    if is_wideband_request(task, config):  # docs/wideband.md: the physical model on the band, or the free family
+        if band_model(config, progress) == "free":   # docs/physics.md section 7: stages/rf_fit/wideband_stage.py
+            return run_wideband(scene, meas, geom, scene_path, measurements_path, out_path, config, render_cfg,
+                                fit_cfg, rows=rows, seed=seed, config_toml=config_toml, progress=progress,
+                                t_start=t_start)
+        config, band_attrs = band_config(config, meas, str(measurements_path), progress)
     cols = pick_freqs(meas["freq_hz"], config.get("freqs_hz"), str(measurements_path))
     tx, rx = meas["tx_pos"][rows], meas["rx_pos"][rows]
     check_positions(geom, np.concatenate([tx, rx]), str(measurements_path), float(config.get("min_clearance_m", 0.02)))
@@ -151,7 +156,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     links = make_links(tx, rx, freqs, centre, task)
     rng = meas.get("range_m")
     progress.log(f"rf-fit: rows used: {len(rows)} train, {len(test_rows)} test (split {protocol}); frequencies "
-                 f"{', '.join(f'{f / 1e9:g}' for f in freqs)} GHz"
+                 + (f"{', '.join(f'{f / 1e9:g}' for f in freqs)} GHz" if len(freqs) <= 8 else
+                    f"{len(freqs)} from {freqs.min() / 1e9:g} to {freqs.max() / 1e9:g} GHz")
                  + ("" if rng is None else f"; ranges {', '.join(f'{r:g}' for r in np.unique(np.round(rng[rows], 6)))} m"))
 
     model_kind = str(config.get("model", "auto"))
@@ -178,6 +184,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         with progress.task("trace (physical pairs)", total=1) as bar:
             names = [str(n) for n in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
             physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed, names)
+            if band_attrs:   # many frequencies: aggregate in smaller pair chunks; the band goes into the artifact
+                physical.agg_chunk, physical.extra_attrs = aggregate_chunk(len(freqs)), band_attrs
             bar.advance(1)
     trace_s = time.time() - t0
 

@@ -16,7 +16,8 @@ from rfir_cli.progress import NullProgress
 from .wideband import PairCache, WidebandModel, subset_links
 
 WB_KEYS = ("enabled", "base_iterations", "net_iterations", "freqs_per_step", "links_per_step", "knots", "net_lr", "net_base_lr",
-           "embed_dim", "hidden", "layers", "fourier", "pair_floor", "save_base")
+           "embed_dim", "hidden", "layers", "fourier", "pair_floor", "save_base", "auto_model", "fit_freqs")
+BAND_MODELS = ("physical", "free")
 
 
 @dataclass
@@ -37,8 +38,15 @@ class WidebandConfig:
     fourier: int = 4
     pair_floor: float = 1e-8
     save_base: bool = False
+    auto_model: str = "physical"   # what rf_fit.model = "auto" fits on a band (configs/rf_fit.toml)
+    fit_freqs: int = 64            # the physical model's fitting frequencies, evenly spaced over the band
 
     def __post_init__(self):
+        if self.auto_model not in BAND_MODELS:
+            raise ConfigError(f"rf_fit.wideband.auto_model = {self.auto_model!r}: expected one of "
+                              f"{', '.join(BAND_MODELS)}")
+        if not isinstance(self.fit_freqs, int) or isinstance(self.fit_freqs, bool) or self.fit_freqs < 2:
+            raise ConfigError(f"rf_fit.wideband.fit_freqs = {self.fit_freqs!r}: expected a whole number >= 2")
         if self.freqs_per_step < 1 or self.knots < 1 or self.layers < 1 or self.hidden < 1:
             raise ConfigError("rf_fit.wideband: freqs_per_step, knots, layers and hidden must be >= 1")
         if self.base_iterations < 0 or self.net_iterations < 0:

@@ -41,6 +41,45 @@ def is_wideband_request(task: str, config: dict) -> bool:
     return task == "wideband" or bool((config.get("wideband") or {}).get("enabled", False))
 
 
+def band_model(config: dict, progress) -> str:
+    """The model a wideband fit uses: rf_fit.model, or for "auto" rf_fit.wideband.auto_model (printed):
+    "physical" (rfir_stages.model on the band, docs/wideband.md) or "free" (this module's family)."""
+    from .stage import MODELS   # late: stage imports this module
+
+    kind = str(config.get("model", "auto"))
+    if kind not in MODELS:
+        raise ConfigError(f"rf_fit.model = {kind!r}: expected one of {', '.join(MODELS)}")
+    if kind == "auto":
+        kind = WidebandConfig.from_table(config.get("wideband")).auto_model
+        progress.log(f"rf-fit (wideband): rf_fit.model = auto -> {kind} (rf_fit.wideband.auto_model; docs/wideband.md)")
+    return kind
+
+
+def band_config(config: dict, meas, where: str, progress) -> tuple[dict, dict]:
+    """(the [rf_fit] table for the physical model on the band, the band's model attributes).
+
+    The materials are fitted on rf_fit.wideband.fit_freqs evenly spaced frequencies of the band
+    (rfir_stages.model.band.fit_columns; the band: every measured frequency, or rf_fit.freqs_hz);
+    prediction evaluates any frequency. The residual is defined per fitted frequency, so a band fit
+    has none (said when one was asked for)."""
+    from rfir_stages.model.band import fit_columns
+
+    wb = WidebandConfig.from_table(config.get("wideband"))
+    f_all = np.asarray(meas["freq_hz"], np.float64)
+    band = f_all[pick_freqs(f_all, config.get("freqs_hz"), where)]
+    fit = band[fit_columns(len(band), wb.fit_freqs)]
+    phys = dict(config.get("physical") or {})
+    if str(phys.get("residual", "auto")) != "off":
+        progress.log(f"rf-fit (wideband): rf_fit.physical.residual = {phys.get('residual', 'auto')!r} not used: the "
+                     "residual is defined per fitted frequency; the band is fitted by the physical model alone")
+    progress.log(f"rf-fit (wideband): physical model on {len(band)} frequencies ({band.min() / 1e9:.4f}-"
+                 f"{band.max() / 1e9:.4f} GHz); materials fitted on {len(fit)} of them, evenly spaced "
+                 "(rf_fit.wideband.fit_freqs); predict evaluates every frequency")
+    attrs = {"band.f_min_hz": float(band.min()), "band.f_max_hz": float(band.max()), "band.num_freqs": int(len(band)),
+             "band.fit_freqs": int(len(fit))}
+    return dict(config, model="physical", freqs_hz=[float(x) for x in fit], physical=dict(phys, residual="off")), attrs
+
+
 def run_wideband(scene, meas, geom, scene_path: Path, measurements_path: Path, out_path: Path, config: dict,
                  render_cfg, fit_cfg, *, rows: np.ndarray, seed: int, config_toml: str, progress=None,
                  t_start: float | None = None):

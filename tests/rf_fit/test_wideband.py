@@ -152,8 +152,8 @@ def test_rf_fit_and_predict_wideband_cli(tmp_path, monkeypatch):
     write_scene_artifact(tmp_path / "scene.h5", fields)
     freqs = _measurements(tmp_path / "meas.h5", fields)
     monkeypatch.chdir(tmp_path)
-    app = _app(["rf_fit.occlusion=brute-force", "rf_fit.grid_step_deg=10.0", "predict.occlusion=brute-force",
-                "rf_fit.wideband.base_iterations=20", "rf_fit.wideband.net_iterations=10",
+    app = _app(["rf_fit.model=free", "rf_fit.occlusion=brute-force", "rf_fit.grid_step_deg=10.0",
+                "predict.occlusion=brute-force", "rf_fit.wideband.base_iterations=20", "rf_fit.wideband.net_iterations=10",
                 "rf_fit.wideband.hidden=16", "rf_fit.wideband.save_base=true"])
     run = CliRunner().invoke
     r = run(app, ["rf-fit", "scene.h5", "meas.h5", "-o", "rf.h5"])
