@@ -5,11 +5,9 @@ import math
 
 import numpy as np
 import pytest
-import typer
 from typer.testing import CliRunner
 
 from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
-from rfir_cli.context import GlobalOptions
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model import predict as model_predict
@@ -18,6 +16,8 @@ from rfir_stages.model.band import fit_columns
 from rfir_stages.model.materials import C0
 from rfir_stages.po import channel_from_amplitude, po_scattered_field
 from rfir_stages.rf_fit.links import radar_links
+
+from .test_stage import _app
 
 BAND = np.linspace(5.72e9, 5.88e9, 24)
 FIT = {"model": "physical", "antenna": "isotropic", "checkpoint_every": 0, "occlusion": "brute-force",
@@ -120,20 +120,6 @@ def test_band_prediction_equals_the_single_frequency_prediction(band_fit, band_d
     exact = model_predict.predict_physical_db(rf, tx, rx, BAND, "rcs", occlusion="brute-force")[:, cols]
     assert np.abs(exact - single).max() < 1e-9
     assert np.ptp(single) > 20          # the band data has structure (the dihedral's flash vs its flanks)
-
-
-def _app(overrides):
-    from rfir_cli.commands import predict, rf_fit
-
-    app = typer.Typer()
-
-    @app.callback()
-    def _cb(ctx: typer.Context):
-        ctx.obj = GlobalOptions(overrides=list(overrides))
-
-    rf_fit.register(app)
-    predict.register(app)
-    return app
 
 
 @pytest.mark.parametrize("bad, words", [("rf_fit.wideband.fit_freqs=1", "rf_fit.wideband.fit_freqs"),
