@@ -74,12 +74,14 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
     return fit_cfg, pairs, table
 
 
-def sharing_candidates(table: dict, has_labels: bool) -> list[str]:
-    """Material sharings to try: "auto" -> per label (or per segment without labels) and one global."""
+def sharing_candidates(table: dict, num_labels: int) -> list[str]:
+    """Material sharings to try: "auto" -> per label (or per segment without labels) and one global;
+    with a single label, per label is the global material, so only that is fitted. num_labels: distinct
+    object labels of the Gaussians (0: unlabelled)."""
     sharing = str(table.get("sharing", "auto"))
     if sharing == "auto":
-        return ["label" if has_labels else "segment", "global"]
-    if sharing == "label" and not has_labels:
+        return ["global"] if num_labels == 1 else ["label" if num_labels else "segment", "global"]
+    if sharing == "label" and not num_labels:
         raise ConfigError("rf_fit.physical.sharing = 'label' needs gaussians/labels in the scene; "
                           "use 'segment' (materials from clustering the Gaussians) or 'global'")
     return [sharing]

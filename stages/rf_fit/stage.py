@@ -166,7 +166,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     labels = scene.get("gaussians/labels")
     labels = None if labels is None else torch.as_tensor(np.asarray(labels))
     phys_cfg, pair_settings, phys_table = physical_config(config, render_cfg)
-    phys_sharings = sharing_candidates(phys_table, labels is not None) if model_kind != "free" else []
+    num_labels = 0 if labels is None else int(torch.unique(labels).numel())
+    phys_sharings = sharing_candidates(phys_table, num_labels) if model_kind != "free" else []
     t0 = time.time()
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
         if render_cfg.visibility else None
