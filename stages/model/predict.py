@@ -41,6 +41,12 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
     if outside.size:
         progress.log(f"warning: {', '.join(f'{f / 1e9:g}' for f in outside)} GHz lies outside the range of the "
                      f"material laws ({VALID_GHZ[0]:g}-{VALID_GHZ[1]:g} GHz); predicted by extrapolating them")
+    fitted = np.asarray(rf["rf/freq_hz"], np.float64)
+    unfitted = [f for f in freqs if not np.any(np.abs(fitted - f) <= 1e-6 * f)]
+    if unfitted and fitted.size == 1 and len(model.names) > 1:
+        progress.log(f"predict: {len(model.names)} materials fitted at {fitted[0] / 1e9:g} GHz alone, predicted at "
+                     f"{', '.join(f'{f / 1e9:g}' for f in unfitted[:4])} GHz: materials per label fitted at one "
+                     "frequency carry over less well than one for the object (docs/rf-model.md, unseen frequency)")
     geom = geometry_from_artifact(rf)
     centre = scene_centre(geom)
     provider = make_provider(occlusion, geom) if model.settings.visibility else None

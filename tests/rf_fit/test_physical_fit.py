@@ -1,10 +1,13 @@
 """`rfir rf-fit` with the physical model, `rfir predict rcs` at a frequency never fitted, and `rfir check`."""
 import math
+import shutil
 
+import h5py
 import numpy as np
 import pytest
 
 from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_cli.progress import NullProgress
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity
@@ -64,6 +67,34 @@ def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, 
     assert out.freqs_hz == [5.8e9]
     assert out.metrics["mae_db"] < 3.0, out.metrics
     assert res.train_mae_db < 2.0
+    # one material: no word about carrying materials to another frequency; two fitted at one: a warning
+    assert not any("carry over" in m for m in _predict_log(tmp_path / "rf.h5"))
+    two = tmp_path / "rf_two.h5"
+    shutil.copy(tmp_path / "rf.h5", two)
+    with h5py.File(two, "r+") as h:
+        for key in ("eps_r", "sigma_1ghz_s_per_m", "scattering", "thickness_m", "gamma_normal_abs"):
+            val = h[f"material/{key}"][...]
+            del h[f"material/{key}"]
+            h[f"material/{key}"] = np.concatenate([val, val])
+        h["model"].attrs["material_names"] = np.array(["a", "b"], dtype=object)
+    assert any("carry over" in m for m in _predict_log(two))
+
+
+def _predict_log(path) -> list[str]:
+    """predict_physical_db's log lines for two links at 5.8 GHz."""
+    from rfir_stages.model.predict import predict_physical_db
+
+    class Recorder(NullProgress):
+        lines: list = []
+
+        def log(self, message: str) -> None:
+            self.lines.append(message)
+
+    rec = Recorder()
+    rec.lines = []
+    tx = np.array([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    predict_physical_db(read_artifact(path, "rf"), tx, tx, [5.8e9], "rcs", progress=rec)
+    return rec.lines
 
 
 def test_model_auto_offers_both_families_and_records_the_choice(metal_box, tmp_path):
