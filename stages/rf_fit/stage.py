@@ -123,6 +123,9 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                         config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, str(measurements_path))
+    model_kind = str(config.get("model", "auto"))
+    if model_kind not in MODELS:
+        raise ConfigError(f"rf_fit.model = {model_kind!r}: expected one of {', '.join(MODELS)}")
     mode = str(config.get("scattering", "auto"))
     if mode not in SCATTERING:
         raise ConfigError(f"rf_fit.scattering = {mode!r}: expected one of {', '.join(SCATTERING)}")
@@ -160,14 +163,14 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                     f"{len(freqs)} from {freqs.min() / 1e9:g} to {freqs.max() / 1e9:g} GHz")
                  + ("" if rng is None else f"; ranges {', '.join(f'{r:g}' for r in np.unique(np.round(rng[rows], 6)))} m"))
 
-    model_kind = str(config.get("model", "auto"))
-    if model_kind not in MODELS:
-        raise ConfigError(f"rf_fit.model = {model_kind!r}: expected one of {', '.join(MODELS)}")
+    model_kind = str(config.get("model", "auto"))   # "physical" after band_config
     labels = scene.get("gaussians/labels")
     labels = None if labels is None else torch.as_tensor(np.asarray(labels))
     phys_cfg, pair_settings, phys_table = physical_config(config, render_cfg)
     num_labels = 0 if labels is None else int(torch.unique(labels).numel())
     phys_sharings = sharing_candidates(phys_table, num_labels) if model_kind != "free" else []
+    if phys_sharings == ["global"] and str(phys_table.get("sharing", "auto")) == "auto":
+        progress.log("rf-fit: one object label: its material is the scene's (rf_fit.physical.sharing = auto -> global)")
     t0 = time.time()
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
         if render_cfg.visibility else None
