@@ -53,14 +53,12 @@ def set_args(pairs: dict | None) -> list[str]:
 
 
 def rfir_rcs(r: Plan, label: str, scene: Path, meas: Path, protocol: str, freq_hz: float,
-             iterations: int | None, sets: dict | None = None) -> Result:
-    """rf-fit on the protocol's training rows at one frequency, predict rcs on its test rows.
-    iterations None: the model's own step count from the config (the physical model's is
-    rf_fit.physical.iterations; `--iterations` sets the free model's rf_fit.iterations)."""
+             sets: dict | None = None) -> Result:
+    """rf-fit (the physical model, its step counts from the config or `sets`) on the protocol's training
+    rows at one frequency, predict rcs on its test rows."""
     rf = r.data / "fits" / f"{label}.h5"
-    steps = [] if iterations is None else ["--iterations", str(iterations)]
     t_fit = r.step(f"{label}__rfir_fit", [r.rfir, "--seed", "0", *set_args(sets), "rf-fit", str(scene), str(meas),
-                                         "-o", str(rf), "--split", protocol, "--freq-hz", f"{freq_hz:g}", *steps], rf)
+                                         "-o", str(rf), "--split", protocol, "--freq-hz", f"{freq_hz:g}"], rf)
     return rfir_predict_rcs(r, label, rf, meas, t_fit)
 
 
@@ -75,20 +73,18 @@ def rfir_predict_rcs(r: Plan, label: str, rf: Path, meas: Path, t_fit: str, freq
     return Result(r, j, t_fit, t_pred)
 
 
-def rfir_rssi(r: Plan, label: str, scene: Path, meas: Path, split: str, iterations: int | None,
-              sets: dict | None = None) -> Result:
-    """`rfir --recipe rssi` fit (split "random": the file's column; "holdout_tx": 4 unseen Tx) and score."""
+def rfir_rssi(r: Plan, label: str, scene: Path, meas: Path, split: str, sets: dict | None = None) -> Result:
+    """rf-fit of the room model (split "random": the file's column; "holdout_tx": 4 unseen Tx) and
+    predict rssi on the test rows (its JSON also scores the simple baselines on the same split)."""
     fits = r.data / "fits"
     rf = fits / f"{label}.h5"
     sets = dict(sets or {})
     if split == "holdout_tx":
         sets["rf_fit.rssi.split"] = "holdout_tx"
-    if iterations is not None:
-        sets["rf_fit.iterations"] = iterations
-    t_fit = r.step(f"{label}__rfir_fit", [r.rfir, "--seed", "0", "--recipe", "rssi", *set_args(sets), "rf-fit",
+    t_fit = r.step(f"{label}__rfir_fit", [r.rfir, "--seed", "0", *set_args(sets), "rf-fit",
                                          str(scene), str(meas), "-o", str(rf)], rf)
     j = r.json_path(f"{label}__rfir")
-    t_pred = r.step(f"{label}__rfir_predict", [r.rfir, "--seed", "0", "--recipe", "rssi", "predict", "rssi", str(rf),
+    t_pred = r.step(f"{label}__rfir_predict", [r.rfir, "--seed", "0", "predict", "rssi", str(rf),
                                                "--measurements", str(meas), "-o", str(fits / f"{label}_pred.h5"),
                                                "--plots", str(r.out / "plots" / label), "--results", str(j)], j)
     return Result(r, j, t_fit, t_pred)

@@ -4,7 +4,8 @@ Sizes (full / quick; fit steps, surfel spacing and baseline budgets in configs/r
 - data: Sionna RT as `rfir simulate` makes it / physical optics (lego, h-target) or a small
   Sionna classroom; geometry for rfir and the WRF-GS-style field: surfels on the true mesh
   (`rfir mesh-gaussians`; docs/geom.md shows photo geometry scores the same on the lego).
-- rfir: 200 fit steps (rcs), the rssi recipe (400) / 30 steps.
+- rfir: the physical model (RCS, wideband) and the room model (RSSI) with their configured step counts /
+  30 steps (quick).
 - NeRF2- and WRF-GS-style fields: a wall-clock budget of a few minutes each / one epoch.
 """
 from __future__ import annotations
@@ -54,8 +55,15 @@ def _rcs_sets(quick: bool, freqs: list[float], ranges: list[float]) -> dict:
 def _sizes(r: Plan) -> dict:
     """The variant's sizes of configs/reproduce.toml (baseline_epochs 0: no cap)."""
     s = r.sizes
-    return {"iters": s["iterations"], "spacing": s["surfel_spacing_m"], "minutes": s["baseline_minutes"],
+    return {"spacing": s["surfel_spacing_m"], "minutes": s["baseline_minutes"],
             "rssi_minutes": s["rssi_minutes"], "epochs": s["baseline_epochs"] or None}
+
+
+def _fit_sets(r: Plan, extra: dict | None = None) -> dict:
+    """rf-fit settings of every rfir fit of the variant: the physical model's Adam steps (configs/reproduce.toml
+    `iterations`; its starts get a fifth of them, at least 10) plus `extra`."""
+    n = int(r.sizes["iterations"])
+    return {"rf_fit.physical.iterations": n, "rf_fit.physical.start_iterations": max(10, n // 5), **(extra or {})}
 
 
 def _object_data(r: Plan, obj: str, freqs: list[float], ranges: list[float], tag: str = "") -> tuple[Path, Path]:
@@ -68,7 +76,7 @@ def _object_data(r: Plan, obj: str, freqs: list[float], ranges: list[float], tag
 def _rcs_row(r: Plan, table: Table, label: str, obj: str, meas: Path, scene: Path, protocol: str,
              freq_hz: float, freq_index: int) -> None:
     s = _sizes(r)
-    ours = M.rfir_rcs(r, label, scene, meas, protocol, freq_hz, s["iters"])
+    ours = M.rfir_rcs(r, label, scene, meas, protocol, freq_hz, _fit_sets(r))
     near = ours.metric("baseline_nearest_mae_db", "baseline_nearest_range_mae_db")
     lin = ours.metric("baseline_linear_mae_db", "baseline_linear_range_mae_db")
     table.add(f"{obj} {freq_hz / 1e9:g} GHz, {protocol}", {
@@ -105,7 +113,6 @@ def target_rcs(r: Plan) -> Table:
 
 PO_PROTOCOLS = (("data", "even/odd aspects"), ("every-10", "every 10th aspect trains"),
                 ("every-30", "every 30th aspect trains"), ("sector:45:135", "sector 45-135 deg held out"))
-PHYSICAL = {"rf_fit.model": "physical"}
 
 
 def _po_data(r: Plan, obj: str) -> tuple[Path, Path]:
@@ -136,14 +143,12 @@ def target_rcs_po(r: Plan) -> Table:
     t = Table("RCS on physical-optics data: monostatic, 2.4 GHz unless stated, train/test protocols of rf_fit.splits",
               RCS_METHODS)
     s = _sizes(r)
-    physical = dict(PHYSICAL)
-    if r.quick:
-        physical.update({"rf_fit.physical.iterations": 30, "rf_fit.physical.start_iterations": 10})
+    physical = _fit_sets(r)
     for obj in ["lego"] if r.quick else ["lego", "trio"]:
         meas, scene = _po_data(r, obj)
         for protocol, text in PO_PROTOCOLS[3:] if r.quick else PO_PROTOCOLS:
             label = f"rcs_po_{obj}_2.4_{protocol.replace(':', '_')}"
-            ours = M.rfir_rcs(r, label, scene, meas, protocol, 2.4e9, None, physical)
+            ours = M.rfir_rcs(r, label, scene, meas, protocol, 2.4e9, physical)
             full = Cell(note="full run only")
             t.add(f"{obj} 2.4 GHz, {text}", {
                 "rfir": ours.cell(),
@@ -171,7 +176,7 @@ def target_rcs_po(r: Plan) -> Table:
         + "; unlike Sionna RT's geometric optics + diffuse, its lobes narrow with frequency, so these are the "
         "physics rows (the rcs table is on Sionna data)",
         "trio: a metal dihedral (3 mm sheets), a wooden block and a 6 mm glass pane; lego: plasterboard bricks",
-        "rfir: the physical model (`--set rf_fit.model=physical`: per-object materials with eps_r, sigma, "
+        "rfir: the physical model (per-object materials with eps_r, sigma, "
         "thickness and S on surfel physical optics, the residual chosen by validation; docs/rf-model.md) on "
         f"surfels of the true mesh ({s['spacing'] * 100:g} cm), fitted at 2.4 GHz on the protocol's training rows"
         + (f" ({physical['rf_fit.physical.iterations']} steps, quick)" if r.quick else ""),
@@ -195,7 +200,7 @@ def target_extrapolation(r: Plan) -> Table:
     meas, scene = _object_data(r, "lego", [2.4e9], ranges, tag="_ranges")
     s = _sizes(r)
     label = "extrap_lego_2.4_range3"
-    ours = M.rfir_rcs(r, label, scene, meas, "range:3", 2.4e9, s["iters"])
+    ours = M.rfir_rcs(r, label, scene, meas, "range:3", 2.4e9, _fit_sets(r))
     t.add("lego 2.4 GHz, test 3 m", {
         "rfir": ours.cell(),
         "NeRF2-style": M.nerf2(r, label, meas, "rcs", "range:3", s["minutes"], 0, s["epochs"]),
@@ -277,22 +282,15 @@ def _geom_mesh(r: Plan) -> Path:
     return mesh
 
 
-def _rssi_physical(r: Plan, label: str, scene: Path, meas: Path, split: str) -> M.Result:
-    """rfir's RSSI model (the physical room model, the default) on the classroom; one step shared by the targets."""
-    physical = {"rf_fit.rssi.model": "physical"}
-    if r.quick:
-        physical.update({"rf_fit.physical.iterations": 30, "rf_fit.physical.start_iterations": 10})
-    return M.rfir_rssi(r, label + "_physical", scene, meas, split, None, physical)
-
-
-def _rssi_los_nlos(r: Plan, label: str, scene: Path, meas: Path, split: str) -> M.Result:
-    """The paper's LoS/NLoS model (free materials per Gaussian) on the classroom."""
-    return M.rfir_rssi(r, label, scene, meas, split, 30 if r.quick else None, {"rf_fit.rssi.model": "free"})
+def _rssi_physical(r: Plan, label: str, scene: Path, meas: Path, split: str, extra: dict | None = None,
+                   tag: str = "_physical") -> M.Result:
+    """rfir's RSSI model (the physical room model) on the classroom; one step shared by the targets."""
+    return M.rfir_rssi(r, label + tag, scene, meas, split, _fit_sets(r, extra))
 
 
 def target_rssi(r: Plan) -> Table:
     """Classroom RSSI (Sionna RT, 2.4 GHz): random 80/20 links and 4 unseen transmitters."""
-    t = Table("RSSI: classroom 2.4 GHz", ["rfir", "rfir (LoS/NLoS)", "NeRF2-style", "WRF-GS-style", "ray tracing (geom mesh)",
+    t = Table("RSSI: classroom 2.4 GHz", ["rfir", "NeRF2-style", "WRF-GS-style", "ray tracing (geom mesh)",
                                           "ray tracing (geom mesh, calibrated)", "ray tracing (true mesh)",
                                           "ray tracing (true mesh, calibrated)", "log-distance", "multi-wall",
                                           "nearest links"])
@@ -304,9 +302,8 @@ def target_rssi(r: Plan) -> Table:
     calibrated = (r.sizes["calibrated_iterations"], r.sizes["calibrated_links"])
     for split in splits:
         label = f"rssi_classroom_{split}"
-        ours = _rssi_los_nlos(r, label, scene, meas, split)
-        room = _rssi_physical(r, label, scene, meas, split)
-        row = {"rfir": room.cell(), "rfir (LoS/NLoS)": ours.cell(),
+        ours = _rssi_physical(r, label, scene, meas, split)
+        row = {"rfir": ours.cell(),
                "NeRF2-style": M.nerf2(r, label, meas, "rssi", split, minutes, 0, s["epochs"]),
                "WRF-GS-style": M.wrfgs(r, label, meas, scene, "rssi", split, minutes, 0, s["epochs"]),
                "log-distance": ours.metric("baseline_log_distance_mae_db"),
@@ -326,7 +323,8 @@ def target_rssi(r: Plan) -> Table:
             row["ray tracing (geom mesh, calibrated)"] = Cell(note="random split only")
         t.add(f"classroom, {'random 80/20' if split == 'random' else '4 unseen Tx'}", row)
     t.notes += ["rfir: the physical room model (paths through and off the surfaces, fitted physical materials per "
-                "object class; docs/rssi.md); rfir (LoS/NLoS): the paper's model with free materials per Gaussian",
+                "object class; docs/rssi.md)",
+                "log-distance, multi-wall, nearest links: fitted on the same training rows (rfir's predict JSON)",
                 "ray tracing: Sionna RT, every face concrete (a user's guess; the true materials are mixed); calibrated: "
                 "eps_r and sigma per object class fitted by gradient descent through Sionna's differentiable solver on "
                 "a subsample of the training links, slab thickness kept at the guess; on the geom mesh (no labels) one "
@@ -336,27 +334,46 @@ def target_rssi(r: Plan) -> Table:
     return t
 
 
+ABLATION = ["rfir", "physics only (no residual)", "single bounce", "one material", "without diffuse"]
+
+
 def target_ablation(r: Plan) -> Table:
-    """rfir without its path-loss / phase terms (RCS) and without the distance weighting (RSSI)."""
-    t = Table("Ablation: rfir's terms", ["rfir", "without path-loss term", "without phase term",
-                                         "without LoS weighting"])
-    s = _sizes(r)
-    meas, scene = _object_data(r, "lego", [2.4e9] if r.quick else [2.4e9, 5.8e9], [3.0])
-    full = M.rfir_rcs(r, "rcs_lego_2.4_data", scene, meas, "data", 2.4e9, s["iters"]).cell()
-    no_pl = M.rfir_rcs(r, "ablation_lego_no_path_loss", scene, meas, "data", 2.4e9, s["iters"],
-                       {"rf_fit.path_loss": "false"}).cell()
-    no_ph = M.rfir_rcs(r, "ablation_lego_no_phase", scene, meas, "data", 2.4e9, s["iters"],
-                       {"rf_fit.phase": "false"}).cell()
-    t.add("lego 2.4 GHz RCS, even/odd", {"rfir": full, "without path-loss term": no_pl, "without phase term": no_ph,
-                                         "without LoS weighting": Cell(note="RSSI only")})
+    """The physical model without each of its terms: the residual, the double bounces, a material per
+    object, the diffuse term (RCS on physical-optics data; RSSI on the classroom)."""
+    t = Table("Ablation: the physical model's terms", ABLATION)
+    obj, protocol = ("lego", "sector:45:135") if r.quick else ("trio", "every-10")
+    meas, scene = _po_data(r, obj)
+    tag = protocol.replace(":", "_")
+
+    def fit(name: str, extra: dict) -> Cell:
+        return M.rfir_rcs(r, f"ablation_{obj}_{tag}_{name}", scene, meas, protocol, 2.4e9, _fit_sets(r, extra)).cell()
+    one = (Cell(note="one object label: one material already") if obj == "lego"
+           else fit("one_material", {"rf_fit.physical.sharing": "global"}))
+    t.add(f"{obj} 2.4 GHz RCS (physical optics), {protocol}", {
+        "rfir": M.rfir_rcs(r, f"rcs_po_{obj}_2.4_{tag}", scene, meas, protocol, 2.4e9, _fit_sets(r)).cell(),
+        "physics only (no residual)": fit("no_residual", {"rf_fit.physical.residual": "off"}),
+        "single bounce": fit("single_bounce", {"rf_fit.physical.second_order": "false"}),
+        "one material": one,
+        "without diffuse": Cell(note="RSSI only (the RCS model fits S per material)")})
     if not r.quick:
         cmeas, cscene = _classroom(r)
-        full = _rssi_los_nlos(r, "rssi_classroom_random", cscene, cmeas, "random").cell()
-        now = M.rfir_rssi(r, "ablation_classroom_no_weighting", cscene, cmeas, "random", None,
-                          {"rf_fit.rssi.model": "free", "rf_fit.rssi.weighting": "false"}).cell()
-        t.add("classroom RSSI, random (LoS/NLoS model)", {"rfir": full, "without LoS weighting": now,
-                                         "without path-loss term": Cell(note="RCS only"),
-                                         "without phase term": Cell(note="RCS only")})
+        label = "rssi_classroom_random"
+        t.add("classroom RSSI, random 80/20", {
+            "rfir": _rssi_physical(r, label, cscene, cmeas, "random").cell(),
+            "physics only (no residual)": Cell(note="the room model has no residual"),
+            "single bounce": _rssi_physical(r, label, cscene, cmeas, "random", {"rf_fit.room.max_order": 1},
+                                            "_single_bounce").cell(),
+            "one material": _rssi_physical(r, label, cscene, cmeas, "random", {"rf_fit.room.sharing": "global"},
+                                           "_one_material").cell(),
+            "without diffuse": _rssi_physical(r, label, cscene, cmeas, "random", {"rf_fit.room.diffuse": "false"},
+                                              "_no_diffuse").cell()})
+    t.notes += ["rfir: the physical model with every term (docs/rf-model.md, docs/rssi.md); each other column "
+                "turns one term off and refits on the same rows",
+                "RCS data: physical optics (rcs-po target; quick: the rcs target's lego, 3 m, 6-degree aspects); "
+                "every-10: aspects with index divisible by 10 train; sector: aspects in [45, 135) degrees test",
+                "single bounce: RCS rf_fit.physical.second_order = false (no dihedral flash); RSSI "
+                "rf_fit.room.max_order = 1",
+                "one material: rf_fit.physical.sharing / rf_fit.room.sharing = global"]
     return t
 
 
@@ -388,8 +405,8 @@ def target_edit(r: Plan) -> Table:
     # One material for the whole object: the lego is one plastic, and per-brick materials fit brick-specific
     # brightness that does not move with a brick (docs/edit.md: per brick 1.25 -> 2.20 dB, x1.77).
     rf = r.data / "fits" / "edit_lego_global.h5"
-    r.step("edit_lego__rfir_fit", [r.rfir, "--seed", "0", "--set", "rf_fit.sharing=global", "rf-fit", str(scene),
-                                   str(before), "-o", str(rf), "--iterations", str(s["iters"])], rf)
+    sets = M.set_args(_fit_sets(r, {"rf_fit.physical.sharing": "global"}))
+    r.step("edit_lego__rfir_fit", [r.rfir, "--seed", "0", *sets, "rf-fit", str(scene), str(before), "-o", str(rf)], rf)
     _edit_row(r, t, "lego_rotate_top", rf, before, after, ["--select", "label:brick_1[6-9]", "--op",
                                                            "rotate:0,0,1,45,0,0,0"])
     if not r.quick:

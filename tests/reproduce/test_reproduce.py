@@ -92,7 +92,8 @@ def test_every_target_declares_steps_with_known_code_and_unique_rules(quick):
     fit = plan.steps["rcs_lego_2.4_data__rfir_fit"]
     assert fit.inputs == ["data/reproduce%s/lego/scene.h5" % ("-quick" if quick else ""),
                           "data/reproduce%s/lego/measurements.h5" % ("-quick" if quick else "")]
-    assert fit.argv[-1] == ("30" if quick else "200")                 # configs/reproduce.toml
+    assert f"rf_fit.physical.iterations={30 if quick else 200}" in fit.command   # configs/reproduce.toml
+    assert "--iterations" not in fit.command and "rf_fit.model" not in fit.command   # one model
 
 
 def test_sizes_come_from_the_config_and_overrides_are_checked():
@@ -116,7 +117,8 @@ def test_benchmark_files_are_read_and_missing_ones_are_none(tmp_path):
 def test_table_cli_fills_a_target_from_results_and_benchmarks(tmp_path):
     """The ablation table from hand-written results: MAEs from the JSON, times from benchmark files."""
     plan, tables = declare(["ablation"], True, tmp_path / "d", tmp_path / "o")
-    for i, label in enumerate(["rcs_lego_2.4_data", "ablation_lego_no_path_loss", "ablation_lego_no_phase"]):
+    for i, label in enumerate(["rcs_po_lego_2.4_sector_45_135", "ablation_lego_sector_45_135_no_residual",
+                               "ablation_lego_sector_45_135_single_bounce"]):
         j = plan.json_path(f"{label}__rfir")
         j.parent.mkdir(parents=True, exist_ok=True)
         j.write_text(json.dumps({"metrics": {"mae_db": 1.0 + i}}))
@@ -126,17 +128,18 @@ def test_table_cli_fills_a_target_from_results_and_benchmarks(tmp_path):
             b.write_text(f"s\th:m:s\n{30 * (i + 1)}\t0:00:30\n")
     paths = write_target("ablation", True, tmp_path / "d", tmp_path / "o")
     md = paths[0].read_text()
-    assert "| lego 2.4 GHz RCS, even/odd | **1.00** | 2.00 | 3.00 | RSSI only |" in md
-    assert "| lego 2.4 GHz RCS, even/odd | 1.0 | 2.0 | 3.0 |  |" in md      # fit + predict, minutes
+    row = "| lego 2.4 GHz RCS (physical optics), sector:45:135 |"
+    assert row + " **1.00** | 2.00 | 3.00 | one object label: one material already |" in md
+    assert row + " 1.0 | 2.0 | 3.0 |  |" in md      # fit + predict, minutes
     summary = json.loads((tmp_path / "o" / "ablation.json").read_text())
-    assert summary["step_s"]["ablation_lego_no_phase__rfir_fit"] == 90.0
+    assert summary["step_s"]["ablation_lego_sector_45_135_single_bounce__rfir_fit"] == 90.0
     assert summary["step_s"]["data__lego"] is None and summary["step_s_total"] == 360.0
 
 
 def test_table_cli_names_a_missing_result(tmp_path, capsys):
     assert main(["table", "ablation", "--quick", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")]) == 5
     err = capsys.readouterr().err
-    assert "rcs_lego_2.4_data__rfir.json" in err and "cannot read the step result" in err
+    assert "rcs_po_lego_2.4_sector_45_135__rfir.json" in err and "cannot read the step result" in err
     assert not (tmp_path / "o" / "ablation.md").exists()
 
 
@@ -154,12 +157,12 @@ def test_the_po_target_declares_the_physics_rows():
     fits = [plan.steps[lbl] for lbl in labels if lbl.endswith("__rfir_fit")]
     assert len(fits) == 8
     for fit in fits:
-        assert "--set rf_fit.model=physical" in fit.command and "--freq-hz 2.4e+09" in fit.command
-        assert "--iterations" not in fit.command       # the physical model's own steps (rf_fit.physical)
+        assert "--set rf_fit.physical.iterations=200" in fit.command and "--freq-hz 2.4e+09" in fit.command
+        assert "--iterations" not in fit.command       # the physical model's steps (rf_fit.physical)
     unseen = plan.steps["rcs_po_trio_2.4to5.8_data__rfir_predict"]
     assert unseen.inputs == ["data/reproduce/fits/rcs_po_trio_2.4_data.h5", "data/reproduce/trio_po/measurements.h5"]
     assert "--freqs 5.8e+09" in unseen.command
-    assert any("physical optics" in n for n in table.notes) and any("rf_fit.model=physical" in n for n in table.notes)
+    assert any("physical optics" in n for n in table.notes) and any("the physical model" in n for n in table.notes)
     quick, qtables = declare(["rcs", "rcs-po"], True)
     qlabels = qtables["rcs-po"][1]
     assert [label for label, _ in qtables["rcs-po"][0].rows] == ["lego 2.4 GHz, sector 45-135 deg held out"]
