@@ -35,7 +35,7 @@ from rfir_stages.rf_fit.splits import protocol_masks
 from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, baselines_beating_model, range_baselines
 from .plots import attribute_views, rcs_vs_aspect
-from .wideband import default_freqs, is_band_fit, is_wideband_model, predict_wideband_db, spectrum_plots
+from .wideband import default_freqs, is_band_fit, spectrum_plots
 
 
 @dataclass
@@ -92,9 +92,6 @@ def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto
 
     render_overrides: RenderSettings fields to change (e.g. {"grid_step_deg": 0.5}).
     cull_rel: drop each link's weakest Gaussians carrying this share of its sum |c_l| (see build_cache)."""
-    if is_wideband_model(rf):  # docs/physics.md section 7: any frequency inside the fitted band (predict/wideband.py)
-        return predict_wideband_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
-                                   progress=progress, render_overrides=render_overrides)
     if is_physical_model(rf):  # docs/physics.md section 8: any frequency (rfir_stages.model.predict)
         from rfir_stages.model.predict import predict_physical_db
         return predict_physical_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
@@ -225,7 +222,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     result = PredictResult(out_path, len(tx), freqs.tolist(), time.time() - t_start, render_s, metrics)
     if plots_dir is not None:
         result.plots = _plots(Path(plots_dir), rf, asp, rng, freqs, rcs, meas_rcs, split)
-        if is_wideband_model(rf) or is_band_fit(rf):
+        if is_band_fit(rf):
             result.plots += spectrum_plots(Path(plots_dir), asp, rng, freqs, rcs, meas_rcs, split)
     if results_path is not None:
         result.results_json = _results(Path(results_path), name or out_path.stem, rf, rf_path, measurements_path,

@@ -217,48 +217,35 @@ def _wideband_freqs(meas: Path, every: int) -> str:
 
 
 def target_wideband(r: Plan) -> Table:
-    """h-target, 160 MHz around 5.8 GHz (physical optics): rfir's physical model on the band (its
-    default, docs/wideband.md) beside the free per-Gaussian family (base + frequency network)."""
-    t = Table("Wideband: h-target 5.72-5.88 GHz, even/odd aspects", ["rfir", "rfir free (base + network)",
-              "rfir free (base only)", "NeRF2-style", "WRF-GS-style", "nearest aspect", "linear interpolation"])
+    """h-target, 160 MHz around 5.8 GHz (physical optics): rfir's physical model on the band
+    (docs/wideband.md) beside the simple baselines."""
+    t = Table("Wideband: h-target 5.72-5.88 GHz, even/odd aspects", ["rfir", "NeRF2-style", "WRF-GS-style",
+              "nearest aspect", "linear interpolation"])
     sets = {"simulate.rcs_backend": "po"}
     if r.quick:
         sets.update({"simulate.wideband.aspect_step_deg": 10.0, "simulate.wideband.num_freqs": 64})
     meas = _simulate(r, "htarget", "h-target", sets, ["--no-photos", "--task", "wideband"])
     scene = _surfels(r, "htarget", "h-target", 0.06 if r.quick else 0.03)
-    it = (40, 30) if r.quick else (500, 300)
     fits = r.data / "fits"
-    rf = fits / "wideband_htarget.h5"
-    free_sets = {"rf_fit.model": "free", "rf_fit.wideband.base_iterations": it[0],
-                 "rf_fit.wideband.net_iterations": it[1], "rf_fit.wideband.links_per_step": 60,
-                 "rf_fit.wideband.freqs_per_step": 6, "rf_fit.wideband.pair_floor": 0.001,
-                 "rf_fit.wideband.save_base": "true"}
-    t_fit = r.step("wideband_htarget__rfir_fit", [r.rfir, "--seed", "0", *M.set_args(free_sets), "rf-fit", str(scene),
-                                                  str(meas), "-o", str(rf)], rf, [rf.with_name(rf.stem + "_base.h5")])
-    # the physical model: one material for the one-object scene (its labels and one global material are the same fit)
-    phys = fits / "wideband_htarget_physical.h5"
-    phys_sets = {"rf_fit.model": "physical", "rf_fit.physical.sharing": "global"}
+    # one material for the one-object scene (its labels and one global material are the same fit)
+    phys = fits / "wideband_htarget.h5"
+    phys_sets = {"rf_fit.physical.sharing": "global"}
     if r.quick:
         phys_sets.update({"rf_fit.physical.iterations": 60, "rf_fit.physical.start_iterations": 15})
-    t_phys = r.step("wideband_htarget__rfir_fit_physical", [r.rfir, "--seed", "0", *M.set_args(phys_sets), "rf-fit",
-                                                           str(scene), str(meas), "-o", str(phys)], phys)
+    t_phys = r.step("wideband_htarget__rfir_fit", [r.rfir, "--seed", "0", *M.set_args(phys_sets), "rf-fit",
+                                                  str(scene), str(meas), "-o", str(phys)], phys)
     freqs = _wideband_freqs(meas, 1 if r.quick else 8)
-    cells = {}
-    for key, path, tag, t_of in (("rfir", phys, "physical", t_phys), ("rfir free (base + network)", rf, "net", t_fit),
-                                 ("rfir free (base only)", rf.with_name(rf.stem + "_base.h5"), "base", None)):
-        j = r.json_path(f"wideband_htarget__rfir_{tag}")
-        t_pred = r.step(f"wideband_htarget__rfir_predict_{tag}", [
-            r.rfir, "--seed", "0", "predict", "rcs", str(path), "--measurements", str(meas), "--freqs", freqs,
-            "-o", str(fits / f"wideband_{tag}_pred.h5"), "--plots", str(r.out / "plots" / f"wideband_{tag}"),
-            "--results", str(j)], j)
-        res = M.Result(r, j, t_pred, *([t_of] if t_of is not None else []))
-        cells[key] = res.cell()
-    cells.update({"NeRF2-style": Cell(note=SINGLE_FREQ), "WRF-GS-style": Cell(note=SINGLE_FREQ),
-                  "nearest aspect": res.metric("baseline_nearest_mae_db"),
-                  "linear interpolation": res.metric("baseline_linear_mae_db")})
-    t.add("h-target wideband" + (" (every 8th frequency scored)" if not r.quick else ""), cells)
-    t.notes.append("rfir: the physical model on the band (materials, frequency an input; docs/wideband.md); "
-                   "the free family's base fit's time is inside its base + network fit's (one rf-fit writes both)")
+    j = r.json_path("wideband_htarget__rfir")
+    t_pred = r.step("wideband_htarget__rfir_predict", [
+        r.rfir, "--seed", "0", "predict", "rcs", str(phys), "--measurements", str(meas), "--freqs", freqs,
+        "-o", str(fits / "wideband_pred.h5"), "--plots", str(r.out / "plots" / "wideband"),
+        "--results", str(j)], j)
+    res = M.Result(r, j, t_pred, t_phys)
+    t.add("h-target wideband" + (" (every 8th frequency scored)" if not r.quick else ""),
+          {"rfir": res.cell(), "NeRF2-style": Cell(note=SINGLE_FREQ), "WRF-GS-style": Cell(note=SINGLE_FREQ),
+           "nearest aspect": res.metric("baseline_nearest_mae_db"),
+           "linear interpolation": res.metric("baseline_linear_mae_db")})
+    t.notes.append("rfir: the physical model on the band (materials, frequency an input; docs/wideband.md)")
     return t
 
 

@@ -36,7 +36,7 @@ from .render import LinkSet, RenderSettings, build_cache
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows, validation_folds
 from .splits import MIN_VALIDATION_LINKS
-from .wideband_stage import band_config, band_model, is_wideband_request, run_wideband
+from .wideband_stage import band_config, is_wideband_request
 
 MODELS = ("auto", "free", "physical")
 SCATTERING = ("auto", "coherent", "incoherent")
@@ -138,11 +138,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         rows, _ = select_rows(meas, select, str(measurements_path), rows)
         progress.log(f"rf-fit: {select.describe()} keeps {len(rows)} training rows")
     band_attrs = {}
-    if is_wideband_request(task, config):  # docs/wideband.md: the physical model on the band, or the free family
-        if band_model(config, progress) == "free":   # docs/physics.md section 7: stages/rf_fit/wideband_stage.py
-            return run_wideband(scene, meas, geom, scene_path, measurements_path, out_path, config, render_cfg,
-                                fit_cfg, rows=rows, seed=seed, config_toml=config_toml, progress=progress,
-                                t_start=t_start)
+    if is_wideband_request(task, config):  # docs/wideband.md: the physical model on the band
         config, band_attrs = band_config(config, meas, str(measurements_path), progress)
     cols = pick_freqs(meas["freq_hz"], config.get("freqs_hz"), str(measurements_path))
     tx, rx = meas["tx_pos"][rows], meas["rx_pos"][rows]

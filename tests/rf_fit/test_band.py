@@ -123,7 +123,7 @@ def test_band_prediction_equals_the_single_frequency_prediction(band_fit, band_d
 
 
 @pytest.mark.parametrize("bad, words", [("rf_fit.wideband.fit_freqs=1", "rf_fit.wideband.fit_freqs"),
-                                        ("rf_fit.wideband.auto_model=nerf", "rf_fit.wideband.auto_model")])
+                                        ("rf_fit.wideband.auto_model=nerf", "unknown config key 'rf_fit.wideband.auto_model'")])
 def test_bad_band_settings_give_one_line(band_data, tmp_path, monkeypatch, bad, words):
     monkeypatch.chdir(tmp_path)
     r = CliRunner().invoke(_app([bad]), ["rf-fit", str(band_data / "scene.h5"), str(band_data / "meas.h5"),
