@@ -5,9 +5,9 @@
     .venv/bin/python bench/bench_rssi.py --rf rf.h5 --results results/classroom_rssi_speed.json   # a fitted model
 
 Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes); a short
-fit on free-space data for two transmitters gives an `rf` artifact, then the map of a third
-transmitter (not fitted) is timed: trace V from the new Tx, interpolate the receivers' transmittances
-from the probe field, render 440 links. Budget in the issue: 2 s on the 2-core CPU.
+fit of the room model on free-space data for two transmitters gives an `rf` artifact, then the map
+of a third transmitter (not fitted) is timed: trace the paths of 440 links and evaluate them.
+Budget in the issue: 2 s on the 2-core CPU.
 Prints the timings and writes bench/rssi.json.
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy as np
 from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.physics.closed_forms import friis_path_gain
 from rfir_stages.geom import scene_from_mesh, write_scene_artifact
-from rfir_stages.predict.rssi_model_io import RssiPredictor
+from rfir_stages.predict.rssi_model_io import load_predictor
 from rfir_stages.rf_fit.stage import run as rf_fit
 from rfir_stages.simulate.rssi import grid_positions
 
@@ -46,7 +46,7 @@ def main() -> None:
                "new_tx_m": [4.1, 3.3, 1.7], "budget_s": 2.0, **_time_map(args.rf, rx, args.repeats),
                "fit_s": float(rf.free["training@attrs"]["wall_time_s"]),
                "fit_trace_s": float(rf.free["training@attrs"]["trace_time_s"]),
-               "fit_budget_s": 1800.0, "note": "map_time_s: RssiPredictor.path_gain_db; load_time_s: read rf.h5 "
+               "fit_budget_s": 1800.0, "note": "map_time_s: RoomPredictor.path_gain_db; load_time_s: read rf.h5 "
                "and build the BVH; python and torch start-up not included"}
         return _report(out, args.results)
     with tempfile.TemporaryDirectory() as tmp:
@@ -59,7 +59,7 @@ def main() -> None:
             "tx_pos": t, "rx_pos": r, "freq_hz": np.array([FREQ]), "path_gain_db": gain[:, None],
             "split": np.zeros(len(t), np.int64), "tx_id": np.repeat(np.arange(len(tx)), len(rx)),
             "scene_bounds": bounds}, attrs={"task": "rssi", "scene": "classroom"})
-        cfg = {"iterations": 5, "sharing": "label", "rssi": {"batch_links": 256}}
+        cfg = {"physical": {"iterations": 5, "start_iterations": 2}}
         t0 = time.time()
         rf_fit(d / "scene.h5", d / "meas.h5", d / "rf.h5", cfg)
         fit_s = time.time() - t0
@@ -74,7 +74,7 @@ def _time_map(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
     times = []
     for _ in range(repeats):
         t0 = time.time()
-        pred = RssiPredictor(read_artifact(rf_path, "rf"))
+        pred = load_predictor(read_artifact(rf_path, "rf"))
         load_s = time.time() - t0
         t1 = time.time()
         pg = pred.path_gain_db(np.broadcast_to(new_tx, rx.shape), rx)

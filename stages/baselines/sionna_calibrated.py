@@ -110,9 +110,9 @@ def _object_id(name: str) -> str:
 
 def rssi_rows(meas, split: str, where: str) -> tuple[np.ndarray, np.ndarray, str]:
     """(train rows, test rows, description) as rfir's RSSI fit and predict choose them."""
-    from rfir_stages.rf_fit.rssi_fit import RSSI_DEFAULTS, training_rows
+    from rfir_stages.rf_fit.rssi_split import rssi_settings, training_rows
 
-    cfg = dict(RSSI_DEFAULTS, split="file" if split == "random" else "holdout_tx")
+    cfg = dict(rssi_settings({}), split="file" if split == "random" else "holdout_tx")
     if split == "holdout_tx" and meas.get("tx_id") is not None:
         n_tx = np.unique(np.asarray(meas["tx_id"])).size
         if not 0 < int(cfg["holdout_tx"]) < n_tx:

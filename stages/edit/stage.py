@@ -17,15 +17,16 @@ from rfir_cli.errors import ConfigError, InputFileError, StageError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 
+from rfir_stages.predict.rssi_model_io import ROOM_KIND, require_room_model
+
 from .operations import EditScene, apply
-from .rssi_refresh import is_rssi_model, refreshed_probe_field
 from .script import Edit
 
 # Datasets known not to be per-Gaussian even when their first dimension happens to equal G (tiny scenes).
-NOT_PER_GAUSSIAN = {"rf/freq_hz", "model/s_tx_db", "model/nlos_gain_db", "model/probe_values", "model/probe_origin_m",
-                    "model/probe_shape", "training/loss_curve", "training/train_rows", "training/holdout_tx_ids"}
-# the RSSI LoS network's weights; the per-device gains; the residual's training links (residual/surfel is per Gaussian)
-NOT_PER_GAUSSIAN_PREFIXES = ("model/los.", "model/device_", "residual/tx_pos", "residual/rx_pos", "residual/weights_db",
+NOT_PER_GAUSSIAN = {"rf/freq_hz", "model/s_tx_db", "training/loss_curve", "training/train_rows",
+                    "training/fit_rows", "training/holdout_tx_ids"}
+# the per-device gains; the residual's training links (residual/surfel is per Gaussian)
+NOT_PER_GAUSSIAN_PREFIXES = ("model/device_", "residual/tx_pos", "residual/rx_pos", "residual/weights_db",
                              "residual/mean_db")
 _MOVES = ("translate", "rotate", "duplicate")
 
@@ -88,6 +89,8 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
     if not edits:
         raise ConfigError("no edits: give --select and --op, or --script FILE")
     art = read_artifact(rf_path, "rf")
+    if str(art.attrs.get("task", "")) == "rssi":
+        require_room_model(art)   # one line naming the file and the model, for RSSI models rfir does not predict
     fields, free_keys = per_gaussian_keys(art)
     arrays = {k: np.array(art[k], copy=True) for k in fields}
     arrays.update({f"{g}/{k}": np.array(art.free[g][k], copy=True) for g, k in free_keys})
@@ -138,13 +141,17 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
     return result
 
 
+def _is_room_model(art) -> bool:
+    return str(art.free.get("model@attrs", {}).get("model_kind", "")) == ROOM_KIND
+
+
 def _radio_change(plot_path: Path, art, edited_path: Path, map_tx):
     """(PNG, summary) of the radio change, or (None, {}) for an RSSI model without map_tx."""
     from .map_change import rcs_change, rssi_map_change
 
     target = plot_path.with_name(plot_path.stem + "_radio.png")
     after = read_artifact(edited_path, "rf")
-    if is_rssi_model(art.free.get("model@attrs", {})):
+    if _is_room_model(art):
         if map_tx is None:
             return None, {}
         return target, rssi_map_change(target, art, after, np.asarray(map_tx, np.float64))
@@ -164,8 +171,6 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
         content.update({k: scene.arrays[f"{group}/{k}"] for k in content if f"{group}/{k}" in scene.arrays})
     if scene.new_materials:
         append_materials(data, free, scene)
-    if is_rssi_model(art.free.get("model@attrs", {})) and "model" in free:  # receivers' transmittances follow
-        free["model"].update(refreshed_probe_field(scene.arrays, art.free["model@attrs"]))
     up = art.provenance
     stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     history = list(up.extra.get("edits", [])) + [dict(r, input=str(rf_path), time=stamp) for r in records]

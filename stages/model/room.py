@@ -172,8 +172,8 @@ class RoomLinks:
 class RoomPredictor:
     """A fitted physical room model (rf artifact written by rf_fit.room_stage), ready to predict.
 
-    Same interface as predict.rssi_model_io.RssiPredictor: geom, provider, freq_hz, path_gain_db,
-    memory_estimate_bytes."""
+    Used by predict rssi, edit and diagnose (predict.rssi_model_io.load_predictor): geom, provider, freq_hz,
+    path_gain_db, memory_estimate_bytes."""
 
     BYTES_PER_LINK = 40_000   # paths x interaction slots x (basis vectors + coefficients), measured on rooms
 

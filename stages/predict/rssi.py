@@ -1,4 +1,4 @@
-"""`rfir predict rssi`: received power from a fitted RSSI model (rf-fit on task "rssi" data).
+"""`rfir predict rssi`: received power from a fitted room model (rf-fit on task "rssi" data; rfir_stages.model.room).
 
 Two uses:
 - map: `--tx X,Y,Z` with receivers from `--rx FILE` (CSV x,y,z in metres, header optional), a
@@ -18,6 +18,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,7 +31,10 @@ from . import rssi_baselines as bl
 from .baselines import baselines_beating_model
 from .heatmap import error_limits, fov_maps, radio_map
 from .rssi_checks import check_points, floor_grid, grid_shape
-from .rssi_model_io import RssiPredictor, load_predictor
+from .rssi_model_io import load_predictor
+
+if TYPE_CHECKING:
+    from rfir_stages.model.room import RoomPredictor
 
 DEFAULTS = {"grid": [1.0, 0.4], "max_memory_gb": 8.0, "chunk_links": 512, "tx_match_m": 0.01}
 
@@ -76,7 +80,7 @@ def read_points_csv(path) -> np.ndarray:
     return pts
 
 
-def _refuse_large(pred: RssiPredictor, num_points: int, cfg: dict) -> None:
+def _refuse_large(pred: RoomPredictor, num_points: int, cfg: dict) -> None:
     """Refuse, with the estimate, a request whose memory estimate is above predict.rssi.max_memory_gb."""
     need = pred.memory_estimate_bytes(num_points, int(cfg["chunk_links"]))
     if need > float(cfg["max_memory_gb"]) * 2**30:
@@ -214,7 +218,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     return result
 
 
-def _plots(folder: Path, pred: RssiPredictor, rf, meas, txs, rx, pg, measured, test) -> list:
+def _plots(folder: Path, pred: RoomPredictor, rf, meas, txs, rx, pg, measured, test) -> list:
     means = pred.geom.means.numpy()
     z_lo, z_hi = means[:, 2].min(), means[:, 2].max()
     floor = means[(means[:, 2] > z_lo + 0.05) & (means[:, 2] < z_hi - 0.05), :2]   # walls and objects

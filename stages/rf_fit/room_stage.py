@@ -1,6 +1,6 @@
 """rf-fit of RSSI links with the physical room model (rfir_stages.model.room, docs/physics.md section 8.10).
 
-Called by rssi_fit.run_rssi when `[rf_fit.rssi] model = "physical"`. Materials are fitted per label
+Called by rssi_fit.run_rssi for every RSSI fit. Materials are fitted per label
 class (desk_03 -> desk) when the scene has labels, else per segment (k-means of the Gaussians on
 position and normal); `[rf_fit.room] sharing` overrides. The fit itself is fit_physical.fit_materials
 (the starts, start switching and best-state rules of the RCS model). The artifact holds the Gaussians,

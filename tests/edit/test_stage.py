@@ -154,14 +154,16 @@ def test_free_group_arrays_of_length_g_travel_known_others_stay(tmp_path, write_
     art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
     g = len(art["gaussians/means"])
     extra = np.arange(2 * g, dtype=float).reshape(g, 2)
-    free = {"model": {**art.free["model"], "wideband.base.x": extra, "los.w": np.zeros(g), "@attrs": art.free["model@attrs"]},
-            "training": {"loss_curve": np.zeros(g)}}
+    free = {"model": {**art.free["model"], "wideband.base.x": extra, "device_tx_gain_db": np.zeros(g),
+                      "@attrs": art.free["model@attrs"]},
+            "training": {"loss_curve": np.zeros(g), "fit_rows": np.arange(g)}}
     write_artifact(tmp_path / "b.h5", "rf", art.data, attrs=dict(art.attrs), free=free)
     run(tmp_path / "b.h5", tmp_path / "o.h5", edits_from_options(["label:chair"], ["delete"]))
     out = read_artifact(tmp_path / "o.h5", "rf")
     keep = art["gaussians/labels"] == 0
     assert np.array_equal(out.free["model"]["wideband.base.x"], extra[keep])
-    assert out.free["model"]["los.w"].shape == (g,) and out.free["training"]["loss_curve"].shape == (g,)
+    assert out.free["model"]["device_tx_gain_db"].shape == (g,) and out.free["training"]["loss_curve"].shape == (g,)
+    assert out.free["training"]["fit_rows"].shape == (g,)
     assert out.free["model@attrs"]["antenna_kind"] == "isotropic"
 
 

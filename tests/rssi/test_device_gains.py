@@ -58,7 +58,7 @@ def with_gains(tmp_path_factory):
 
 def _fit_and_score(d, device_gains: str, tag: str) -> tuple[dict, dict]:
     rf, res = d / f"rf_{tag}.h5", d / f"res_{tag}.json"
-    r = CliRunner().invoke(app, ["--set", "rf_fit.rssi.model=physical", "--set", "rf_fit.physical.iterations=60",
+    r = CliRunner().invoke(app, ["--set", "rf_fit.physical.iterations=60",
                                  "--set", "rf_fit.physical.start_iterations=15",
                                  "--set", f"rf_fit.room.device_gains={device_gains}",
                                  "rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(rf)])
@@ -81,7 +81,7 @@ def test_fitted_transmitter_gains_recover_the_offsets_and_lower_the_test_error(w
 
 
 def test_bad_device_gains_setting_is_one_line(with_gains):
-    r = CliRunner().invoke(app, ["--set", "rf_fit.rssi.model=physical", "--set", "rf_fit.room.device_gains=per-radio",
+    r = CliRunner().invoke(app, ["--set", "rf_fit.room.device_gains=per-radio",
                                  "rf-fit", str(with_gains / "scene.h5"), str(with_gains / "meas.h5"),
                                  "-o", str(with_gains / "bad.h5")])
     assert r.exit_code != 0 and "device_gains" in r.output and "Traceback" not in r.output

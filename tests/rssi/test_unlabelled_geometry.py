@@ -1,5 +1,5 @@
-"""RSSI fits on geometry without object labels (what `rfir geom` writes from photos): the recipe's
-per-label materials fall back before any tracing, and the physical room model uses segments."""
+"""RSSI fits on geometry without object labels (what `rfir geom` writes from photos): the room model
+fits a material per segment of the geometry."""
 from typer.testing import CliRunner
 
 from rfir_cli.artifacts import read_artifact
@@ -14,22 +14,10 @@ def _unlabelled_scene(path):
     return write_scene_artifact(path, gaussians_from_mesh(v, f, 0.4), spacing_m=0.4)
 
 
-def test_label_recipe_on_unlabelled_geometry_falls_back_with_a_word(tmp_path):
-    _unlabelled_scene(tmp_path / "scene.h5")
-    write_measurements(tmp_path / "meas.h5")
-    r = CliRunner().invoke(app, ["--recipe", "rssi", "--set", "rf_fit.rssi.model=free", "--set",
-                                 "rf_fit.rssi.probe_step_m=0.75", "rf-fit",
-                                 str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5"),
-                                 "--iterations", "5"])
-    assert r.exit_code == 0, r.output
-    assert "no gaussians/labels" in r.output
-    assert read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]["sharing"] == "global"
-
-
 def test_physical_room_model_on_unlabelled_geometry_uses_segments(tmp_path):
     _unlabelled_scene(tmp_path / "scene.h5")
     write_measurements(tmp_path / "meas.h5")
-    r = CliRunner().invoke(app, ["--set", "rf_fit.rssi.model=physical", "--set", "rf_fit.physical.iterations=5",
+    r = CliRunner().invoke(app, ["--set", "rf_fit.physical.iterations=5",
                                  "--set", "rf_fit.physical.start_iterations=2", "rf-fit", str(tmp_path / "scene.h5"),
                                  str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5")])
     assert r.exit_code == 0, r.output
