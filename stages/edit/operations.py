@@ -175,6 +175,9 @@ def apply(scene: EditScene, mask: np.ndarray, op: Operation) -> dict:
         scene.touched[g:] = True
         return rec
     elif op.kind in ("set", "scale"):
+        if "material/index" in a:   # a physical model predicts from material/*, not from the rf/* attributes
+            raise ConfigError(f"--op {op.text!r}: a physical model's materials are not per-Gaussian attributes; "
+                              "give the selection another material with material:NAME (e.g. material:metal)")
         for key, value in op.values:
             name = MATERIAL_KEYS[key]
             new = np.full(idx.size, value) if op.kind == "set" else a[name][idx] * value

@@ -118,6 +118,13 @@ def test_an_artifact_of_the_los_nlos_model_is_refused_in_one_line(fitted, tmp_pa
         assert not out.exists()
 
 
+def test_setting_free_attributes_of_a_room_model_is_refused(fitted, tmp_path):
+    out = tmp_path / "e.h5"
+    r = _invoke(["edit", fitted / "rf.h5", "-o", out, "--select", "label:partition", "--op", "set:gamma_abs=1"])
+    assert r.exit_code == 4 and "material:NAME" in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists()
+
+
 def test_edit_of_a_room_model_maps_the_change(fitted, tmp_path):
     rf = read_artifact(fitted / "rf.h5", "rf")
     names = [str(n) for n in rf.attrs["label_names"]]
