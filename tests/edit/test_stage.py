@@ -72,15 +72,16 @@ def test_script_duplicate_material_label_and_plot(rf_path, tmp_path):
     script = tmp_path / "edits.toml"
     script.write_text('[[edit]]\nselect = "label:crate"\nop = "duplicate:0,0.5,0"\n'
                       '[[edit]]\nselect = "box:-1,0.3,-1,1,1,1"\nop = "label:crate_copy"\nnote = "name the copy"\n'
-                      '[[edit]]\nselect = "label:crate_copy"\nop = "set:gamma_abs=0.5"\n')
+                      '[[edit]]\nselect = "label:crate_copy"\nop = "material:metal"\n')
     out, png = tmp_path / "dup.h5", tmp_path / "dup.png"
     r = _edit(rf_path, "-o", out, "--script", script, "--plot", png)
     assert r.exit_code == 0, r.output
     art, src = read_artifact(out, "rf"), read_artifact(rf_path, "rf")
     assert len(art["gaussians/means"]) == 900 and list(art.attrs["label_names"]) == ["crate", "chair", "crate_copy"]
     copy = art["gaussians/labels"] == 2
-    assert copy.sum() == 300 and np.all(art["rf/gamma_abs"][copy] == 0.5)
-    assert np.array_equal(art.free["model"]["diffuse_abs"][copy], src.free["model"]["diffuse_abs"][:300])
+    assert copy.sum() == 300 and np.all(art["material/index"][copy] == 2) and art["material/eps_r"].shape == (3,)
+    assert np.all(art["rf/gamma_abs"][copy] > 0.99) and np.all(art["material/index"][~copy] == src["material/index"])
+    assert np.array_equal(art.free["model"]["tag"][copy], src.free["model"]["tag"][:300])
     assert np.array_equal(art["gaussians/means"][copy], src["gaussians/means"][:300] + [0, 0.5, 0])
     assert [e["note"] for e in art.provenance.extra["edits"]][1] == "name the copy"
     assert png.read_bytes()[:4] == b"\x89PNG"
@@ -138,7 +139,7 @@ def test_output_passes_rfir_check_and_new_labels_do_not_reuse_ids(tmp_path, writ
 
     art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
     attrs = {"task": "rcs"}  # labels without label_names: ids 0 and 1 must stay unnamed-but-distinct
-    free = {"model": {k: v for k, v in art.free["model"].items()}}
+    free = {"model": {**art.free["model"], "@attrs": dict(art.free["model@attrs"])}}
     write_artifact(tmp_path / "nolabels.h5", "rf", art.data, attrs=attrs, free=free)
     out = tmp_path / "o.h5"
     run(tmp_path / "nolabels.h5", out, edits_from_options(["sphere:0.2,0,0,0.06"], ["label:lid"]))
@@ -154,14 +155,14 @@ def test_free_group_arrays_of_length_g_travel_known_others_stay(tmp_path, write_
     art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
     g = len(art["gaussians/means"])
     extra = np.arange(2 * g, dtype=float).reshape(g, 2)
-    free = {"model": {**art.free["model"], "wideband.base.x": extra, "device_tx_gain_db": np.zeros(g),
+    free = {"model": {**art.free["model"], "per_gaussian.x": extra, "device_tx_gain_db": np.zeros(g),
                       "@attrs": art.free["model@attrs"]},
             "training": {"loss_curve": np.zeros(g), "fit_rows": np.arange(g)}}
     write_artifact(tmp_path / "b.h5", "rf", art.data, attrs=dict(art.attrs), free=free)
     run(tmp_path / "b.h5", tmp_path / "o.h5", edits_from_options(["label:chair"], ["delete"]))
     out = read_artifact(tmp_path / "o.h5", "rf")
     keep = art["gaussians/labels"] == 0
-    assert np.array_equal(out.free["model"]["wideband.base.x"], extra[keep])
+    assert np.array_equal(out.free["model"]["per_gaussian.x"], extra[keep])
     assert out.free["model"]["device_tx_gain_db"].shape == (g,) and out.free["training"]["loss_curve"].shape == (g,)
     assert out.free["training"]["fit_rows"].shape == (g,)
     assert out.free["model@attrs"]["antenna_kind"] == "isotropic"
