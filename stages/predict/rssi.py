@@ -36,7 +36,13 @@ from .rssi_model_io import load_predictor
 if TYPE_CHECKING:
     from rfir_stages.model.room import RoomPredictor
 
-DEFAULTS = {"grid": [1.0, 0.4], "max_memory_gb": 8.0, "chunk_links": 512, "tx_match_m": 0.01}
+
+
+def rssi_defaults() -> dict:
+    """The [predict.rssi] table of configs/predict.toml (what a caller's config does not set)."""
+    from rfir_cli.config import load_defaults
+
+    return dict(load_defaults().get("predict", {}).get("rssi", {}))
 
 
 @dataclass
@@ -84,7 +90,7 @@ def _refuse_large(pred: RoomPredictor, num_points: int, cfg: dict) -> None:
     """Refuse, with the estimate, a request whose memory estimate is above predict.rssi.max_memory_gb."""
     need = pred.memory_estimate_bytes(num_points, int(cfg["chunk_links"]))
     if need > float(cfg["max_memory_gb"]) * 2**30:
-        raise StageError(f"{num_points} points x {pred.geom.num} Gaussians need about {need / 2**30:.1f} GiB, above "
+        raise StageError(f"{num_points} points ({pred.geom.num} Gaussians) need about {need / 2**30:.1f} GiB, above "
                          f"predict.rssi.max_memory_gb = {cfg['max_memory_gb']:g}; use a coarser --grid STEP or fewer --rx")
 
 
@@ -131,7 +137,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     """Predict RSSI; see the module docstring. config: the [predict] table (its `rssi` sub-table)."""
     progress = progress or NullProgress()
     t_start = time.time()
-    cfg = {**DEFAULTS, **(config.get("rssi", {}) or {})}
+    cfg = {**rssi_defaults(), **(config.get("rssi", {}) or {})}
     rf_path, out_path = Path(rf_path), Path(out_path)
     for p in (rf_path, measurements_path):
         if p is not None and out_path.resolve() == Path(p).resolve():
