@@ -104,6 +104,8 @@ def _shape_text(shape: tuple) -> str:
 def check_data(kind: str, data: Mapping[str, np.ndarray], attrs: Mapping, where: str) -> list[str]:
     """All schema problems of in-memory data for `kind` (empty list when valid)."""
     spec = get_kind(kind)
+    if spec.retired and spec.retired[0] not in data:
+        return [f"{where}: {spec.retired[1]}"]
     problems, dims = [], {}
     for f in spec.fields:
         if f.name not in data:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.2.0"
+SCHEMA_VERSION = "1.3.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -72,6 +72,9 @@ class KindSpec:
     required_attrs: tuple[str, ...] = ()
     free_groups: tuple[str, ...] = field(default_factory=tuple)
     optional_attrs: tuple[AttrSpec, ...] = ()
+    # (a required field, the problem to report instead when it is missing): a file of a retired model
+    # family lacks that field, and the one line should say so rather than list missing datasets
+    retired: tuple[str, str] | None = None
 
     def field(self, name: str) -> FieldSpec | None:
         return next((f for f in self.fields if f.name == name), None)
@@ -177,22 +180,22 @@ _register(KindSpec(
 
 _register(KindSpec(
     "rf",
-    "A scene with per-Gaussian radio materials fitted to measurements.",
+    "A scene with the physical radio model's materials fitted to measurements (docs/rf-model.md).",
     _GAUSSIANS + (
-        F("rf/opacity", "float", ("G",), "1", "RF opacity a in [0, 1]"),
-        F("rf/roughness", "float", ("G",), "1", "lobe exponent R >= 1"),
-        F("rf/gamma_abs", "float", ("G",), "1", "|Gamma| in [0, 1]"),
-        F("rf/gamma_phase_rad", "float", ("G",), "rad", "angle of Gamma"),
+        F("rf/opacity", "float", ("G",), "1", "RF opacity a in [0, 1] of the traced visibility"),
+        F("rf/roughness", "float", ("G",), "1", "lobe exponent (1: the physical model has none)"),
+        F("rf/gamma_abs", "float", ("G",), "1", "|Gamma| at normal incidence of the Gaussian's material at the "
+          "first fitted frequency (attribute maps)"),
+        F("rf/gamma_phase_rad", "float", ("G",), "rad", "angle of that Gamma"),
         F("rf/freq_hz", "float", ("F",), "Hz", "frequencies the model was fitted at"),
         # the physical model (rfir_stages.model.artifact; docs/physics.md section 8), N materials
-        F("material/index", "int", ("G",), "", "material of each Gaussian (0..N-1)", required=False),
-        F("material/area_m2", "float", ("G",), "m^2", "surfel area A_l", required=False),
-        F("material/eps_r", "float", ("N",), "1", "relative permittivity (real part)", required=False),
-        F("material/sigma_1ghz_s_per_m", "float", ("N",), "S/m", "conductivity at 1 GHz", required=False),
-        F("material/scattering", "float", ("N",), "1", "scattering coefficient S in [0, 1)", required=False),
-        F("material/thickness_m", "float", ("N",), "m", "slab thickness (0: half-space)", required=False),
-        F("material/gamma_normal_abs", "float", ("N", "F"), "1", "|Gamma| at normal incidence per fitted frequency",
-          required=False),
+        F("material/index", "int", ("G",), "", "material of each Gaussian (0..N-1)"),
+        F("material/area_m2", "float", ("G",), "m^2", "surfel area A_l"),
+        F("material/eps_r", "float", ("N",), "1", "relative permittivity (real part)"),
+        F("material/sigma_1ghz_s_per_m", "float", ("N",), "S/m", "conductivity at 1 GHz"),
+        F("material/scattering", "float", ("N",), "1", "scattering coefficient S in [0, 1)"),
+        F("material/thickness_m", "float", ("N",), "m", "slab thickness (0: half-space)"),
+        F("material/gamma_normal_abs", "float", ("N", "F"), "1", "|Gamma| at normal incidence per fitted frequency"),
         # the residual on top of the physical model (rfir_stages.model.residual), T training links
         F("residual/tx_pos", "float", ("T", 3), "m", "smooth / blend residual: transmitter of each training link",
           required=False, frame="world"),
@@ -207,6 +210,8 @@ _register(KindSpec(
     ),
     required_attrs=("task",),
     free_groups=("model", "training", "effects"),
+    retired=("material/index", "an rf model of the retired per-Gaussian family (a free reflection coefficient "
+                               "per Gaussian), which rfir no longer reads; re-run rf-fit"),
 ))
 
 _register(KindSpec(

@@ -62,7 +62,7 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
         else:
             from rfir_stages.predict.rcs import run_rcs
 
-            run_rcs(model_path, pred_path, {"cull_rel": 1e-3}, measurements_path=measurements_path, progress=progress)
+            run_rcs(model_path, pred_path, {}, measurements_path=measurements_path, progress=progress)
         pred = read_artifact(pred_path, "predictions")
         split = np.asarray(pred["split"]) if pred.get("split") is not None else None   # rf: same row order
         info["predictions"] = str(pred_path)

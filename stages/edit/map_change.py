@@ -52,17 +52,18 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
 def rcs_change(path: Path, rf_before, rf_after, range_m: float = 3.0, step_deg: float = 1.0) -> dict:
     """RCS [dBsm] versus aspect at range_m, before and after, at the first fitted frequency."""
     from rfir_cli.physics.closed_forms import rcs_from_path_gain
-    from rfir_stages.predict.rcs import load_model, predict_path_gain_db
+    from rfir_stages.predict.rcs import predict_path_gain_db
+    from rfir_stages.rf_fit.antennas import antenna_from_attrs
     from rfir_stages.rf_fit.links import geometry_from_artifact, radar_links, scene_centre
 
     centre = scene_centre(geometry_from_artifact(rf_before)).numpy()   # the same radar for both
     aspects = np.radians(np.arange(0.0, 360.0, step_deg))
     tx, rx, asp, rng = radar_links(aspects, np.array([range_m]), centre)
     freq = np.asarray(rf_before["rf/freq_hz"], np.float64)[:1]
-    g0 = load_model(rf_before)[3].boresight_gain
+    g0 = antenna_from_attrs(rf_before.free.get("model@attrs", {})).boresight_gain
     out = []
     for rf in (rf_before, rf_after):
-        pg = predict_path_gain_db(rf, tx, rx, freq, "rcs", cull_rel=1e-3)[:, 0]
+        pg = predict_path_gain_db(rf, tx, rx, freq, "rcs")[:, 0]
         out.append(10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), rng, freq[0], g0, g0)))
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))

@@ -32,7 +32,7 @@ def _predict_rcs(rf_path: Path, meas_path: Path, out: Path):
     """(predicted [L], measured [L], test mask [L]): RCS in dBsm at the first fitted frequency."""
     from rfir_stages.predict.rcs import run_rcs
 
-    run_rcs(rf_path, out, {"cull_rel": 1e-3}, measurements_path=meas_path)
+    run_rcs(rf_path, out, {}, measurements_path=meas_path)
     p = read_artifact(out, "predictions")
     return (np.asarray(p["rcs_dbsm"], np.float64)[:, 0], np.asarray(p["measured_db"], np.float64)[:, 0],
             np.asarray(p["split"]) == 1)

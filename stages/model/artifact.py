@@ -1,5 +1,9 @@
 """The physical model in an `rf` artifact: one writer (`physical_fields`) and one loader (`load_physical`).
 
+It is rfir's one fitted radio model (RCS, a band, and the room model for RSSI, which adds its own
+attributes). An rf artifact without it (the retired per-Gaussian family) is refused by the schema
+(rfir_cli.schema, kind "rf") when read, and by `require_physical` here.
+
 Datasets (schema: rfir_cli.schema, kind "rf"; N materials, G Gaussians, F fitted frequencies):
 - material/index [G] int: material of each Gaussian;
 - material/area_m2 [G]: surfel area A_l (surfels.surfel_areas, kept so prediction uses the same);
@@ -24,6 +28,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from rfir_cli.errors import SchemaError
+from rfir_cli.schema import get_kind
+
 from .physical import MaterialValues, PairSettings
 from .residual import ResidualFit, load_residual, residual_fields
 
@@ -32,6 +39,12 @@ FAMILY = "physical"
 
 def is_physical_model(rf) -> bool:
     return str(rf.free.get("model@attrs", {}).get("family", "")) == FAMILY
+
+
+def require_physical(rf) -> None:
+    """SchemaError (one line naming the file) unless `rf` holds the physical model."""
+    if not is_physical_model(rf):
+        raise SchemaError(get_kind("rf").retired[1], path=rf.path)
 
 
 def physical_fields(mats: MaterialValues, material_of_gaussian: torch.Tensor, areas_m2: torch.Tensor,
@@ -87,6 +100,7 @@ class PhysicalModel:
 
 def load_physical(rf) -> PhysicalModel:
     """The physical model of an `rf` artifact written with `physical_fields`."""
+    require_physical(rf)
     attrs = rf.free.get("model@attrs", {})
     t = lambda k: torch.as_tensor(np.asarray(rf[k], dtype=np.float64))  # noqa: E731
     th = t("material/thickness_m")

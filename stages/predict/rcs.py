@@ -1,11 +1,12 @@
 """`rfir predict rcs`: monostatic RCS from an `rf` artifact, beside measurements when given.
 
 Links come from the measurement file (every row, its split kept) or from --aspects x --ranges in
-simulate's turntable convention. The renderer and antenna are the ones recorded by rf-fit (group
-model/). Outputs: a `predictions` artifact (path_gain_db, rcs_dbsm, measured_db = measured RCS),
-optional PNG plots (polar and linear RCS versus aspect per range and frequency; |Gamma|,
-angle(Gamma), R seen from the first aspect) and results/<name>.json with the MAE on the test
-split beside the nearest-aspect and linear-interpolation baselines.
+simulate's turntable convention. The physical model and antenna are the ones recorded by rf-fit
+(rfir_stages.model.artifact; group model/). Outputs: a `predictions` artifact (path_gain_db,
+rcs_dbsm, measured_db = measured RCS), optional PNG plots (polar and linear RCS versus aspect per
+range and frequency; the fitted materials' |Gamma| at normal incidence and S seen from the first
+aspect) and results/<name>.json with the MAE on the test split beside the nearest-aspect and
+linear-interpolation baselines.
 """
 from __future__ import annotations
 
@@ -16,19 +17,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, StageError
 from rfir_cli.physics.closed_forms import rcs_from_path_gain
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
-from rfir_stages.model.artifact import has_residual, is_physical_model
-from rfir_stages.rf_fit.antennas import AntennaPattern, antenna_from_attrs
-from rfir_stages.rf_fit.links import (check_overlap, check_positions, geometry_from_artifact, make_links, radar_links,
-                                      scene_centre)
-from rfir_stages.rf_fit.occlusion import make_provider
-from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render_power
+from rfir_stages.model.artifact import has_residual, require_physical
+from rfir_stages.model.predict import predict_physical_db
+from rfir_stages.rf_fit.antennas import antenna_from_attrs
+from rfir_stages.rf_fit.links import check_overlap, check_positions, geometry_from_artifact, radar_links, scene_centre
 from rfir_stages.rf_fit.splits import describe as describe_split
 from rfir_stages.rf_fit.splits import protocol_masks
 
@@ -52,72 +50,13 @@ class PredictResult:
     results_json: Path | None = None
 
 
-def load_model(rf) -> tuple[Materials, np.ndarray, np.ndarray, AntennaPattern, RenderSettings]:
-    """Materials, fitted freqs [K], system gain [K] dB, antenna and renderer settings of an `rf` artifact."""
-    gamma = torch.polar(torch.as_tensor(np.asarray(rf["rf/gamma_abs"], np.float64)),
-                        torch.as_tensor(np.asarray(rf["rf/gamma_phase_rad"], np.float64)))
-    mats = Materials(torch.as_tensor(np.asarray(rf["rf/opacity"], np.float64)),
-                     torch.as_tensor(np.asarray(rf["rf/roughness"], np.float64)), gamma)
-    model = rf.free.get("model", {})
-    attrs = rf.free.get("model@attrs", {})
-    if "diffuse_abs" in model:
-        mats.diffuse = torch.as_tensor(np.asarray(model["diffuse_abs"], np.float64))
-        mats.diffuse_roughness = torch.as_tensor(np.asarray(model["diffuse_roughness"], np.float64))
-    freqs = np.asarray(rf["rf/freq_hz"], np.float64)
-    s_tx = np.asarray(model.get("s_tx_db", np.zeros(len(freqs))), np.float64)
-    ant = antenna_from_attrs(attrs)
-    kw = {}
-    for f in RenderSettings.__dataclass_fields__:
-        if f"render.{f}" in attrs:
-            v = attrs[f"render.{f}"]
-            kw[f] = bool(v) if f in ("visibility", "learn_visibility", "path_loss", "phase") else float(v)
-    return mats, freqs, s_tx, ant, RenderSettings(**kw)
-
-
-def system_gain_at(freqs_fit: np.ndarray, s_tx_db: np.ndarray, freqs: np.ndarray) -> np.ndarray:
-    """s_tx per wanted frequency; refuses frequencies the narrowband model was not fitted at."""
-    out = []
-    for f in freqs:
-        hit = np.flatnonzero(np.abs(freqs_fit - f) <= 1e-6 * f)
-        if hit.size == 0:
-            raise StageError(f"{f / 1e9:g} GHz is outside the fitted frequencies "
-                             f"({', '.join(f'{x / 1e9:g}' for x in freqs_fit)} GHz); fit that frequency first")
-        out.append(s_tx_db[hit[0]])
-    return np.asarray(out)
-
-
 def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto", chunk_links: int = 64,
-                         progress=None, render_overrides: dict | None = None, cull_rel: float = 0.0) -> np.ndarray:
-    """Path gain [L, K] dB predicted by an `rf` artifact for links tx/rx [L, 3] at freqs [K].
-
-    render_overrides: RenderSettings fields to change (e.g. {"grid_step_deg": 0.5}).
-    cull_rel: drop each link's weakest Gaussians carrying this share of its sum |c_l| (see build_cache)."""
-    if is_physical_model(rf):  # docs/physics.md section 8: any frequency (rfir_stages.model.predict)
-        from rfir_stages.model.predict import predict_physical_db
-        return predict_physical_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
-                                   progress=progress)
-    progress = progress or NullProgress()
-    mats, f_fit, s_tx, ant, settings = load_model(rf)
-    for key, value in (render_overrides or {}).items():
-        setattr(settings, key, value)
-    gain = system_gain_at(f_fit, s_tx, np.asarray(freqs, np.float64))
-    geom = geometry_from_artifact(rf)
-    centre = scene_centre(geom)
-    provider = make_provider(occlusion, geom, settings.alpha_min) if settings.visibility else None
-    # Prediction needs no gradients: V and Tbar are traced once per batch with the opacities the
-    # fit saw in them (the learned ones, or the fixed visibility_opacity).
-    frozen = mats.opacity if settings.learn_visibility else None
-    settings.learn_visibility = False
-    out = np.zeros((len(tx), len(freqs)))
-    with progress.task("predict", total=len(tx)) as bar, torch.no_grad():
-        for a in range(0, len(tx), chunk_links):
-            links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
-            cache = build_cache(geom, links, ant, ant, provider, settings, frozen_opacity=frozen,
-                                cull=(mats, cull_rel) if cull_rel > 0 else None)
-            power = render_power(cache, mats)
-            out[a:a + chunk_links] = 10 * np.log10(power.numpy() + 1e-300) + gain[None]
-            bar.advance(links.num)
-    return out
+                         progress=None) -> np.ndarray:
+    """Path gain [L, K] dB predicted by an `rf` artifact (the physical model, any frequency; docs/physics.md
+    section 8) for links tx/rx [L, 3] m at freqs [K] Hz."""
+    require_physical(rf)
+    return predict_physical_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
+                               progress=progress)
 
 
 def _assert_not_input(out: Path, inputs: list[Path]) -> None:
@@ -138,6 +77,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     if results_path is not None:
         _assert_not_input(Path(results_path), [rf_path, measurements_path])
     rf = read_artifact(rf_path, "rf")
+    require_physical(rf)
     geom = geometry_from_artifact(rf)
     centre = scene_centre(geom).numpy()
     meas = None
@@ -150,7 +90,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         tx, rx = np.asarray(meas["tx_pos"]), np.asarray(meas["rx_pos"])
         asp, rng = np.asarray(meas["aspect_rad"]), np.asarray(meas["range_m"])
         f_all = np.asarray(meas["freq_hz"], np.float64)
-        # a physical model predicts any measured frequency that is asked for; others only fitted ones
+        # any measured frequency that is asked for (default: the fitted ones, or a band fit's band)
         want = default_freqs(rf, f_all) if freqs_hz is None else np.asarray(freqs_hz, np.float64)
         cols = np.flatnonzero([np.any(np.abs(want - f) <= 1e-6 * f) for f in f_all])
         if cols.size == 0:
@@ -179,19 +119,17 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         tx, rx, asp, rng = radar_links(aspects, ranges, centre, float(config.get("separation_m", 0.002)))
         meas_rcs, split = None, None
     check_positions(geom, np.concatenate([tx, rx]), "links", float(config.get("min_clearance_m", 0.02)))
-    _, _, _, ant, _ = load_model(rf)
+    ant = antenna_from_attrs(rf.free.get("model@attrs", {}))
 
     t0 = time.time()
     physics_db = None
-    if has_residual(rf):   # a physical model with a residual: the physics alone is scored beside it
-        from rfir_stages.model.predict import predict_physical_db
+    if has_residual(rf):   # a model with a residual: the physics alone is scored beside it
         pg_db, physics_db = predict_physical_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
                                                 chunk_links=int(config.get("chunk_links", 64)), progress=progress,
                                                 with_physics_only=True)
     else:
         pg_db = predict_path_gain_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
-                                     chunk_links=int(config.get("chunk_links", 64)), progress=progress,
-                                     cull_rel=float(config.get("cull_rel", 0.0)))
+                                     chunk_links=int(config.get("chunk_links", 64)), progress=progress)
     render_s = time.time() - t0
     from rfir_stages.diagnose.apply import apply_recorded_effects   # effects named by `rfir diagnose`
 
@@ -277,15 +215,10 @@ def _plots(folder: Path, rf, asp, rng, freqs, rcs, meas_rcs, split) -> list:
                                            rcs[sel, k], m, s, title, polar))
     a0 = float(asp[0])
     view = -np.array([math.cos(-a0), math.sin(-a0), 0.0])
-    if is_physical_model(rf):   # the fitted materials: |Gamma| at normal incidence, S, which material
-        index = np.asarray(rf["material/index"])
-        attributes = {"|Gamma| at normal incidence": np.asarray(rf["rf/gamma_abs"]),
-                      "scattering S": np.asarray(rf["material/scattering"])[index],
-                      "material": index.astype(np.float64), "RF opacity a": np.asarray(rf["rf/opacity"])}
-    else:
-        attributes = {"|Gamma|": np.asarray(rf["rf/gamma_abs"]),
-                      "angle(Gamma) [rad]": np.asarray(rf["rf/gamma_phase_rad"]),
-                      "roughness R": np.asarray(rf["rf/roughness"]), "RF opacity a": np.asarray(rf["rf/opacity"])}
+    index = np.asarray(rf["material/index"])   # the fitted materials: |Gamma| at normal incidence, S, which material
+    attributes = {"|Gamma| at normal incidence": np.asarray(rf["rf/gamma_abs"]),
+                  "scattering S": np.asarray(rf["material/scattering"])[index],
+                  "material": index.astype(np.float64), "RF opacity a": np.asarray(rf["rf/opacity"])}
     paths.append(attribute_views(folder / "attributes.png", np.asarray(rf["gaussians/means"]), attributes, view))
     # the paper's attribute maps: rendered through the tracer from the radar at the first aspect
     means = np.asarray(rf["gaussians/means"])
@@ -314,8 +247,8 @@ def _results(path: Path, name, rf, rf_path, measurements_path, result: PredictRe
         "num_links": result.num_links,
         "antenna": {k: str(v) for k, v in rf.free.get("model@attrs", {}).items()
                     if k in ("antenna_kind", "antenna_hpbw_deg", "antenna_source")},
-        "model_terms": {**{k: bool(rf.free.get("model@attrs", {}).get(f"render.{k}", True)) for k in ("path_loss", "phase")},
-                        "diffuse": "diffuse_abs" in rf.free.get("model", {})},
+        "model_terms": {k: bool(rf.free.get("model@attrs", {}).get(f"pairs.{k}", True))
+                        for k in ("visibility", "second_order")},
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")

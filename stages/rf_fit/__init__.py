@@ -1,8 +1,9 @@
-"""Stage `rf-fit`: per-Gaussian radio materials (RF opacity, roughness, complex Gamma) by inverse rendering.
+"""Stage `rf-fit`: the physical radio model (rfir_stages.model) fitted to measurements.
 
-Modules: `render` (the forward model, docs/physics.md sections 4-5), `occlusion` (hit tables from the
-tracer or a brute-force oracle), `grid` (the receiver's direction grid), `antennas`, `params`
-(parametrisations), `fit` (Adam, checkpoints), `links` (artifacts -> renderer inputs), `stage` (run).
+Modules: `stage` (run: RCS and wideband fits), `physical_stage` (material sharing candidates, their
+fits and the artifact), `wideband_stage` (a band's settings), `rssi_fit` / `room_stage` (the room
+model for RSSI), `links` (artifacts -> links), `render` (LinkSet, tracing settings), `occlusion`
+(the tracer or a brute-force oracle), `antennas`, `splits` (train/test protocols).
 """
 from __future__ import annotations
 

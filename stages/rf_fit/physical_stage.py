@@ -23,9 +23,16 @@ from rfir_stages.model.residual import (FORMS, ResidualConfig, ResidualFit, fit_
 from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "segment", "global")
+LOSSES = ("db_mse", "db_huber")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
 RESIDUAL_LISTS = {"residual_weights": "weights", "residual_lengths_deg": "lengths_deg",
                   "residual_range_lengths": "range_lengths", "residual_gaussian_weights": "gaussian_weights"}
+
+
+def mae_db(pred_db: np.ndarray, meas_db: np.ndarray) -> float:
+    """Mean absolute error in dB over finite entries (NaN when there is none)."""
+    d = np.abs(np.asarray(pred_db) - np.asarray(meas_db))
+    return float(np.mean(d[np.isfinite(d)])) if np.isfinite(d).any() else float("nan")
 
 
 def residual_config(table: dict) -> ResidualConfig:
@@ -62,8 +69,10 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
     pol = str(table.get("polarisation", "V")).upper()
     if pol not in POLARISATIONS:
         raise ConfigError(f"rf_fit.physical.polarisation = {pol!r}: expected one of {', '.join(POLARISATIONS)}")
-    fit_cfg = PhysicalFitConfig(**{k: table[k] for k in FIT_KEYS if k in table},
-                                loss=str(config.get("loss", "db_mse")) if config.get("loss") != "paper" else "db_mse",
+    loss = str(config.get("loss", "db_mse"))
+    if loss not in LOSSES:
+        raise ConfigError(f"rf_fit.loss = {loss!r}: expected one of {', '.join(LOSSES)}")
+    fit_cfg = PhysicalFitConfig(**{k: table[k] for k in FIT_KEYS if k in table}, loss=loss,
                                 huber_db=float(config.get("huber_db", 1.0)))
     pairs = PairSettings(visibility=bool(render_cfg.visibility), opacity=float(render_cfg.visibility_opacity),
                          margin_m=float(table.get("self_shadow_margin_m", 0.0025)), t_stop=float(render_cfg.t_stop),

@@ -48,4 +48,4 @@ def band_config(config: dict, meas, where: str, progress) -> tuple[dict, dict]:
                  "(rf_fit.wideband.fit_freqs); predict evaluates every frequency")
     attrs = {"band.f_min_hz": float(band.min()), "band.f_max_hz": float(band.max()), "band.num_freqs": int(len(band)),
              "band.fit_freqs": int(len(fit))}
-    return dict(config, model="physical", freqs_hz=[float(x) for x in fit], physical=dict(phys, residual="off")), attrs
+    return dict(config, freqs_hz=[float(x) for x in fit], physical=dict(phys, residual="off")), attrs

@@ -13,31 +13,27 @@ from rfir_cli.context import GlobalOptions
 
 
 def _radar_measurements(path, fields):
-    """RCS 'measurements' of a small box made by the renderer (horn antennas, 5 deg steps, 2 m)."""
-    import torch
-
+    """RCS 'measurements' of the small metal box from the physical-optics solver (isotropic antennas,
+    5 deg steps, 2 m)."""
     from rfir_cli.physics.closed_forms import rcs_from_path_gain
-    from rfir_stages.rf_fit.antennas import AntennaPattern
-    from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, radar_links, scene_centre
-    from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
+    from rfir_stages.po import channel_from_amplitude, po_scattered_field
+    from rfir_stages.rf_fit.links import radar_links
+    from rfir_stages.simulate.scenes import box
 
-    geom = geometry_from_artifact(read_artifact(path.with_name("scene.h5"), "scene"))
-    asp_in = np.radians(np.arange(0, 360, 5.0))
-    tx, rx, asp, rng = radar_links(asp_in, np.array([2.0]), scene_centre(geom).numpy())
-    horn = AntennaPattern("horn")
-    links = make_links(tx, rx, [2.4e9], scene_centre(geom), "rcs")
-    g = geom.num
-    m = Materials(torch.full((g,), 0.9, dtype=torch.float64), torch.full((g,), 3.0, dtype=torch.float64),
-                  torch.full((g,), 0.5, dtype=torch.complex128))
-    cache = build_cache(geom, links, horn, horn, None, RenderSettings(visibility=False))
-    pg = 10 * np.log10(np.abs(render(cache, m).numpy()) ** 2)
-    rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), rng[:, None], 2.4e9, horn.boresight_gain,
-                                           horn.boresight_gain))
+    v, f = box((-0.05, -0.05, -0.05), (0.05, 0.05, 0.05))
+    centre = 0.5 * (v.min(0) + v.max(0))
+    tx, rx, asp, rng = radar_links(np.radians(np.arange(0, 360, 5.0)), np.array([2.0]), centre)
+    mid = 0.5 * (tx + rx)
+    s = po_scattered_field(v, f, np.array(["metal"] * len(f)), mid, mid, [2.4e9], near_field=True,
+                           face_thickness=np.full(len(f), 0.003), ref_point=tuple(centre))
+    r = np.linalg.norm(mid - centre, axis=1)
+    pg = 20 * np.log10(np.abs(channel_from_amplitude(s, [2.4e9], r, r)))
+    rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), rng[:, None], 2.4e9))
     lo, hi = fields["gaussians/means"].min(0), fields["gaussians/means"].max(0)
     write_artifact(path, "measurements", {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.array([2.4e9]),
                                           "path_gain_db": pg, "rcs_dbsm": rcs, "aspect_rad": asp, "range_m": rng,
                                           "split": np.arange(len(asp)) % 2, "scene_bounds": np.stack([lo, hi])},
-                   attrs={"task": "rcs", "scene": "box", "antenna_tx": "horn:40", "antenna_rx": "horn:40"})
+                   attrs={"task": "rcs", "scene": "box"})
     return path
 
 
@@ -105,8 +101,8 @@ def test_an_rf_model_gets_the_effect_and_predict_applies_it(tmp_path):
     fields = gaussians_from_mesh(v, f, 0.05)
     write_scene_artifact(tmp_path / "scene.h5", fields)
     clean = _radar_measurements(tmp_path / "clean.h5", fields)
-    fast = ["rf_fit.occlusion=brute-force", "rf_fit.grid_step_deg=10.0", "rf_fit.iterations=30",
-            "predict.occlusion=brute-force"]
+    fast = ["rf_fit.occlusion=brute-force", "rf_fit.physical.iterations=30", "rf_fit.physical.sharing=global",
+            "rf_fit.physical.residual=off", "predict.occlusion=brute-force"]
     assert _invoke(["rf-fit", tmp_path / "scene.h5", clean, "-o", tmp_path / "rf.h5"], fast).exit_code == 0
     m = read_artifact(clean, "measurements")
     data = dict(m.data)

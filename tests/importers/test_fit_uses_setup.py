@@ -4,24 +4,20 @@ import json
 
 import numpy as np
 import pytest
-import torch
 import typer
 from typer.testing import CliRunner
 
 from rfir_cli.artifacts import read_artifact
 from rfir_cli.context import GlobalOptions
-from rfir_cli.physics.closed_forms import rcs_from_path_gain
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.importers import import_csv
-from rfir_stages.rf_fit.antennas import AntennaPattern
-from rfir_stages.rf_fit.links import make_links, radar_links, scene_centre
-from rfir_stages.rf_fit.render import Materials, RenderSettings, build_cache, render
+from rfir_stages.rf_fit.links import scene_centre
+from rfir_stages.simulate.scenes import box
 
-from ..rf_fit.helpers import box_fields, geometry
+from ..rf_fit.helpers import box_fields, geometry, po_measurements
 
-FAST = ["rf_fit.occlusion=brute-force", "rf_fit.grid_step_deg=10.0", "rf_fit.iterations=4", "rf_fit.model=free",
-        "rf_fit.scattering=coherent", "rf_fit.sharing=global", "rf_fit.checkpoint_every=0",
-        "predict.occlusion=brute-force"]
+FAST = ["rf_fit.occlusion=brute-force", "rf_fit.physical.iterations=4", "rf_fit.physical.start_iterations=2",
+        "rf_fit.physical.sharing=global", "rf_fit.physical.residual=off", "predict.occlusion=brute-force"]
 
 
 def _app():
@@ -47,14 +43,11 @@ def box_csv(tmp_path_factory):
     geom = geometry(fields)
     centre = scene_centre(geom)
     assert np.allclose(centre.numpy()[:2], 0.0)   # the turntable axis is x = y = 0
-    aspects = np.arange(0, 360, 30)
-    tx, rx, asp, rng = radar_links(np.radians(aspects), np.array([2.0, 3.0]), centre.numpy())
-    iso = AntennaPattern("isotropic")
-    m = Materials(torch.full((geom.num,), 0.9, dtype=torch.float64), torch.full((geom.num,), 3.0, dtype=torch.float64),
-                  torch.full((geom.num,), 0.5, dtype=torch.complex128))
-    cache = build_cache(geom, make_links(tx, rx, [2.4e9], centre, "rcs"), iso, iso, None, RenderSettings(visibility=False))
-    pg = 10 * np.log10(np.abs(render(cache, m).numpy()[:, 0]) ** 2)
-    rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), rng, 2.4e9))
+    v, f = box((-0.05,) * 3, (0.05,) * 3)         # the physical-optics RCS of the box as metal
+    meas = read_artifact(po_measurements(d / "po.h5", v, f, np.array(["metal"] * len(f)), np.full(len(f), 0.003),
+                                         [2.4e9], np.arange(0, 360, 30), ranges=(2.0, 3.0)), "measurements")
+    tx, rx, asp, rng = (np.asarray(meas[k]) for k in ("tx_pos", "rx_pos", "aspect_rad", "range_m"))
+    pg, rcs = np.asarray(meas["path_gain_db"])[:, 0], np.asarray(meas["rcs_dbsm"])[:, 0]
     lines = ["tx_x,tx_y,tx_z,rx_x,rx_y,rx_z,freq_hz,power_db,rcs_dbsm,aspect_deg,range_m,split"]
     for i in range(len(tx)):
         a = round(float(np.degrees(asp[i]))) % 360

@@ -6,7 +6,11 @@ import math
 import numpy as np
 import torch
 
+from rfir_cli.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh
+from rfir_stages.model.materials import C0
+from rfir_stages.po import channel_from_amplitude, po_scattered_field
+from rfir_stages.rf_fit.links import radar_links
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 from rfir_stages.simulate.scenes import box
@@ -51,3 +55,24 @@ def db(s: torch.Tensor) -> np.ndarray:
 
 
 DEG = math.pi / 180
+
+
+def po_measurements(path, verts, faces, names, thickness, freqs, aspects_deg, *, ranges=(3.0,), shift=0.0,
+                    split=None):
+    """Monostatic RCS of a mesh from the physical-optics solver (isotropic antennas), turntable convention
+    at `ranges` m; split: per row (default: odd aspects test); shift [m]: every antenna moved by it."""
+    centre = 0.5 * (verts.min(0) + verts.max(0))
+    tx, rx, asp, rng = radar_links(np.asarray(aspects_deg) * DEG, np.asarray(ranges, float), centre)
+    mid = 0.5 * (tx + rx)
+    s = po_scattered_field(verts, faces, names, mid, mid, freqs, near_field=True, face_thickness=thickness,
+                           ref_point=tuple(centre))
+    r = np.linalg.norm(mid - centre, axis=1)
+    pg = 20 * np.log10(np.abs(channel_from_amplitude(s, freqs, r, r)))
+    lam = C0 / np.asarray(freqs)
+    rcs = pg + 10 * np.log10((4 * math.pi) ** 3 * r[:, None] ** 4 / lam[None] ** 2)
+    data = {"tx_pos": tx + shift, "rx_pos": rx + shift, "freq_hz": np.asarray(freqs, float), "path_gain_db": pg,
+            "rcs_dbsm": rcs, "aspect_rad": asp, "range_m": rng,
+            "split": np.asarray((np.arange(len(asp)) % 2) if split is None else split, dtype=np.int64),
+            "scene_bounds": np.stack([verts.min(0), verts.max(0)]) + shift}
+    write_artifact(path, "measurements", data, attrs={"task": "rcs", "scene": "test"})
+    return path

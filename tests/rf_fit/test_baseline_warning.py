@@ -5,11 +5,10 @@ import numpy as np
 from typer.testing import CliRunner
 
 from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_stages.geom import write_scene_artifact
+from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.predict.baselines import baselines_beating_model
 
-from .helpers import box_fields
-from .test_stage import FAST, _app, _measurements
+from .test_stage import BOX, FAST, _app, _measurements
 
 
 def test_each_baseline_below_the_model_is_named():
@@ -25,15 +24,15 @@ def test_each_baseline_below_the_model_is_named():
 
 def test_predict_rcs_warns_when_a_baseline_beats_the_model(tmp_path, monkeypatch):
     """Measurements flat over aspect (a sphere would do that): copying the nearest training aspect is
-    exact, a box's Gaussians after a short fit are not."""
-    fields = box_fields(0.05, 0.05)
-    write_scene_artifact(tmp_path / "scene.h5", fields)
-    meas = read_artifact(_measurements(tmp_path / "box.h5", fields), "measurements")
+    exact, a metal box's physical model is not."""
+    v, f = BOX
+    write_scene_artifact(tmp_path / "scene.h5", gaussians_from_mesh(v, f, 0.03))
+    meas = read_artifact(_measurements(tmp_path / "box.h5"), "measurements")
     data = dict(meas.data)
     for k in ("path_gain_db", "rcs_dbsm"):
         data[k] = np.full_like(data[k], float(np.mean(data[k])))
     write_artifact(tmp_path / "meas.h5", "measurements", data, attrs=dict(meas.attrs))
-    app = _app(FAST + ["rf_fit.model=free", "rf_fit.scattering=coherent", "rf_fit.sharing=gaussian"])
+    app = _app(FAST)
     r = CliRunner().invoke(app, ["rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"),
                                  "-o", str(tmp_path / "rf.h5")])
     assert r.exit_code == 0, r.output

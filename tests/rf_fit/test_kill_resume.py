@@ -1,5 +1,5 @@
-"""A kill -9 in the middle of `rfir rf-fit` leaves the previous rf.h5 whole (or none) and a checkpoint
-that `--resume` continues from."""
+"""A kill -9 in the middle of `rfir rf-fit` leaves the previous rf.h5 whole (or none) and no temporary
+file; the next run (`--resume` reuses a recorded model selection, tests/rf_fit/test_stage.py) finishes."""
 import hashlib
 import os
 import signal
@@ -7,21 +7,20 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
-import torch
 
 from rfir_cli.artifacts import read_artifact
-from rfir_stages.geom import write_scene_artifact
+from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 
-from .helpers import box_fields
-from .test_stage import _measurements
+from .test_stage import BOX, _measurements
 
-SETTINGS = ["rf_fit.occlusion=brute-force", "rf_fit.grid_step_deg=10.0", "rf_fit.model=free",
-            "rf_fit.scattering=coherent", "rf_fit.sharing=gaussian", "rf_fit.checkpoint_every=2"]
+SETTINGS = ["rf_fit.occlusion=brute-force", "rf_fit.antenna=isotropic", "rf_fit.physical.start_iterations=5",
+            "rf_fit.physical.residual=off"]
 
 
 def _rfir(args, iterations: int, *extra) -> list[str]:
-    sets = [a for s in SETTINGS + [f"rf_fit.iterations={iterations}"] for a in ("--set", s)]
+    sets = [a for s in SETTINGS + [f"rf_fit.physical.iterations={iterations}"] for a in ("--set", s)]
     return [sys.executable, "-m", "rfir_cli.main", *sets, "rf-fit", *args, *extra]
 
 
@@ -30,26 +29,27 @@ def _digest(path) -> str:
 
 
 @pytest.mark.slow   # three CLI processes (~1 min on 2 cores)
-def test_kill_9_mid_fit_keeps_the_old_artifact_and_resume_finishes(tmp_path):
-    fields = box_fields(0.05, 0.05)
-    write_scene_artifact(tmp_path / "scene.h5", fields)
-    _measurements(tmp_path / "meas.h5", fields)
+def test_kill_9_mid_fit_keeps_the_old_artifact_and_the_next_run_finishes(tmp_path):
+    v, f = BOX
+    labels = (v[f].mean(1)[:, 0] > 0).astype(np.int64)     # two labels: the sharing is chosen by validation
+    write_scene_artifact(tmp_path / "scene.h5", gaussians_from_mesh(v, f, 0.03, labels=labels))
+    _measurements(tmp_path / "meas.h5", split=np.zeros(18))
     args = [str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5")]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     done = subprocess.run(_rfir(args, 2), cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr + done.stdout
     old = _digest(tmp_path / "rf.h5")
-    ckpt = tmp_path / "rf.h5.ckpt.pt"
-    ckpt.unlink()
+    (tmp_path / "rf.h5.ckpt.pt.selection").unlink()
 
-    proc = subprocess.Popen(_rfir(args, 1_000_000), cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    log = tmp_path / "run.log"
+    with open(log, "w") as handle:
+        proc = subprocess.Popen(_rfir(args, 1_000_000), cwd=tmp_path, env=env, stdout=handle, stderr=handle)
     try:
         deadline = time.time() + 120
-        while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
+        while "physical/" not in log.read_text() and time.time() < deadline and proc.poll() is None:
             time.sleep(0.05)
-        assert ckpt.exists(), "no checkpoint was written"
-        time.sleep(0.3)                                  # a few more steps: the kill lands mid-fit
+        assert "physical/" in log.read_text(), log.read_text()   # the material fits have begun
+        time.sleep(0.5)
         assert proc.poll() is None
         os.kill(proc.pid, signal.SIGKILL)
     finally:
@@ -60,12 +60,9 @@ def test_kill_9_mid_fit_keeps_the_old_artifact_and_resume_finishes(tmp_path):
     assert read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]["iterations"] == 2
     assert not [p.name for p in tmp_path.iterdir() if "partial" in p.name]   # no temporary left behind
 
-    at = int(torch.load(ckpt, weights_only=True)["iteration"])
-    assert at >= 2 and at % 2 == 0
-    resumed = subprocess.run(_rfir(args, at + 3, "--resume"), cwd=tmp_path, env=env, capture_output=True,
+    resumed = subprocess.run(_rfir(args, 3, "--resume"), cwd=tmp_path, env=env, capture_output=True,
                              text=True, timeout=120)
     assert resumed.returncode == 0, resumed.stderr + resumed.stdout
-    assert f"at iteration {at}" in " ".join((resumed.stdout + resumed.stderr).split())
-    rf = read_artifact(tmp_path / "rf.h5", "rf")
-    attrs = rf.free["training@attrs"]
-    assert attrs["resumed_at"] == at and len(rf.free["training"]["loss_curve"]) == at + 3
+    out = " ".join((resumed.stdout + resumed.stderr).split())
+    assert "wrote" in out
+    assert read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]["iterations"] == 3

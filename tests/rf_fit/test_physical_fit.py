@@ -6,41 +6,21 @@ import h5py
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_cli.artifacts import read_artifact, validate_artifact
 from rfir_cli.progress import NullProgress
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity
-from rfir_stages.po import channel_from_amplitude, po_scattered_field
-from rfir_stages.rf_fit.links import radar_links
 from rfir_stages.simulate.scenes import box
 
-from .helpers import DEG
-
-
-def _po_measurements(path, verts, faces, names, thickness, freqs, aspects_deg):
-    """Monostatic RCS of a mesh from the PO solver (isotropic antennas), turntable convention, 3 m."""
-    centre = 0.5 * (verts.min(0) + verts.max(0))
-    tx, rx, asp, rng = radar_links(np.asarray(aspects_deg) * DEG, np.array([3.0]), centre)
-    mid = 0.5 * (tx + rx)
-    s = po_scattered_field(verts, faces, names, mid, mid, freqs, near_field=True, face_thickness=thickness,
-                           ref_point=tuple(centre))
-    r = np.linalg.norm(mid - centre, axis=1)
-    pg = 20 * np.log10(np.abs(channel_from_amplitude(s, freqs, r, r)))
-    lam = C0 / np.asarray(freqs)
-    rcs = pg + 10 * np.log10((4 * math.pi) ** 3 * r[:, None] ** 4 / lam[None] ** 2)
-    data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.asarray(freqs, float), "path_gain_db": pg, "rcs_dbsm": rcs,
-            "aspect_rad": asp, "range_m": rng, "split": (np.arange(len(asp)) % 2).astype(np.int64),
-            "scene_bounds": np.stack([verts.min(0), verts.max(0)])}
-    write_artifact(path, "measurements", data, attrs={"task": "rcs", "scene": "test"})
-    return path
+from .helpers import po_measurements
 
 
 @pytest.fixture(scope="module")
 def metal_box(tmp_path_factory):
     d = tmp_path_factory.mktemp("metal_box")
     v, f = box((-0.08, -0.05, -0.06), (0.08, 0.05, 0.06))
-    _po_measurements(d / "meas.h5", v, f, np.array(["metal"] * len(f)), np.full(len(f), 0.003),
+    po_measurements(d / "meas.h5", v, f, np.array(["metal"] * len(f)), np.full(len(f), 0.003),
                      [2.4e9, 5.8e9], np.arange(0, 360, 4.0))
     fields = gaussians_from_mesh(v, f, 0.012, labels=np.zeros(len(f), dtype=np.int64))
     write_scene_artifact(d / "scene.h5", fields)
@@ -52,10 +32,10 @@ def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, 
     from rfir_stages.rf_fit import run
 
     d = metal_box
-    cfg = {"model": "physical", "antenna": "isotropic", "freqs_hz": [2.4e9], "checkpoint_every": 0,
+    cfg = {"antenna": "isotropic", "freqs_hz": [2.4e9],
            "physical": {"sharing": "global", "iterations": 120, "start_iterations": 30}}
     res = run(d / "scene.h5", d / "meas.h5", tmp_path / "rf.h5", cfg)
-    assert res.scattering["model_selected"] == "physical"
+    assert res.selection["sharing_selected"] == "global"
     assert res.materials[0]["gamma_normal_abs"][0] > 0.9                 # metal recognised as metal
     rf = read_artifact(tmp_path / "rf.h5", "rf")
     assert validate_artifact(tmp_path / "rf.h5") == []                  # `rfir check` passes
@@ -97,25 +77,34 @@ def _predict_log(path) -> list[str]:
     return rec.lines
 
 
-def test_model_auto_offers_both_families_and_records_the_choice(metal_box, tmp_path):
+def test_sharing_auto_offers_per_label_and_global_and_records_the_choice(tmp_path):
+    """Two labels (the box's two halves): auto fits one material per label and one for the scene on the
+    same validation rows and records both MAEs and the choice in the artifact."""
     from rfir_stages.rf_fit import run
 
-    cfg = {"model": "auto", "antenna": "isotropic", "freqs_hz": [2.4e9], "checkpoint_every": 0, "iterations": 30,
-           "visibility": False, "physical": {"sharing": "global", "iterations": 60, "start_iterations": 20}}
-    res = run(metal_box / "scene.h5", metal_box / "meas.h5", tmp_path / "rf.h5", cfg)
-    keys = {k for k in res.scattering if k.startswith("val_mae_")}
-    assert "val_mae_physical_global_db" in keys and any("coherent" in k for k in keys), res.scattering
-    rf = read_artifact(tmp_path / "rf.h5", "rf")
-    assert rf.free["training@attrs"]["scattering_model_selected"] == res.scattering["model_selected"]
+    v, f = box((-0.08, -0.05, -0.06), (0.08, 0.05, 0.06))
+    po_measurements(tmp_path / "meas.h5", v, f, np.array(["metal"] * len(f)), np.full(len(f), 0.003), [2.4e9],
+                    np.arange(0, 360, 6.0))
+    labels = (v[f].mean(1)[:, 0] > 0).astype(np.int64)
+    write_scene_artifact(tmp_path / "scene.h5", gaussians_from_mesh(v, f, 0.02, labels=labels))
+    cfg = {"antenna": "isotropic", "visibility": False,
+           "physical": {"iterations": 40, "start_iterations": 10, "residual": "off"}}
+    res = run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf.h5", cfg)
+    keys = {k for k in res.selection if k.startswith("val_mae_")}
+    assert keys == {"val_mae_label_db", "val_mae_global_db"}, res.selection
+    best = min(("label", "global"), key=lambda s: res.selection[f"val_mae_{s}_db"])
+    assert res.selection["sharing_selected"] == best
+    attrs = read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]
+    assert attrs["selection_sharing_selected"] == best and attrs["sharing"] == best
 
 
 def test_bad_physical_settings_are_config_errors(metal_box, tmp_path):
     from rfir_cli.errors import ConfigError
     from rfir_stages.rf_fit import run
 
-    for cfg, msg in (({"model": "physics"}, "rf_fit.model"),
-                     ({"model": "physical", "physical": {"sharing": "brick"}}, "rf_fit.physical.sharing"),
-                     ({"model": "physical", "physical": {"polarisation": "X"}}, "polarisation")):
+    for cfg, msg in (({"physical": {"sharing": "brick"}}, "rf_fit.physical.sharing"),
+                     ({"physical": {"polarisation": "X"}}, "polarisation"),
+                     ({"loss": "paper"}, "rf_fit.loss")):
         with pytest.raises(ConfigError, match=msg):
             run(metal_box / "scene.h5", metal_box / "meas.h5", tmp_path / "rf.h5", {"antenna": "isotropic", **cfg})
     assert not (tmp_path / "rf.h5").exists()

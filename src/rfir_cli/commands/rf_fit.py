@@ -1,4 +1,4 @@
-"""`rfir rf-fit SCENE MEASUREMENTS -o RF`: per-Gaussian radio materials by inverse rendering."""
+"""`rfir rf-fit SCENE MEASUREMENTS -o RF`: the physical radio model's materials fitted to measurements."""
 from __future__ import annotations
 
 import time
@@ -19,7 +19,8 @@ def rf_fit(
     scene: Annotated[Path, typer.Argument(help="Scene artifact (Gaussians + normals), or an rf artifact to refit.")],
     measurements: Annotated[Path, typer.Argument(help="Measurements artifact; the training rows of --split are fitted.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="rf artifact to write (.h5).")],
-    iterations: Annotated[Optional[int], typer.Option("--iterations", help="Adam steps (rf_fit.iterations).")] = None,
+    iterations: Annotated[Optional[int], typer.Option(
+        "--iterations", help="Adam steps of the material fit (rf_fit.physical.iterations).")] = None,
     freq_hz: Annotated[Optional[list[float]], typer.Option(
         "--freq", "--freq-hz", help="Fit only these frequencies in Hz (repeatable; default: all in the file).")] = None,
     range_m: Annotated[Optional[str], typer.Option(
@@ -28,12 +29,13 @@ def rf_fit(
         "--aspects", help="Fit only rows at these aspects in degrees: '0:90' ([0, 90)), '315:45', '45', "
                           "comma-joined (default: all).")] = None,
     checkpoint: Annotated[Optional[Path], typer.Option(
-        "--checkpoint", help="Checkpoint file (default: OUT.ckpt.pt).")] = None,
-    resume: Annotated[bool, typer.Option("--resume", help="Continue from the checkpoint when it exists.")] = False,
+        "--checkpoint", help="Checkpoint file; the model selection is recorded in CHECKPOINT.selection "
+                             "(default: OUT.ckpt.pt).")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Reuse the recorded model selection of the same run.")] = False,
     split: Annotated[Optional[str], typer.Option(
         "--split", help="Train/test protocol (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m).")] = None,
 ) -> None:
-    """Fit RF opacity, roughness and complex reflection coefficient of every Gaussian (geometry frozen)."""
+    """Fit the materials (eps_r, sigma, thickness, scattering S) of the physical model (geometry frozen)."""
     t_start = time.time()   # the recorded wall time covers the whole command
     opts = options(ctx)
 
@@ -44,7 +46,7 @@ def rf_fit(
         select = parse_selection(None, range_m, aspects)
         table = dict(opts.config().get("rf_fit", {}))
         if iterations is not None:
-            table["iterations"] = int(iterations)
+            table["physical"] = dict(table.get("physical") or {}, iterations=int(iterations))
         if split is not None:
             table["split"] = split
         if freq_hz:
@@ -58,8 +60,7 @@ def rf_fit(
     console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
                   f"{len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
                   f"{r.iterations} steps ({_timing_text(r.wall_time_s, r.timings_s)}, {r.occlusion})"
-                  + (f"; scattering {r.scattering['selected']}, materials per {r.scattering['sharing_selected']}"
-                     if r.scattering else ""),
+                  + (f"; materials per {r.selection['sharing_selected']}" if r.selection else ""),
                   highlight=False)
     for w in r.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
