@@ -59,6 +59,11 @@ class RfFitResult:
     warnings: list = field(default_factory=list)
 
 
+def sharing_words(sharing: str) -> str:
+    """'materials per label', 'materials per segment' or 'one material for the scene'."""
+    return "one material for the scene" if sharing == "global" else f"materials per {sharing}"
+
+
 def render_settings(cfg: dict) -> RenderSettings:
     """The tracing settings of the [rf_fit] table (unknown keys were refused upstream)."""
     kw = {k: cfg[k] for k in ("visibility", "alpha_min", "t_stop", "colocated_tol_m") if k in cfg}
@@ -169,7 +174,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     starts = []
     if reused is not None:
         selection = reused
-        progress.log(f"rf-fit: model selection reused from {chosen}: materials per {selection['sharing_selected']}")
+        progress.log(f"rf-fit: model selection reused from {chosen}: {sharing_words(selection['sharing_selected'])}")
     elif len(sharings) > 1:
         asp, rng = meas.get("aspect_rad"), meas.get("range_m")
         folds, how = validation_folds(protocol, None if asp is None else np.degrees(np.asarray(asp)[rows]),
@@ -242,7 +247,7 @@ def _select_sharing(physical: PhysicalSetup, target: np.ndarray, folds: list[np.
     out["sharing_selected"] = min(sharings, key=scores.get)
     out["states"] = states[out["sharing_selected"]]
     progress.log(f"rf-fit: validation MAE on {len(val_all)} held-out training links ({how}): "
-                 + ", ".join(f"materials per {s} {v:.2f} dB" for s, v in scores.items())
+                 + ", ".join(f"{sharing_words(s)} {v:.2f} dB" for s, v in scores.items())
                  + f" -> {out['sharing_selected']}")
     return out
 

@@ -57,10 +57,12 @@ def rf_fit(
                        t_start=t_start)
 
     r = run_guarded(ctx, work)
+    from rfir_stages.rf_fit.stage import sharing_words
+
     console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
                   f"{len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
                   f"{r.iterations} steps ({_timing_text(r.wall_time_s, r.timings_s)}, {r.occlusion})"
-                  + (f"; materials per {r.selection['sharing_selected']}" if r.selection else ""),
+                  + (f"; {sharing_words(r.selection['sharing_selected'])}" if r.selection else ""),
                   highlight=False)
     for w in r.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
