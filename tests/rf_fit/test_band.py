@@ -131,3 +131,33 @@ def test_bad_band_settings_give_one_line(band_data, tmp_path, monkeypatch, bad, 
     assert r.exit_code != 0 and words in r.output, r.output
     assert "Traceback" not in r.output and not (tmp_path / "rf.h5").exists()
     assert len([ln for ln in r.output.splitlines() if words in ln]) == 1
+
+
+def test_a_band_ripples_with_the_path_difference_of_two_plates():
+    """Two metal squares 0.3 m apart along the line of sight: each frequency has its own k, so the
+    monostatic spectrum's minima are c / (2 x 0.3 m) = 500 MHz apart (one k for the band would give none)."""
+    import torch
+
+    from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
+    from rfir_stages.rf_fit.antennas import AntennaPattern
+
+    from .helpers import geometry, radar, square
+
+    sep, freqs = 0.3, np.linspace(5.0e9, 6.0e9, 101)
+    parts = []
+    for x, y in ((sep / 2, 0.1), (-sep / 2, -0.1)):         # offset in y: neither hides the other
+        v, f = square(0.04, x)
+        parts.append(gaussians_from_mesh(v + np.array([0.0, y, 0.0]), f, 0.01))
+    geom = geometry({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    iso = AntennaPattern("isotropic")
+    pairs = build_pairs(geom, radar([0.0], 3.0, freqs), iso, iso, None,
+                        PairSettings(visibility=False, second_order=False))
+    metal = MaterialParams(1, eps_r=1.0, sigma_1ghz=1e7, scattering=1e-9, thickness_m=0.003, sigma_exponent=0.0)
+    with torch.no_grad():
+        row = 10 * np.log10(scattered_power(pairs, torch.zeros(geom.num, dtype=torch.int64), metal.values())
+                            .numpy()[0])
+    assert np.ptp(row) > 10.0                                  # the two returns interfere
+    minima = np.flatnonzero((row[1:-1] < row[:-2]) & (row[1:-1] < row[2:])) + 1
+    assert len(minima) == 2
+    period = np.diff(freqs[minima]).mean()
+    assert abs(period - C0 / (2 * sep)) < 0.03 * C0 / (2 * sep), period
