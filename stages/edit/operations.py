@@ -6,12 +6,13 @@ Syntax (metres, degrees):
                                      selection's centroid); means, quaternions and normals turn together
   delete                             remove the Gaussians
   duplicate:DX,DY,DZ                 append copies moved by (DX,DY,DZ)
-  set:KEY=V[,KEY=V...]               set material; KEY in a, R, gamma_abs, gamma_phase (rad)
-  scale:KEY=V[,KEY=V...]             multiply material by V
   label:NAME                         give the selection the object label NAME (for later label:NAME selections)
-  material:NAME                      physical models: the selection becomes the ITU-R P.2040 material NAME
-                                     (metal, glass, concrete, ...) at the model's frequency, keeping its
-                                     thickness and scattering coefficient
+  material:NAME                      the selection becomes the ITU-R P.2040 material NAME (metal, glass,
+                                     concrete, ...) at the model's frequency, keeping its thickness and
+                                     scattering coefficient
+The fitted model predicts from its materials (material/*), not from per-Gaussian radio attributes, so
+there is no operation that sets or scales rf/* values: `set:` and `scale:` are refused in one line that
+points to material:NAME.
 """
 from __future__ import annotations
 
@@ -24,17 +25,16 @@ from rfir_cli.errors import ConfigError
 
 from .selection import parse_numbers
 
-MATERIAL_KEYS = {"a": "rf/opacity", "R": "rf/roughness", "gamma_abs": "rf/gamma_abs", "gamma_phase": "rf/gamma_phase_rad"}
-_LIMITS = {"rf/opacity": (0.0, 1.0), "rf/roughness": (1.0, math.inf), "rf/gamma_abs": (0.0, 1.0)}
+# Operations of earlier artifact families that changed per-Gaussian rf/* attributes; the model reads none.
+RETIRED_KINDS = ("set", "scale")
 
 
 @dataclass(frozen=True)
 class Operation:
-    """A parsed operation. kind: translate|rotate|delete|duplicate|set|scale|label|material."""
+    """A parsed operation. kind: translate|rotate|delete|duplicate|label|material."""
 
     kind: str
     numbers: tuple = ()
-    values: tuple = ()  # (material key, value) pairs for set/scale
     name: str = ""
     text: str = ""
 
@@ -89,20 +89,14 @@ def parse_operation(text: str) -> Operation:
             return Operation("material", name=material_key(rest), text=text)
         except ValueError as e:
             raise ConfigError(f"{where}: {e}") from None
-    if kind in ("set", "scale"):
-        pairs = []
-        for item in filter(None, (s.strip() for s in rest.split(","))):
-            key, eq, value = item.partition("=")
-            if not eq or key.strip() not in MATERIAL_KEYS:
-                raise ConfigError(f"{where}: unknown material key {key.strip()!r} (expected {', '.join(MATERIAL_KEYS)})")
-            pairs.append((key.strip(), parse_numbers(value, where)[0] if value.strip() else math.nan))
-        if not pairs or any(not math.isfinite(v) for _, v in pairs):
-            raise ConfigError(f"{where}: expected {kind}:KEY=VALUE[,KEY=VALUE...]")
-        return Operation(kind, values=tuple(pairs), text=text)
+    if kind in RETIRED_KINDS:
+        raise ConfigError(f"{where}: {kind}: is not an operation (the model predicts from its materials, not from "
+                          "per-Gaussian rf/* attributes); give the selection a material with material:NAME "
+                          "(e.g. material:metal)")
     arity = {"translate": (3,), "duplicate": (3,), "rotate": (4, 7)}
     if kind not in arity:
-        raise ConfigError(f"{where}: unknown operation {kind!r} (expected translate, rotate, delete, duplicate, set, "
-                          "scale, label or material)")
+        raise ConfigError(f"{where}: unknown operation {kind!r} (expected translate, rotate, delete, duplicate, label "
+                          "or material)")
     numbers = parse_numbers(rest, where)
     if len(numbers) not in arity[kind]:
         raise ConfigError(f"{where}: {kind} takes {' or '.join(map(str, arity[kind]))} numbers, got {len(numbers)}")
@@ -174,21 +168,10 @@ def apply(scene: EditScene, mask: np.ndarray, op: Operation) -> dict:
         scene.arrays["gaussians/means"][g:] += np.asarray(op.numbers)
         scene.touched[g:] = True
         return rec
-    elif op.kind in ("set", "scale"):
-        if "material/index" in a:   # a physical model predicts from material/*, not from the rf/* attributes
-            raise ConfigError(f"--op {op.text!r}: a physical model's materials are not per-Gaussian attributes; "
-                              "give the selection another material with material:NAME (e.g. material:metal)")
-        for key, value in op.values:
-            name = MATERIAL_KEYS[key]
-            new = np.full(idx.size, value) if op.kind == "set" else a[name][idx] * value
-            lo, hi = _LIMITS.get(name, (-math.inf, math.inf))
-            if np.any((new < lo) | (new > hi)):
-                rec["warnings"].append(f"{op.text}: {key} clipped to [{lo:g}, {hi:g}]")
-            a[name][idx] = np.clip(new, lo, hi)
     elif op.kind == "material":
         if "material/index" not in a:
-            raise ConfigError(f"--op {op.text!r}: re-materialing needs a physical model (material/index); "
-                              "a free model's attributes change with set:KEY=V")
+            raise ConfigError(f"--op {op.text!r}: re-materialing needs the model's material/index dataset, "
+                              "which this artifact lacks")
         if idx.size:
             was = int(np.bincount(a["material/index"][idx]).argmax())
             scene.new_materials.append((op.name, was))

@@ -17,7 +17,8 @@ def _scene(g=50, seed=1) -> EditScene:
                       "gaussians/rotations": q / np.linalg.norm(q, axis=1, keepdims=True),
                       "gaussians/normals": n / np.linalg.norm(n, axis=1, keepdims=True),
                       "rf/opacity": rng.uniform(0, 1, g), "rf/roughness": rng.uniform(1, 9, g),
-                      "rf/gamma_abs": rng.uniform(0, 1, g), "rf/gamma_phase_rad": rng.uniform(-3, 3, g)})
+                      "rf/gamma_abs": rng.uniform(0, 1, g), "rf/gamma_phase_rad": rng.uniform(-3, 3, g),
+                      "material/index": rng.integers(0, 2, g)}, num_materials=2)
 
 
 def test_rotation_keeps_covariances_positive_definite_and_normals_unit():
@@ -57,7 +58,7 @@ def test_rotate_default_pivot_is_the_selection_centroid():
     assert rec["op"].startswith("rotate:0.0,0.0,1.0,90.0,") and rec["inverse"].startswith("rotate:0.0,0.0,1.0,-90.0,")
 
 
-def test_delete_duplicate_carry_every_array_and_materials_clip():
+def test_delete_duplicate_carry_every_array_and_material_appends_one():
     s = _scene(g=20)
     before = {k: v.copy() for k, v in s.arrays.items()}
     mask = np.zeros(20, bool)
@@ -70,12 +71,14 @@ def test_delete_duplicate_carry_every_array_and_materials_clip():
     apply(s, np.arange(22) >= 20, parse_operation("delete"))
     for k in before:
         assert np.array_equal(s.arrays[k], before[k]), k
-    rec = apply(s, mask, parse_operation("scale:a=100,R=0.01"))
-    assert np.all(s.arrays["rf/opacity"][mask] == 1.0) and np.all(s.arrays["rf/roughness"][mask] >= 1)
-    assert rec["warnings"] and "clipped" in rec["warnings"][0]
-    apply(s, mask, parse_operation("set:gamma_abs=0.25,gamma_phase=3.1"))
-    assert np.all(s.arrays["rf/gamma_abs"][mask] == 0.25) and np.all(s.arrays["rf/gamma_phase_rad"][mask] == 3.1)
-    assert np.array_equal(s.arrays["rf/gamma_abs"][~mask], before["rf/gamma_abs"][~mask])
+    apply(s, mask, parse_operation("material:metal"))
+    # the selection gets a new material (index 2, after the model's two); nothing else changes
+    assert np.all(s.arrays["material/index"][mask] == 2) and s.touched[mask].all() and not s.touched[~mask].any()
+    assert np.array_equal(s.arrays["material/index"][~mask], before["material/index"][~mask])
+    assert s.new_materials == [("metal", int(np.bincount(before["material/index"][mask]).argmax()))]
+    for k in before:
+        if k != "material/index":
+            assert np.array_equal(s.arrays[k], before[k]), k
 
 
 def test_selections():
@@ -103,8 +106,16 @@ def test_bad_selections(text, message):
 
 
 @pytest.mark.parametrize("text, message", [("spin:1", "unknown operation 'spin'"), ("translate:1,2", "translate takes 3"),
-                                           ("set:colour=1", "unknown material key 'colour'"), ("rotate:0,0,0,90", "axis"),
-                                           ("delete:3", "no arguments"), ("scale:", "expected scale")])
+                                           ("material:unobtainium", "unobtainium"), ("rotate:0,0,0,90", "axis"),
+                                           ("delete:3", "no arguments"), ("label:", "expected label:NAME")])
 def test_bad_operations(text, message):
     with pytest.raises(ConfigError, match=message):
         parse_operation(text)
+
+
+@pytest.mark.parametrize("text", ["set:gamma_abs=0.3,R=4", "scale:a=2", "SET:a=1", "scale:"])
+def test_set_and_scale_are_refused_in_one_line_pointing_to_material(text):
+    with pytest.raises(ConfigError) as err:
+        parse_operation(text)
+    message = str(err.value)
+    assert "\n" not in message and repr(text) in message and "material:NAME" in message, message

@@ -26,7 +26,7 @@ def edit(
                          "sphere:CX,CY,CZ,R | label:NAME | all (repeatable, paired with --op in order).")] = None,
     op: Annotated[Optional[list[str]], typer.Option(
         "--op", help="translate:DX,DY,DZ | rotate:AX,AY,AZ,DEG[,PX,PY,PZ] | delete | duplicate:DX,DY,DZ | "
-                     "set:a=..,R=..,gamma_abs=..,gamma_phase=.. | scale:KEY=FACTOR | label:NAME (repeatable).")] = None,
+                     "material:NAME (an ITU-R P.2040 material, e.g. metal) | label:NAME (repeatable).")] = None,
     script: Annotated[Optional[Path], typer.Option(
         "--script", help="TOML edit script: a list of edit tables with select and op keys (docs/edit.md).")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List what each edit selects; write nothing.")] = False,
