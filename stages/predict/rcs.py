@@ -5,7 +5,7 @@ simulate's turntable convention. The physical model and antenna are the ones rec
 (rfir_stages.model.artifact; group model/). Outputs: a `predictions` artifact (path_gain_db,
 rcs_dbsm, measured_db = measured RCS), optional PNG plots (polar and linear RCS versus aspect per
 range and frequency; the fitted materials' |Gamma| at normal incidence and S seen from the first
-aspect) and results/<name>.json with the MAE on the test split beside the nearest-aspect and
+aspect) and a results JSON (default: the output with .json) with the MAE on the test split beside the nearest-aspect and
 linear-interpolation baselines.
 """
 from __future__ import annotations

@@ -6,7 +6,7 @@ Two uses:
   receivers of that transmitter; heatmap PNGs (predicted, and measured and error where measured).
 - evaluation: `--measurements` without --tx: every row of the file; the test rows of the split the
   model was fitted with are scored beside the log-distance and multi-wall baselines fitted on the
-  training rows (rssi_baselines.py) and written to results/<name>.json.
+  training rows (rssi_baselines.py) and written to a results JSON (default: the output with .json).
 Both write a `predictions` artifact; `--plots` adds the FoV renders of |Gamma|, angle(Gamma), R.
 Positions outside the scene's bounds or inside the geometry are warned about (named); a request
 whose memory estimate exceeds `predict.rssi.max_memory_gb` is refused before any work.

@@ -89,7 +89,7 @@ def test_the_stated_antenna_reaches_the_fit_and_predict(box_csv, tmp_path, monke
     pred = read_artifact(tmp_path / "p.h5", "predictions")
     np.testing.assert_allclose(np.sort(np.degrees(pred["aspect_rad"])), [0, 30, 60], atol=1e-9)
     assert np.all(pred["range_m"] == 3.0)
-    res = json.loads((tmp_path / "results" / "p.json").read_text())
+    res = json.loads((tmp_path / "p.json").read_text())
     assert res["antenna"]["antenna_kind"] == "horn" and res["antenna"]["antenna_source"] == "stated by the measurements"
 
 

@@ -40,7 +40,7 @@ def test_predict_rcs_warns_when_a_baseline_beats_the_model(tmp_path, monkeypatch
     r = CliRunner().invoke(app, ["predict", "rcs", str(tmp_path / "rf.h5"), "--measurements",
                                  str(tmp_path / "meas.h5"), "-o", str(tmp_path / "pred.h5")])
     assert r.exit_code == 0, r.output
-    m = json.loads((tmp_path / "results" / "pred.json").read_text())["metrics"]
+    m = json.loads((tmp_path / "pred.json").read_text())["metrics"]
     better = [k for k in m if k.startswith("baseline_") and k.endswith("_mae_db") and m[k] < m["mae_db"]]
     assert better, m                                   # the setup: at least one baseline beats the model
     said = m["warning_baselines"]

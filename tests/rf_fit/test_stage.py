@@ -75,7 +75,7 @@ def test_rf_fit_then_predict_rcs(tiny, tmp_path, monkeypatch):
     assert r.exit_code == 0, r.output
     pred = read_artifact(tmp_path / "pred.h5", "predictions")
     assert pred.data["rcs_dbsm"].shape == (18, 1) and np.isfinite(pred.data["rcs_dbsm"]).all()
-    res = json.loads((tmp_path / "results" / "pred.json").read_text())
+    res = json.loads((tmp_path / "pred.json").read_text())
     assert res["num_test"] == 9 and {"mae_db", "baseline_nearest_mae_db", "baseline_linear_mae_db"} <= set(res["metrics"])
     assert (tmp_path / "plots" / "rcs_2.4GHz_2m_polar.png").exists()
     assert (tmp_path / "plots" / "attributes.png").exists()

@@ -48,7 +48,7 @@ def predict_rcs(
         "--freq", "--freqs", help="Hz: '2.4e9' (fitted ones; any inside the band of a wideband model).")] = None,
     plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for PNG plots.")] = None,
     results: Annotated[Optional[Path], typer.Option(
-        "--results", help="JSON with metrics (default results/<OUT stem>.json when --measurements).")] = None,
+        "--results", help="JSON with metrics (default: OUT with .json when --measurements).")] = None,
 ) -> None:
     """Predict monostatic RCS versus aspect, range and frequency; compare on the test split when measured."""
     opts = options(ctx)
@@ -59,7 +59,7 @@ def predict_rcs(
 
         results_path = results
         if results_path is None and measurements is not None:
-            results_path = Path("results") / f"{out.stem}.json"
+            results_path = out.with_suffix(".json")
         with RichReporter(opts.verbosity) as reporter:
             measured = measurements is not None   # measured rows are selected (intervals allowed), else made
             return run_rcs(rf, out, dict(opts.config().get("predict", {})), measurements_path=measurements,

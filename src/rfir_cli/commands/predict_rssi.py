@@ -26,7 +26,7 @@ def predict_rssi(
         "--measurements", help="RSSI measurements: without --tx, score every row on the model's test split.")] = None,
     plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for heatmap and FoV PNGs.")] = None,
     results: Annotated[Optional[Path], typer.Option(
-        "--results", help="JSON with metrics (default results/<OUT stem>.json when scoring).")] = None,
+        "--results", help="JSON with metrics (default: OUT with .json when scoring).")] = None,
 ) -> None:
     """Received power at points or on a grid for any transmitter; MAE beside baselines when measured."""
     opts = options(ctx)
@@ -37,7 +37,7 @@ def predict_rssi(
         out_path = out or rf.with_name(rf.stem + "_rssi.h5")
         results_path = results
         if results_path is None and measurements is not None and tx is None:
-            results_path = Path("results") / f"{out_path.stem}.json"
+            results_path = out_path.with_suffix(".json")
         with RichReporter(opts.verbosity) as reporter:
             return run_rssi(rf, out_path, dict(opts.config().get("predict", {})), tx=comma_numbers(tx, "--tx", 3),
                             rx_file=rx, grid=comma_numbers(grid, "--grid", 2), measurements_path=measurements,
