@@ -19,18 +19,13 @@ $RFIR calibrate "$OUT/lego/images" -o "$OUT/calib.h5" --poses "$OUT/lego/cameras
 echo "== 3/5 geom: 3D Gaussians with normals trained from the calibrated photos (compared with the true mesh)"
 $RFIR geom "$OUT/calib.h5" -o "$OUT/scene.h5"
 
-echo "== 4/5 rf-fit: radio materials (per Gaussian or one for the object, chosen by validation) from the even aspects"
-$RFIR rf-fit "$OUT/scene.h5" "$OUT/lego/measurements.h5" -o "$OUT/rf.h5" --iterations 200
+echo "== 4/5 rf-fit: radio materials (eps_r, sigma, slab thickness, S; per segment of the Gaussians or one for the"
+echo "   object, chosen by validation) fitted to the even aspects, then the fitted materials"
+$RFIR rf-fit "$OUT/scene.h5" "$OUT/lego/measurements.h5" -o "$OUT/rf.h5"
+$RFIR info "$OUT/rf.h5" | sed -n '/fitted materials/,$p'
 
 echo "== 5/5 predict rcs: the odd aspects, beside the nearest-aspect and interpolation baselines"
 $RFIR predict rcs "$OUT/rf.h5" -o "$OUT/predictions.h5" --measurements "$OUT/lego/measurements.h5" \
     --plots "$OUT/plots" --results "$OUT/results.json"
-
-echo "== 5b/5 the physical model alone: one material for the object (eps_r, sigma, slab thickness, S) and its RCS"
-$RFIR --set rf_fit.model=physical --set rf_fit.physical.sharing=global rf-fit "$OUT/scene.h5" \
-    "$OUT/lego/measurements.h5" -o "$OUT/rf_physical.h5"
-$RFIR info "$OUT/rf_physical.h5" | sed -n '/fitted materials/,$p'
-$RFIR predict rcs "$OUT/rf_physical.h5" -o "$OUT/predictions_physical.h5" --measurements "$OUT/lego/measurements.h5" \
-    --plots "$OUT/plots_physical" --results "$OUT/results_physical.json"
 
 echo "demo finished: artifacts in $OUT/, plots in $OUT/plots/, metrics in $OUT/results.json"
