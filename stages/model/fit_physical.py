@@ -14,6 +14,7 @@ state with the lowest training loss is kept (not the last step).
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -191,19 +192,32 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
                              {"start_losses": {t[1][0]: t[0] for t in tried}})
 
 
+def label_class_names(label_names: list[str]) -> list[str]:
+    """Object class of each label name: the name without a trailing _NN (brick_03 -> brick, desk_12 ->
+    desk). Objects of one class are taken to be of one material."""
+    return [re.sub(r"_\d+$", "", str(n)) for n in label_names]
+
+
 def material_index(kind: str, num_gaussians: int, labels: torch.Tensor | None, means: torch.Tensor | None = None,
                    normals: torch.Tensor | None = None, num_segments: int = 8, seed: int = 0,
                    label_names: list[str] | None = None) -> tuple[torch.Tensor, list[str]]:
-    """(material of each Gaussian [G] int64, material names): one per "label", one "global", or per
-    "segment" (k-means on position, scaled by the scene extent, and normal, sign-free)."""
+    """(material of each Gaussian [G] int64, material names): one per "label", one per label "class"
+    (label_class_names), one "global", or per "segment" (k-means on position, scaled by the scene
+    extent, and normal, sign-free)."""
     if kind == "global":
         return torch.zeros(num_gaussians, dtype=torch.int64), ["scene"]
-    if kind == "label":
+    if kind in ("label", "class"):
         if labels is None:
-            raise ValueError("materials per label need gaussians/labels in the scene")
+            raise ValueError(f"materials per {kind} need gaussians/labels in the scene")
         uniq, inv = torch.unique(labels, return_inverse=True)
-        named = lambda u: label_names[u] if label_names is not None and 0 <= u < len(label_names) else f"label {u}"  # noqa: E731
-        return inv, [named(int(u)) for u in uniq]
+        named = [label_names[u] if label_names is not None and 0 <= u < len(label_names) else f"label {u}"   # unnamed: a class each
+                 for u in uniq.tolist()]
+        if kind == "label":
+            return inv, named
+        classes = label_class_names(named)
+        cnames = sorted(set(classes), key=classes.index)
+        of_label = torch.as_tensor([cnames.index(c) for c in classes], dtype=torch.int64)
+        return of_label[inv], cnames
     if kind == "segment":
         from scipy.cluster.vq import kmeans2
         x = means.numpy()
@@ -215,4 +229,4 @@ def material_index(kind: str, num_gaussians: int, labels: torch.Tensor | None, m
         _, lab = kmeans2(feats, k, seed=seed, minit="++")
         uniq, inv = np.unique(lab, return_inverse=True)
         return torch.as_tensor(inv, dtype=torch.int64), [f"segment {i}" for i in range(len(uniq))]
-    raise ValueError(f"material sharing {kind!r} unknown (label, segment, global)")
+    raise ValueError(f"material sharing {kind!r} unknown (label, class, segment, global)")

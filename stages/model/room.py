@@ -52,15 +52,6 @@ class RoomSettings:
     device_gain_prior_db: float = 3.0
 
 
-def label_classes(label_names: list[str]) -> tuple[np.ndarray, list[str]]:
-    """(class of each label [L], class names): the name without a trailing _NN (desk_03 -> desk)."""
-    from rfir_stages.predict.rssi_baselines import class_names
-
-    base = class_names(label_names)
-    names = sorted(set(base), key=base.index)
-    return np.asarray([names.index(b) for b in base], dtype=np.int64), names
-
-
 class RoomGeometry:
     """Patches, diffuse cells and the occlusion provider of a frozen set of surfels."""
 

@@ -18,7 +18,6 @@
 """
 from __future__ import annotations
 
-import re
 
 import numpy as np
 import torch
@@ -41,8 +40,9 @@ def predict_log_distance(params: dict, dist_m: np.ndarray) -> np.ndarray:
 
 
 def class_names(label_names) -> list[str]:
-    """Crossing class per label: the name without a trailing _NN (desk_03 -> desk)."""
-    return [re.sub(r"_\d+$", "", str(n)) for n in label_names]
+    """Crossing class per label: its material class (desk_03 -> desk; model.fit_physical.label_class_names)."""
+    from rfir_stages.model.fit_physical import label_class_names
+    return label_class_names(label_names)
 
 
 def surface_groups(query: np.ndarray, t_m: np.ndarray, normals: np.ndarray | None, response: np.ndarray,

@@ -1,7 +1,7 @@
 """rf-fit with the physical model (rfir_stages.model): candidates, validation fits, the artifact.
 
 The geometry of every (training link, lit surfel) pair is traced once (`PhysicalSetup`); each
-material sharing ("label", "segment", "global") sums it into its aggregated form once, and fits on
+material sharing ("label", "class", "segment", "global") sums it into its aggregated form once, and fits on
 any subset of the training links then cost links x materials x angle nodes per step. The residual
 (rfir_stages.model.residual) is fitted on top of the final materials (`PhysicalSetup.fit_residual`).
 """
@@ -22,7 +22,7 @@ from rfir_stages.model.residual import (FORMS, ResidualConfig, ResidualFit, fit_
                                         physics_db, residual_folds)
 from rfir_stages.model.surfels import surfel_areas
 
-SHARINGS = ("auto", "label", "segment", "global")
+SHARINGS = ("auto", "label", "class", "segment", "global")
 LOSSES = ("db_mse", "db_huber")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
 RESIDUAL_LISTS = {"residual_weights": "weights", "residual_lengths_deg": "lengths_deg",
@@ -83,15 +83,17 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
     return fit_cfg, pairs, table
 
 
-def sharing_candidates(table: dict, num_labels: int) -> list[str]:
-    """Material sharings to try: "auto" -> per label (or per segment without labels) and one global;
-    with a single label, per label is the global material, so only that is fitted. num_labels: distinct
-    object labels of the Gaussians (0: unlabelled)."""
+def sharing_candidates(table: dict, num_labels: int, num_classes: int | None = None) -> list[str]:
+    """Material sharings to try: "auto" -> per object class (label_class_names: brick_03 -> brick; per
+    segment without labels) and one global, chosen by validation; with a single class that is the
+    global material, so only that is fitted. num_labels / num_classes: distinct object labels / label
+    classes of the Gaussians (0: unlabelled; classes default to the labels)."""
     sharing = str(table.get("sharing", "auto"))
+    classes = num_labels if num_classes is None else num_classes
     if sharing == "auto":
-        return ["global"] if num_labels == 1 else ["label" if num_labels else "segment", "global"]
-    if sharing == "label" and not num_labels:
-        raise ConfigError("rf_fit.physical.sharing = 'label' needs gaussians/labels in the scene; "
+        return ["global"] if num_labels and classes == 1 else ["class" if num_labels else "segment", "global"]
+    if sharing in ("label", "class") and not num_labels:
+        raise ConfigError(f"rf_fit.physical.sharing = '{sharing}' needs gaussians/labels in the scene; "
                           "use 'segment' (materials from clustering the Gaussians) or 'global'")
     return [sharing]
 

@@ -23,7 +23,7 @@ from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
 from rfir_stages.model.physical import PairSettings
-from rfir_stages.model.room import RoomGeometry, RoomSettings, label_classes
+from rfir_stages.model.room import RoomGeometry, RoomSettings
 
 from .physical_stage import bound_warnings
 
@@ -59,14 +59,8 @@ def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], st
     names = [str(s) for s in scene.attrs.get("label_names", [])] if "label_names" in scene.attrs else None
     if sharing == "auto":
         sharing = "class" if labels is not None else "segment"
-    if sharing == "class":
-        if labels is None:
-            raise ConfigError("rf_fit.room.sharing = 'class' needs gaussians/labels in the scene; use 'segment'")
-        lab = np.asarray(labels, dtype=np.int64)
-        top = int(lab.max()) + 1
-        cls, cnames = label_classes(names if names and len(names) >= top else [f"label_{i}" for i in range(top)])
-        used, idx = np.unique(cls[lab], return_inverse=True)
-        return idx.astype(np.int64), [cnames[u] for u in used], sharing
+    if sharing == "class" and labels is None:
+        raise ConfigError("rf_fit.room.sharing = 'class' needs gaussians/labels in the scene; use 'segment'")
     idx, mnames = material_index(sharing, geom.num, None if labels is None else torch.as_tensor(labels),
                                  geom.means, geom.normals, label_names=names)
     return idx.numpy(), mnames, sharing

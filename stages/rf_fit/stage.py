@@ -26,6 +26,7 @@ from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 from rfir_stages.model.band import aggregate_chunk
+from rfir_stages.model.fit_physical import material_index
 
 from .antennas import antenna_choice
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
@@ -60,8 +61,11 @@ class RfFitResult:
 
 
 def sharing_words(sharing: str) -> str:
-    """'materials per label', 'materials per segment' or 'one material for the scene'."""
-    return "one material for the scene" if sharing == "global" else f"materials per {sharing}"
+    """'materials per label', 'materials per object class', 'materials per segment' or 'one material for
+    the scene'."""
+    if sharing == "global":
+        return "one material for the scene"
+    return "materials per object class" if sharing == "class" else f"materials per {sharing}"
 
 
 def render_settings(cfg: dict) -> RenderSettings:
@@ -144,10 +148,15 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
 
     labels = scene.get("gaussians/labels")
     labels = None if labels is None else torch.as_tensor(np.asarray(labels))
-    num_labels = 0 if labels is None else int(torch.unique(labels).numel())
-    sharings = sharing_candidates(phys_table, num_labels)
+    label_names = [str(n) for n in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
+    num_labels = num_classes = 0
+    if labels is not None:
+        num_labels = int(torch.unique(labels).numel())
+        num_classes = len(material_index("class", geom.num, labels, label_names=label_names)[1])
+    sharings = sharing_candidates(phys_table, num_labels, num_classes)
     if sharings == ["global"] and str(phys_table.get("sharing", "auto")) == "auto":
-        progress.log("rf-fit: one object label: its material is the scene's (rf_fit.physical.sharing = auto -> global)")
+        progress.log("rf-fit: one object class among the labels: its material is the scene's "
+                     "(rf_fit.physical.sharing = auto -> global)")
     t0 = time.time()
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
         if render_cfg.visibility else None
@@ -156,8 +165,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                  f"{pair_settings.polarisation}, sigma ~ f^{fit_cfg.sigma_exponent:g}, double bounces "
                  f"{'on' if pair_settings.second_order else 'off'}, system gain {'fitted' if fit_cfg.fit_gain else '0 dB'}")
     with progress.task("trace (physical pairs)", total=1) as bar:
-        names = [str(n) for n in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
-        physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed, names)
+        physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed,
+                                       label_names)
         if band_attrs:   # many frequencies: aggregate in smaller pair chunks; the band goes into the artifact
             physical.agg_chunk, physical.extra_attrs = aggregate_chunk(len(freqs)), band_attrs
         bar.advance(1)
@@ -212,7 +221,7 @@ def _load_selection(path: Path, key: str) -> dict | None:
 
 def _select_sharing(physical: PhysicalSetup, target: np.ndarray, folds: list[np.ndarray], how: str,
                     sharings: list[str], fit_cfg, progress) -> dict:
-    """The material sharing ("label" / "segment" / "global") that predicts held-out training rows best
+    """The material sharing ("label" / "class" / "segment" / "global") that predicts held-out training rows best
     after the same fit on the rest. `folds`: lists of training rows held out in turn, shaped like the
     protocol's test by splits.validation_folds; the test split is never looked at. Fewer than 10
     training links: the first sharing. Returns {"sharing_selected", "validation_links", "validation",

@@ -77,9 +77,9 @@ def _predict_log(path) -> list[str]:
     return rec.lines
 
 
-def test_sharing_auto_offers_per_label_and_global_and_records_the_choice(tmp_path):
-    """Two labels (the box's two halves): auto fits one material per label and one for the scene on the
-    same validation rows and records both MAEs and the choice in the artifact."""
+def test_sharing_auto_offers_per_class_and_global_and_records_the_choice(tmp_path):
+    """Two unnamed labels (the box's two halves; a class each): auto fits one material per class and one
+    for the scene on the same validation rows and records both MAEs and the choice in the artifact."""
     from rfir_stages.rf_fit import run
 
     v, f = box((-0.08, -0.05, -0.06), (0.08, 0.05, 0.06))
@@ -91,8 +91,8 @@ def test_sharing_auto_offers_per_label_and_global_and_records_the_choice(tmp_pat
            "physical": {"iterations": 40, "start_iterations": 10, "residual": "off"}}
     res = run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf.h5", cfg)
     keys = {k for k in res.selection if k.startswith("val_mae_")}
-    assert keys == {"val_mae_label_db", "val_mae_global_db"}, res.selection
-    best = min(("label", "global"), key=lambda s: res.selection[f"val_mae_{s}_db"])
+    assert keys == {"val_mae_class_db", "val_mae_global_db"}, res.selection
+    best = min(("class", "global"), key=lambda s: res.selection[f"val_mae_{s}_db"])
     assert res.selection["sharing_selected"] == best
     attrs = read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]
     assert attrs["selection_sharing_selected"] == best and attrs["sharing"] == best
