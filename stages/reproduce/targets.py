@@ -334,7 +334,7 @@ def target_ablation(r: Plan) -> Table:
 
     def fit(name: str, extra: dict) -> Cell:
         return M.rfir_rcs(r, f"ablation_{obj}_{tag}_{name}", scene, meas, protocol, 2.4e9, _fit_sets(r, extra)).cell()
-    one = (Cell(note="one object label: one material already") if obj == "lego"
+    one = (Cell(note="one object class (bricks): one material already") if obj == "lego"
            else fit("one_material", {"rf_fit.physical.sharing": "global"}))
     t.add(f"{obj} 2.4 GHz RCS (physical optics), {protocol}", {
         "rfir": M.rfir_rcs(r, f"rcs_po_{obj}_2.4_{tag}", scene, meas, protocol, 2.4e9, _fit_sets(r)).cell(),

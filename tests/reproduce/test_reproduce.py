@@ -129,7 +129,7 @@ def test_table_cli_fills_a_target_from_results_and_benchmarks(tmp_path):
     paths = write_target("ablation", True, tmp_path / "d", tmp_path / "o")
     md = paths[0].read_text()
     row = "| lego 2.4 GHz RCS (physical optics), sector:45:135 |"
-    assert row + " **1.00** | 2.00 | 3.00 | one object label: one material already |" in md
+    assert row + " **1.00** | 2.00 | 3.00 | one object class (bricks): one material already |" in md
     assert row + " 1.0 | 2.0 | 3.0 |  |" in md      # fit + predict, minutes
     summary = json.loads((tmp_path / "o" / "ablation.json").read_text())
     assert summary["step_s"]["ablation_lego_sector_45_135_single_bounce__rfir_fit"] == 90.0
