@@ -45,6 +45,7 @@ EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
 LOG10_SIGMA = (-4.0, 7.0)   # conductivity at 1 GHz in [1e-4, 1e7] S/m (1e7: metal)
 THICKNESS_M = (1e-3, 1.0)   # slab thickness range, m
 POLARISATIONS = {"V": (0.0, 0.0, 1.0), "H": None}   # V: along +z; H: horizontal, across the link
+DENSE_VIS_MAX = 1 << 24     # links x Gaussians up to which the visibility lookup is a dense table (128 MiB)
 
 
 @dataclass
@@ -75,14 +76,25 @@ class PairGeometry:
         return int(self.link.numel())
 
     def visibility_of(self, link: torch.Tensor, gauss: torch.Tensor, num_gaussians: int) -> torch.Tensor:
-        """V [I] of the (link, surfel) pairs asked for; 0 for pairs that are not lit (not in the table)."""
+        """V of the (link, surfel) pairs asked for (index tensors of broadcastable shapes); 0 for pairs
+        that are not lit (not in the table).
+
+        Looked up many times per build (the double bounces): a dense [M, G] table when it holds at most
+        DENSE_VIS_MAX entries, else a sorted key and a binary search."""
         cached = self.__dict__.get("_vis_index")
-        if cached is None or cached[0] != num_gaussians:     # sorted once, looked up many times
+        if cached is None or cached[0] != num_gaussians:     # built once, looked up many times
             key = self.link * num_gaussians + self.gauss
-            order = torch.argsort(key)
-            cached = (num_gaussians, key[order], self.vis[order])
+            if self.num_links * num_gaussians <= DENSE_VIS_MAX:
+                table = torch.zeros(self.num_links * num_gaussians, dtype=torch.float64)
+                table[key] = self.vis.double()
+                cached = (num_gaussians, table.reshape(self.num_links, num_gaussians), None)
+            else:
+                order = torch.argsort(key)
+                cached = (num_gaussians, key[order], self.vis[order])
             self.__dict__["_vis_index"] = cached
         _, sk, sv = cached
+        if sv is None:
+            return sk[link, gauss]
         want = link * num_gaussians + gauss
         if sk.numel() == 0:
             return torch.zeros(want.shape, dtype=torch.float64)

@@ -144,8 +144,8 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
                         polarisation: str = "V", colocated_tol_m: float = 0.01) -> DoubleBounce:
     """Double-bounce items of every link (see the module docstring).
 
-    vis_lookup(link [I], gauss [I]) -> V [I]: visibility of a surfel from the link's antenna (the
-    first-order pairs'; 0 where the surfel is not lit)."""
+    vis_lookup(link, gauss) -> V: visibility of a surfel from the link's antenna (the first-order
+    pairs'; 0 where the surfel is not lit), for index tensors of any broadcastable shapes."""
     from scipy.spatial import cKDTree
 
     from .physical import _te_share
@@ -207,9 +207,11 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     if ml.size == 0:
         return None
     tx_img = tx[ml] - 2.0 * side_tx[ml, None] * na[None]                  # [M', 3]
-    # every (link, m of B): same side of A as Tx
+    # every (link, m of B) with m on Tx's side of A whose segment Tx_A -> m crosses plane A near A: a
+    # conservative test on the [M', B] grid first (most candidates end here), then the exact one
     same_side = np.sign(side_tx[ml])[:, None] == np.sign(side_b)[None]    # [M', B]
-    li, bi = np.nonzero(same_side)
+    li, bi = np.nonzero(same_side & _crossing_near(tx[ml] - pa_pt, side_tx[ml], xb - pa_pt, side_b, na,
+                                                   radius_a + reach_a))
     if li.size == 0:
         return None
     src = tx_img[li]
@@ -220,22 +222,28 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     c = src + t[:, None] * d                                              # crossing with plane A
     valid = (t > 0) & (t < 1) & (np.linalg.norm(c - centre_a, axis=1) <= radius_a + reach_a)  # near A at all
     li, bi, c = li[valid], bi[valid], c[valid]
+    # the second leg lit: V(Rx -> m) among the first-order pairs
+    v_b = vis_lookup(torch.as_tensor(ml[li]), torch.as_tensor(mb[bi]))
+    lit = (v_b > 0).numpy()
+    li, bi, c, v_b = li[lit], bi[lit], c[lit], v_b[torch.as_tensor(lit)]
+    if li.size == 0:
+        return None
     k_near = min(4, len(members_a))
     dist, near = tree_a.query(c, k=k_near)
     dist, near = dist.reshape(len(c), k_near), near.reshape(len(c), k_near)
     valid = dist[:, 0] < reach_a
-    li, bi, c, near, dist = li[valid], bi[valid], c[valid], near[valid], dist[valid]
+    li, bi, c, near, dist, v_b = li[valid], bi[valid], c[valid], near[valid], dist[valid], v_b[torch.as_tensor(valid)]
     if li.size == 0:
         return None
     link = ml[li]
     lt = torch.as_tensor(link)
     # the lit surfel of A nearest the crossing (a thin plate's far face is close by, and shadowed)
-    v_near = torch.stack([vis_lookup(lt, torch.as_tensor(members_a[near[:, q]])) for q in range(k_near)], 1)
+    v_near = vis_lookup(lt[:, None], torch.as_tensor(members_a[near]))   # [I, k_near]
     v_near = torch.where(torch.as_tensor(dist) < reach_a, v_near, torch.zeros_like(v_near))
     v_a, pick = v_near.max(1)
     ga = members_a[near[np.arange(len(near)), pick.numpy()]]
     gb = mb[bi]
-    v = v_a * vis_lookup(lt, torch.as_tensor(gb))
+    v = v_a * v_b
     keep = (v > 1e-6).numpy()
     if not keep.any():
         return None
@@ -252,12 +260,12 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     nb = nb * torch.where((w_i * nb).sum(-1, keepdim=True) >= 0, 1.0, -1.0)
     cos_b = (w_i * nb).sum(-1)
     cos_o = (w_o * nb).sum(-1)
-    ok = (cos_b > 1e-6) & (cos_o > 1e-6)
-    if not bool(ok.any()):
+    sel = ((cos_b > 1e-6) & (cos_o > 1e-6)).numpy()
+    if not sel.any():
         return None
-    sel = ok.numpy()
-    link, ga, gb, c, v = link[sel], ga[sel], gb[sel], c[sel], v[torch.as_tensor(sel)]
-    xm, nb, w_i, w_o, d_i, d_o, cos_b, cos_o = (q[ok] for q in (xm, nb, w_i, w_o, d_i, d_o, cos_b, cos_o))
+    idx = torch.as_tensor(np.flatnonzero(sel))
+    link, ga, gb, c = link[sel], ga[sel], gb[sel], c[sel]
+    v, nb, w_i, w_o, d_i, d_o, cos_b, cos_o = (q.index_select(0, idx) for q in (v, nb, w_i, w_o, d_i, d_o, cos_b, cos_o))
     tx_t = torch.as_tensor(tx[link])
     to_c = torch.as_tensor(c) - tx_t
     u_c = to_c / to_c.norm(dim=-1, keepdim=True)                          # Tx -> crossing point
@@ -274,3 +282,22 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     return {"link": torch.as_tensor(link), "ga": torch.as_tensor(ga), "gb": torch.as_tensor(gb),
             "cos_a": cos_a, "cos_b": cos_b, "te_a": te_share(-u_c, na_t, polarisation),
             "te_b": te_share(w_i, nb, polarisation), "coef": coef}
+
+
+def _crossing_near(tx_rel: np.ndarray, side_tx: np.ndarray, xb_rel: np.ndarray, side_b: np.ndarray, na: np.ndarray,
+                   reach: float) -> np.ndarray:
+    """[M', B] bool, true wherever the segment from Tx's image in plane A to m can cross the plane
+    within `reach` of A's centre (a superset of the exact test: the reach is widened by 1e-6 of itself).
+
+    tx_rel [M', 3], xb_rel [B, 3]: positions relative to A's centre; side_tx [M'], side_b [B]: their
+    offsets along A's normal na (Tx and m on the same side). With in-plane parts q, r and offsets s, b,
+    the crossing is (b q + s r) / (s + b) from the centre, so the test is |b q + s r|^2 <= R^2 (s + b)^2,
+    expanded into outer products and one [M', B] matrix product (no [M', B, 3] arrays)."""
+    q = tx_rel - side_tx[:, None] * na[None]
+    r = xb_rel - side_b[:, None] * na[None]
+    r2 = (reach * (1.0 + 1e-6) + 1e-12) ** 2
+    lhs = np.multiply.outer((q * q).sum(1), side_b * side_b)
+    lhs += (2.0 * side_tx)[:, None] * (q @ r.T) * side_b[None]
+    lhs += np.multiply.outer(side_tx * side_tx, (r * r).sum(1))
+    s_plus_b = side_tx[:, None] + side_b[None]
+    return lhs <= r2 * s_plus_b * s_plus_b
