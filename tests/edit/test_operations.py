@@ -119,3 +119,23 @@ def test_set_and_scale_are_refused_in_one_line_pointing_to_material(text):
         parse_operation(text)
     message = str(err.value)
     assert "\n" not in message and repr(text) in message and "material:NAME" in message, message
+
+
+def test_per_material_arrays_stay_when_there_are_as_many_materials_as_gaussians():
+    from rfir_stages.edit.stage import per_gaussian_keys
+
+    class _Art:   # the two parts of an artifact per_gaussian_keys reads
+        def __init__(self, data, free):
+            self.data, self.free = data, free
+
+        def __getitem__(self, key):
+            return self.data[key]
+
+    g = 3   # three Gaussians, three materials: lengths alone cannot tell the arrays apart
+    data = {"gaussians/means": np.zeros((g, 3)), "material/index": np.arange(g), "material/area_m2": np.ones(g),
+            "material/eps_r": np.ones(g), "material/sigma_1ghz_s_per_m": np.ones(g),
+            "material/scattering": np.ones(g), "material/thickness_m": np.ones(g),
+            "material/gamma_normal_abs": np.ones((g, 1)), "rf/freq_hz": np.ones(g)}
+    fields, free = per_gaussian_keys(_Art(data, {"residual": {"surfel": np.ones((g, 2)), "tx_pos": np.ones((g, 3))}}))
+    assert set(fields) == {"gaussians/means", "material/index", "material/area_m2"}
+    assert free == [("residual", "surfel")]
