@@ -106,7 +106,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
                          f"rf_fit.physical.polarisation {phys.get('polarisation', 'V')} not used)")
         config = dict(config, physical=dict(phys, polarisation=str(meas.attrs["polarisation"])))
     fit_cfg, pair_settings, phys_table = physical_config(config, render_cfg)   # refused here when wrong
-    if task == "rssi":  # the LoS/NLoS model (docs/physics.md section 6): stages/rf_fit/rssi_fit.py
+    if task == "rssi":  # the room model (docs/physics.md section 8.10): stages/rf_fit/rssi_fit.py
         from .rssi_fit import run_rssi
         if resume:
             raise ConfigError("--resume: RSSI fits write no checkpoints yet")
