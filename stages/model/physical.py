@@ -512,7 +512,8 @@ class AggregatedPairs:
             field = field.index_add(0, d["link"], product)
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
         moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
-        g2 = torch.einsum("mnjt,njkt->mnjk", self.diffuse, moments)
+        # sum over (material, node, moment) as one [M, N J 3] x [N J 3, K] product (batched tiny products are slow)
+        moments = (moments * (mats.scattering**2)[:, None, None, None]).permute(0, 1, 3, 2)   # [N, J, 3, K]
         lam2 = (C0 / f) ** 2
-        diffuse = torch.einsum("mnjk,n->mk", g2, mats.scattering**2) * lam2[None]
+        diffuse = (self.diffuse.reshape(self.diffuse.shape[0], -1) @ moments.reshape(-1, f.numel())) * lam2[None]
         return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
