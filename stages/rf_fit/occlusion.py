@@ -1,13 +1,12 @@
-"""Occlusion providers: who lies in front of whom, traced once while the geometry is frozen.
+"""Occlusion providers: who lies in front of whom, traced while the geometry is frozen.
 
-A provider answers two geometric questions with hit tables (no RF opacities involved; every
-Gaussian is traced with opacity 1 and t_stop 0, so the table is the superset of hits for any RF
-opacities a <= 1, since alpha = a G <= G):
-- `segment_hits(origins [Q, 3], target_ids [Q])`: Gaussians on the segment from each origin to the
-  target Gaussian's mean (the target itself excluded), for V (docs/physics.md section 4.1);
-- `ray_hits(origins [R, 3], directions [R, 3] unit)`: every Gaussian along each ray, for the
-  receiver grid of step 3.
-The renderer turns the tables into differentiable transmittances with the RF opacities.
+A provider answers two questions:
+- `segment_transmittance(origins [Q, 3], target_ids [Q], margin_m, opacity [G])`: V, the
+  transmittance from each origin to the target Gaussian's mean (the target itself and the last
+  margin_m excluded), with one RF opacity per Gaussian (docs/physics.md section 4.1);
+- `ray_hits(origins [R, 3], directions [R, 3] unit)`: a hit table of every Gaussian along each ray
+  (traced with opacity 1 and t_stop 0: the superset of hits for any RF opacities a <= 1, since
+  alpha = a G <= G), for the room model's walls and the RSSI checks.
 
 Implementations: `BruteForceOcclusion` (pure torch, every query against every Gaussian: the
 oracle, fine for a few thousand Gaussians and small query counts) and `TracerOcclusion`
@@ -42,50 +41,14 @@ class HitTable:
         """Keep the hits where `keep` [H] bool is true (order preserved)."""
         return HitTable(self.query[keep], self.gaussian[keep], self.t_m[keep], self.response[keep], self.num_queries)
 
-    @staticmethod
-    def concat(tables: list["HitTable"]) -> "HitTable":
-        """Stack tables whose queries follow one another."""
-        off, parts = 0, []
-        for t in tables:
-            parts.append((t.query + off, t.gaussian, t.t_m, t.response))
-            off += t.num_queries
-        if not parts:
-            e = torch.zeros(0, dtype=torch.int64)
-            return HitTable(e, e, e.double(), e.double(), 0)
-        return HitTable(*(torch.cat([p[i] for p in parts]) for i in range(4)), off)
-
-
 class OcclusionProvider(Protocol):
     name: str
-
-    def segment_hits(self, origins: torch.Tensor, target_ids: torch.Tensor) -> HitTable: ...
 
     def ray_hits(self, origins: torch.Tensor, directions: torch.Tensor, opacity: torch.Tensor | None = None,
                  t_stop: float = 0.0) -> HitTable: ...
 
     def segment_transmittance(self, origins: torch.Tensor, target_ids: torch.Tensor, margin_m: float,
                               opacity: torch.Tensor, t_stop: float = 1e-4) -> torch.Tensor: ...
-
-    def footprint_sums(self, origins: torch.Tensor, directions: torch.Tensor, group_offsets: torch.Tensor,
-                       ray_weight: torch.Tensor, opacity: torch.Tensor, t_stop: float,
-                       margin_m: float) -> tuple[torch.Tensor, torch.Tensor]: ...
-
-
-def transmittance_before_from_table(hits: HitTable, opacity: torch.Tensor, margin_m: float,
-                                    alpha_max: float = 0.99) -> torch.Tensor:
-    """[H]: per hit, prod of (1 - min(a G, alpha_max)) over its query's hits with t < t_hit - margin_m."""
-    n = hits.query.numel()
-    if n == 0:
-        return torch.zeros(0, dtype=torch.float64)
-    idx = torch.arange(n)
-    new_query = torch.ones(n, dtype=torch.bool)
-    new_query[1:] = hits.query[1:] != hits.query[:-1]
-    first = torch.cummax(torch.where(new_query, idx, torch.zeros_like(idx)), 0).values
-    key = hits.query.double() * (float(hits.t_m.max()) + margin_m + 1.0) + hits.t_m
-    j = torch.maximum(torch.searchsorted(key, key - margin_m), first)
-    log1m = torch.log1p(-(opacity.double()[hits.gaussian] * hits.response).clamp(max=alpha_max))
-    excl = torch.cumsum(log1m, 0) - log1m
-    return torch.exp(excl[j] - excl[first])
 
 
 def product_from_hits(hits: HitTable, opacity: torch.Tensor) -> torch.Tensor:
@@ -180,21 +143,6 @@ class BruteForceOcclusion:
         length = (self.geom.means[target_ids[hits.query]] - origins[hits.query].double()).norm(dim=-1)
         return product_from_hits(hits.select(hits.t_m < length - margin_m), opacity)
 
-    def footprint_sums(self, origins, directions, group_offsets, ray_weight, opacity, t_stop, margin_m) -> tuple:
-        """(num, den) [M, G]: per group of rays (group_offsets [M + 1]) and Gaussian, the sums of w G T and
-        of w G over its hits (every hit: no early stop here), T the transmittance in front with `opacity`
-        ignoring the last margin_m, w = ray_weight [R]."""
-        hits = self.ray_hits(origins, directions)
-        m, g = group_offsets.shape[0] - 1, self.geom.num
-        group = torch.searchsorted(group_offsets, hits.query, right=True) - 1
-        cell = group * g + hits.gaussian
-        wg = ray_weight.double()[hits.query] * hits.response
-        t_before = transmittance_before_from_table(hits, opacity, margin_m)
-        den = torch.zeros(m * g, dtype=torch.float64).index_add_(0, cell, wg)
-        num = torch.zeros(m * g, dtype=torch.float64).index_add_(0, cell, wg * t_before)
-        return num.reshape(m, g), den.reshape(m, g)
-
-
 class TracerOcclusion:
     """rfir_tracer's BVH (transmittance_to_points for segments, trace for rays)."""
 
@@ -211,13 +159,9 @@ class TracerOcclusion:
                                                normals=geom.normals.double().contiguous())
 
     @staticmethod
-    def _table(res, first: int, scale: torch.Tensor | None) -> tuple:
+    def _table(res, first: int) -> tuple:
         h = res.hits
-        q = h.ray_ids().long()
-        t = h.t.double()
-        if scale is not None:
-            t = t * scale[q]
-        return q + first, h.gaussian_ids.long(), t, h.response.double()
+        return h.ray_ids().long() + first, h.gaussian_ids.long(), h.t.double(), h.response.double()
 
     def _chunks(self, n: int, fn) -> HitTable:
         parts = [fn(i, min(n, i + self.chunk)) for i in range(0, n, self.chunk)]
@@ -225,17 +169,6 @@ class TracerOcclusion:
             e = torch.zeros(0, dtype=torch.int64)
             return HitTable(e, e, e.double(), e.double(), n)
         return HitTable(*(torch.cat([p[i] for p in parts]) for i in range(4)), n)
-
-    def segment_hits(self, origins: torch.Tensor, target_ids: torch.Tensor) -> HitTable:
-        def part(a, b):
-            o = origins[a:b].double().contiguous()
-            ids = target_ids[a:b]
-            res = self._rt.transmittance_to_points(self.scene, o, ids, alpha_min=self.alpha_min, t_stop=0.0,
-                                                   return_hits=True)
-            length = (self.geom.means[ids].double() - o).norm(dim=-1)   # segment units -> metres
-            return self._table(res, a, length)
-        with torch.no_grad():
-            return self._chunks(len(target_ids), part)
 
     def ray_hits(self, origins: torch.Tensor, directions: torch.Tensor, opacity: torch.Tensor | None = None,
                  t_stop: float = 0.0) -> HitTable:
@@ -246,7 +179,7 @@ class TracerOcclusion:
             res = self._rt.trace(self.scene, origins[a:b].double().contiguous(), directions[a:b].double().contiguous(),
                                  opacities=op, alpha_min=self.alpha_min, t_stop=t_stop if op is not None else 0.0,
                                  return_hits=True)
-            return self._table(res, a, None)
+            return self._table(res, a)
         with torch.no_grad():
             return self._chunks(len(directions), part)
 
@@ -267,39 +200,13 @@ class TracerOcclusion:
                                                         exclude=ids)
         return out
 
-    def footprint_sums(self, origins, directions, group_offsets, ray_weight, opacity, t_stop, margin_m) -> tuple:
-        """(num, den) [M, G] as BruteForceOcclusion.footprint_sums, each ray's hits ending where its
-        transmittance falls below t_stop; traced in chunks of whole groups, summed in C++."""
-        op = opacity.double().contiguous()
-        m = group_offsets.shape[0] - 1
-        nums, dens = [], []
-        with torch.no_grad():
-            k = 0
-            while k < m:
-                a = int(group_offsets[k])
-                # as many whole groups as fit in one chunk of rays (at least one)
-                k_end = max(k + 1, int(torch.searchsorted(group_offsets, a + self.chunk, right=True)) - 1)
-                k_end = min(k_end, m)
-                b = int(group_offsets[k_end])
-                res = self._rt.trace(self.scene, origins[a:b].double().contiguous(), directions[a:b].double().contiguous(),
-                                     opacities=op, alpha_min=self.alpha_min, t_stop=t_stop, return_hits=True)
-                num, den = res.hits.footprint_sums(op, group_offsets[k:k_end + 1] - a, ray_weight[a:b].double(),
-                                                   margin_m)
-                nums.append(num)
-                dens.append(den)
-                k = k_end
-        if not nums:
-            e = torch.zeros(0, self.geom.num, dtype=torch.float64)
-            return e, e.clone()
-        return torch.cat(nums), torch.cat(dens)
-
-
 def make_provider(kind: str, geom: FrozenGeometry, alpha_min: float = 1e-3) -> OcclusionProvider:
     """kind "auto" (the tracer when importable, else brute force), "tracer" or "brute-force"."""
     if kind in ("auto", "tracer"):
         try:
             provider = TracerOcclusion(geom, alpha_min)
-            provider.segment_hits(geom.means[:1] + 1.0, torch.zeros(1, dtype=torch.int64))  # smoke test
+            provider.segment_transmittance(geom.means[:1] + 1.0, torch.zeros(1, dtype=torch.int64), 0.0,  # smoke test
+                                           torch.ones(geom.num, dtype=torch.float64))
             return provider
         except Exception:  # noqa: BLE001 - a tracer that is missing or mid-rebuild: use the oracle
             if kind == "tracer":
