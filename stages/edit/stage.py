@@ -126,9 +126,10 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
                     raise StageError(f"edit {i} ({edit.op.text}) deletes every Gaussian; nothing would be left to predict")
             records.append(rec)
             bar.advance(1)
-    if "residual/tx_pos" in art.data and any(r["op"] is not None for r in records):
-        warnings.append("the model's residual (a correction near its training links, fitted on the unedited scene) "
-                        "is kept as it is: the edit changes the physics under it, not the residual")
+    drop_residual = "residual/tx_pos" in art.data and any(r["op"] is not None for r in records)
+    if drop_residual:   # docs/edit.md "Residual": measured, keeping it doubles the error of an edited object
+        warnings.append("the model's residual (a correction of the unedited scene's training links in link "
+                        "geometry) is dropped: the edited scene is predicted by the physics alone")
     result = EditResult(None, len(before), scene.count, records, warnings)
     if plot_path is not None:
         from .plot import top_view
@@ -137,7 +138,7 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
                                title=f"{rf_path.name}: " + "; ".join(f"{e.select.text} -> {e.op.text if e.op else 'list'}"
                                                                      for e in edits)[:160])
     if not dry_run:
-        result.path = _write(out_path, rf_path, art, scene, records, config_toml, t0)
+        result.path = _write(out_path, rf_path, art, scene, records, config_toml, t0, drop_residual)
         if plot_path is not None:
             result.radio_plot, result.radio_change = _radio_change(Path(plot_path), art, result.path, map_tx)
     return result
@@ -162,9 +163,12 @@ def _radio_change(plot_path: Path, art, edited_path: Path, map_tx):
     return None, {}
 
 
-def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, config_toml: str, t0: float) -> Path:
+def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, config_toml: str, t0: float,
+           drop_residual: bool = False) -> Path:
     data = dict(art.data)
     data.update({k: v for k, v in scene.arrays.items() if k in data or k == "gaussians/labels"})
+    if drop_residual:
+        data = {k: v for k, v in data.items() if not k.startswith("residual/")}
     attrs = dict(art.attrs)
     if scene.label_names:
         attrs["label_names"] = np.asarray(scene.label_names, dtype=object)
@@ -173,6 +177,9 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
         content.update({k: scene.arrays[f"{group}/{k}"] for k in content if f"{group}/{k}" in scene.arrays})
     if scene.new_materials:
         append_materials(data, free, scene)
+    if drop_residual:
+        model = free.setdefault("model", {}).setdefault("@attrs", {})
+        model.update({"residual.form": "off", "residual.chosen": f"dropped by edit (was {model.get('residual.chosen', '')})"})
     up = art.provenance
     stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     history = list(up.extra.get("edits", [])) + [dict(r, input=str(rf_path), time=stamp) for r in records]
