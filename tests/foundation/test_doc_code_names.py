@@ -23,11 +23,6 @@ PACKAGES = {"rfir_stages": ROOT / "stages", "rfir_cli": ROOT / "src" / "rfir_cli
 DOTTED_REF = re.compile(r"\b((?:%s)(?:\.\w+)+)" % "|".join(PACKAGES))
 CONFIG_REF = re.compile(r"(?<![\w./-])((?:rf_fit|predict|geom|simulate|calibrate|reproduce|general)(?:\.[a-z_0-9]+)+)")
 FILE_SUFFIXES = {"h5", "toml", "py", "png", "json", "md", "ply", "csv", "pt", "sh"}
-# docs/results.md is the lead's assembly of the reproduce tables; its key names are checked once it is
-# brought to the current keys (it still names rf_fit.model).
-KEYS_NOT_CHECKED_IN = {"docs/results.md"}
-
-
 def _doc_files() -> list[Path]:
     return sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 
@@ -114,7 +109,7 @@ def test_every_module_and_name_the_docs_cite_exists():
 def test_every_config_key_the_docs_and_scripts_name_exists():
     config = _configs()
     refs = [(doc, n, ref.rstrip(".")) for doc, n, ref in _references(CONFIG_REF, _doc_files() + _script_files())
-            if doc not in KEYS_NOT_CHECKED_IN and ref.rstrip(".").rsplit(".", 1)[-1] not in FILE_SUFFIXES]
+            if ref.rstrip(".").rsplit(".", 1)[-1] not in FILE_SUFFIXES]
     assert len(refs) > 10, "found almost no configuration keys in the docs: is the pattern right?"
     bad = [f"{doc}:{n}: {ref}" for doc, n, ref in refs if not config_key_exists(ref, config)]
     assert not bad, "the docs or scripts name configuration keys that configs/*.toml does not have:\n" + "\n".join(bad)
