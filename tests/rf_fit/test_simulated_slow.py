@@ -7,7 +7,7 @@ from rfir_cli.config import resolve_config
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=(
+@pytest.mark.xfail(strict=True, reason=(
     "known gap (docs/rf-model.md): Sionna's RCS of a small object is geometric optics plus diffuse "
     "scattering, which surfel physical optics does not reproduce at 15 deg steps (RCS physics is judged "
     "on physical-optics data)"))
