@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from rfir_cli.progress import NullProgress
+from rfir_stages.po.geometry import single_thread_torch
 
 from .device_gains import DeviceGains
 from .physical import AggregatedPairs, MaterialParams
@@ -101,6 +102,12 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
     thickness m)}, each such material's value at every start (a name that says "glass"). devices:
     per-device gains fitted beside the materials under their prior (device_gains.py), reset at each start;
     the fitted values are left in `devices`."""
+    with single_thread_torch():   # a step is many small tensor ops: thread hand-offs cost more than they save
+        return _fit_materials(agg, num_materials, target_db, cfg, progress, label, priors, devices)
+
+
+def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig, progress, label: str,
+                   priors: dict | None, devices: DeviceGains | None) -> PhysicalFitResult:
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from rfir_stages.po.geometry import single_thread_torch
 from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider
 from rfir_stages.rf_fit.render import LinkSet
@@ -164,10 +165,11 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
             if areas_m2 is None else areas_m2.double()
         cells = footprint_cells(geom.log_scales, geom.rotations, geom.normals, area)
         parts = []
-        for a in range(0, links.num, settings.link_chunk):
-            b = min(links.num, a + settings.link_chunk)
-            parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, cells, settings))
-        cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+        with single_thread_torch():     # many small tensor ops (the tracer below keeps its threads)
+            for a in range(0, links.num, settings.link_chunk):
+                b = min(links.num, a + settings.link_chunk)
+                parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, cells, settings))
+            cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
         vis = torch.ones_like(cat["d_i"])
         if settings.visibility and provider is not None and cat["link"].numel():
             op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
@@ -184,9 +186,11 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         if settings.second_order:
             if patches is None:
                 patches = planar_patches(geom, area, labels, settings.min_patch_area_m2)
-            pairs.double = build_double_bounce(
-                geom, links, tx_ant, rx_ant, patches, area, cells,
-                lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation, settings.colocated_tol_m)
+            with single_thread_torch():
+                pairs.double = build_double_bounce(
+                    geom, links, tx_ant, rx_ant, patches, area, cells,
+                    lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation,
+                    settings.colocated_tol_m)
         return pairs
 
 
@@ -452,7 +456,7 @@ class AggregatedPairs:
         a_tm = torch.zeros_like(a_te)
         diff = torch.zeros(m * n * j, 3, dtype=torch.float64)
         step = math.radians(90.0) / (j - 1)
-        with torch.no_grad():
+        with torch.no_grad(), single_thread_torch():
             for a in range(0, pairs.num_pairs, chunk):
                 sl = slice(a, min(pairs.num_pairs, a + chunk))
                 cos_i, cos_o = pairs.cos_i[sl], pairs.cos_o[sl]
