@@ -165,7 +165,7 @@ def test_resume_reuses_the_model_selection_of_the_interrupted_run(tmp_path):
     cfg = {"antenna": "isotropic", "visibility": False,
            "physical": {"iterations": 10, "start_iterations": 5, "residual": "off"}}
     first = run(tmp_path / "scene.h5", meas, tmp_path / "rf.h5", cfg)
-    assert (tmp_path / "rf.h5.ckpt.pt.selection").exists() and "val_mae_label_db" in first.selection
+    assert (tmp_path / "rf.h5.ckpt.pt.selection").exists() and "val_mae_class_db" in first.selection
     log = _Logged()
     again = run(tmp_path / "scene.h5", meas, tmp_path / "rf.h5", cfg, resume=True, progress=log)
     assert any("model selection reused" in line for line in log.lines), log.lines
