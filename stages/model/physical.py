@@ -165,11 +165,10 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
             if areas_m2 is None else areas_m2.double()
         cells = footprint_cells(geom.log_scales, geom.rotations, geom.normals, area)
         parts = []
-        with single_thread_torch():     # many small tensor ops (the tracer below keeps its threads)
-            for a in range(0, links.num, settings.link_chunk):
-                b = min(links.num, a + settings.link_chunk)
-                parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, cells, settings))
-            cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+        for a in range(0, links.num, settings.link_chunk):
+            b = min(links.num, a + settings.link_chunk)
+            parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, cells, settings))
+        cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
         vis = torch.ones_like(cat["d_i"])
         if settings.visibility and provider is not None and cat["link"].numel():
             op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
@@ -186,7 +185,7 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         if settings.second_order:
             if patches is None:
                 patches = planar_patches(geom, area, labels, settings.min_patch_area_m2)
-            with single_thread_torch():
+            with single_thread_torch():   # many small tensor ops per patch: thread hand-offs cost more than the work
                 pairs.double = build_double_bounce(
                     geom, links, tx_ant, rx_ant, patches, area, cells,
                     lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation,
@@ -456,7 +455,7 @@ class AggregatedPairs:
         a_tm = torch.zeros_like(a_te)
         diff = torch.zeros(m * n * j, 3, dtype=torch.float64)
         step = math.radians(90.0) / (j - 1)
-        with torch.no_grad(), single_thread_torch():
+        with torch.no_grad():
             for a in range(0, pairs.num_pairs, chunk):
                 sl = slice(a, min(pairs.num_pairs, a + chunk))
                 cos_i, cos_o = pairs.cos_i[sl], pairs.cos_o[sl]

@@ -15,7 +15,6 @@ import numpy as np
 import torch
 
 from rfir_cli.progress import NullProgress
-from rfir_stages.po.geometry import single_thread_torch
 from rfir_stages.rf_fit.antennas import antenna_from_attrs
 from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
 from rfir_stages.rf_fit.occlusion import make_provider
@@ -67,13 +66,11 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
             links = make_links(tx[a:a + chunk_links], rx[a:a + chunk_links], freqs, centre, task)
             pairs = build_pairs(geom, links, ant, ant, provider, model.settings, model.areas_m2, patches)
             for dest, factor in ((out, surfel), (phys, None)) if phys is not out else ((out, surfel),):
-                with single_thread_torch():   # per-pair tensor ops: thread hand-offs cost more than they save
-                    if factor is None and len(freqs) > EXACT_MAX_FREQS:   # a band: the fit's aggregated form
-                        power = band_power(pairs, model.material_of_gaussian, model.mats)
-                    else:
-                        field, diffuse = band_field(pairs, model.material_of_gaussian, model.mats,
-                                                    surfel_factor=factor)
-                        power = field.abs() ** 2 + diffuse
+                if factor is None and len(freqs) > EXACT_MAX_FREQS:   # a band: the fit's aggregated form
+                    power = band_power(pairs, model.material_of_gaussian, model.mats)
+                else:
+                    field, diffuse = band_field(pairs, model.material_of_gaussian, model.mats, surfel_factor=factor)
+                    power = field.abs() ** 2 + diffuse
                 dest[a:a + chunk_links] = 10 * np.log10((power * gain).numpy() + 1e-300)
             bar.advance(links.num)
     low = out < FLOOR_DB
