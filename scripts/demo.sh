@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The built-in demo: every stage that exists so far, on the lego at demo size (configs/recipes/demo.toml).
-# Usage: scripts/demo.sh OUT_DIR   (about 8 minutes on a 2-core CPU)
+# Usage: scripts/demo.sh OUT_DIR   (about 4 minutes on an idle 2-core CPU)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-demo_out}
