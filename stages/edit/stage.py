@@ -127,7 +127,7 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
             records.append(rec)
             bar.advance(1)
     drop_residual = "residual/tx_pos" in art.data and any(r["op"] is not None for r in records)
-    if drop_residual:   # docs/edit.md "Residual": measured, keeping it doubles the error of an edited object
+    if drop_residual:   # its corrections describe the unedited scene's links (docs/edit.md, the lego rotation)
         warnings.append("the model's residual (a correction of the unedited scene's training links in link "
                         "geometry) is dropped: the edited scene is predicted by the physics alone")
     result = EditResult(None, len(before), scene.count, records, warnings)
@@ -179,7 +179,10 @@ def _write(out_path: Path, rf_path: Path, art, scene: EditScene, records: list, 
         append_materials(data, free, scene)
     if drop_residual:
         model = free.setdefault("model", {}).setdefault("@attrs", {})
-        model.update({"residual.form": "off", "residual.chosen": f"dropped by edit (was {model.get('residual.chosen', '')})"})
+        was = model.get("residual.chosen", "")
+        for key in [k for k in model if k.startswith("residual.")]:   # the dropped form's lengths and weight
+            del model[key]
+        model.update({"residual.form": "off", "residual.chosen": f"dropped by edit (was {was})"})
     up = art.provenance
     stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     history = list(up.extra.get("edits", [])) + [dict(r, input=str(rf_path), time=stamp) for r in records]

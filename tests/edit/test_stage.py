@@ -183,7 +183,7 @@ def test_plot_adds_the_rcs_change_of_an_rcs_model(rf_path, tmp_path):
 
 def test_an_edit_drops_the_link_space_residual_and_predicts_the_physics_alone(tmp_path):
     """A smooth residual corrects the unedited scene's training links in link geometry; after an edit the
-    model predicts the physics alone (measured: keeping it doubled the error of an edited object)."""
+    model predicts the physics alone (docs/edit.md: the lego rotation)."""
     from rfir_cli.artifacts import write_artifact
     from rfir_stages.model.residual import ResidualFit, residual_fields
 
@@ -210,5 +210,7 @@ def test_an_edit_drops_the_link_space_residual_and_predicts_the_physics_alone(tm
     assert "residual" not in said["e_plain.h5"]
     edited = read_artifact(tmp_path / "e_res.h5", "rf")
     assert edited.free["model@attrs"]["residual.form"] == "off"
+    assert not any(k.startswith("residual.") and k not in ("residual.form", "residual.chosen")
+                   for k in edited.free["model@attrs"])
     assert not any(k.startswith("residual/") for k in edited.data)
     assert np.max(np.abs(_gains(tmp_path / "e_res.h5") - _gains(tmp_path / "e_plain.h5"))) < 1e-9
