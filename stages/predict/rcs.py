@@ -6,7 +6,7 @@ simulate's turntable convention. The physical model and antenna are the ones rec
 rcs_dbsm, measured_db = measured RCS), optional PNG plots (polar and linear RCS versus aspect per
 range and frequency; the fitted materials' |Gamma| at normal incidence and S seen from the first
 aspect) and a results JSON (default: the output with .json) with the MAE on the test split beside the nearest-aspect and
-linear-interpolation baselines.
+linear-interpolation baselines, and the flashes among the test rows (flashes.py) for each of them.
 """
 from __future__ import annotations
 
@@ -32,6 +32,7 @@ from rfir_stages.rf_fit.splits import protocol_masks
 
 from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, baselines_beating_model, range_baselines
+from .flashes import flash_defaults, score_flashes
 from .plots import attribute_views, rcs_vs_aspect
 from .wideband import default_freqs, is_band_fit, spectrum_plots
 
@@ -48,6 +49,7 @@ class PredictResult:
     metrics: dict = field(default_factory=dict)
     plots: list = field(default_factory=list)
     results_json: Path | None = None
+    flashes: dict | None = None   # flashes on the test rows (flashes.score_flashes), with measurements
 
 
 def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto", chunk_links: int = 64,
@@ -138,11 +140,14 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
 
     metrics = _metrics(rcs, meas_rcs, split, asp, rng) if meas_rcs is not None else {}
+    rcs_phys = None
     if physics_db is not None and metrics.get("num_test"):
         physics_db = apply_recorded_effects(rf, physics_db, tx, rx, freqs, aspect_rad=asp, range_m=rng)
         rcs_phys = 10 * np.log10(rcs_from_path_gain(10 ** (physics_db / 10), rng[:, None], freqs[None], g0, g0))
         test = split == 1
         metrics["mae_db_physics_only"] = float(np.mean(np.abs(rcs_phys[test] - meas_rcs[test])))
+    flashes = (_flashes(config, rcs, rcs_phys, meas_rcs, split, asp, rng, freqs)
+               if metrics.get("num_test") else None)
     data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg_db, "rcs_dbsm": rcs,
             "aspect_rad": asp, "range_m": rng}
     if meas_rcs is not None:
@@ -157,7 +162,8 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     write_artifact(out_path, "predictions", data, attrs={"task": "rcs", "quantity": "rcs_dbsm"},
                    provenance=prov, free=free)
 
-    result = PredictResult(out_path, len(tx), freqs.tolist(), time.time() - t_start, render_s, metrics)
+    result = PredictResult(out_path, len(tx), freqs.tolist(), time.time() - t_start, render_s, metrics,
+                           flashes=flashes)
     if plots_dir is not None:
         result.plots = _plots(Path(plots_dir), rf, asp, rng, freqs, rcs, meas_rcs, split)
         if is_band_fit(rf):
@@ -195,6 +201,25 @@ def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
         if beaten:   # said in the closing lines (predict rcs) and the results JSON
             out["warning_baselines"] = "; ".join(beaten)
     return out
+
+
+def _flashes(config: dict, rcs, rcs_phys, meas_rcs, split, asp, rng, freqs) -> dict:
+    """Flashes among the test rows (flashes.py) scored for rfir, the physics alone when a residual is
+    applied, and each baseline that predicts the test rows. rcs, rcs_phys, meas_rcs [L, F] dBsm."""
+    test, train = np.flatnonzero(split == 1), np.flatnonzero(split == 0)
+    predictions = {"rfir": rcs} if rcs_phys is None else {"rfir": rcs, "physics_only": rcs_phys}
+    if train.size:
+        base = aspect_baselines(asp, rng, meas_rcs, train, test)
+        base.update(range_baselines(asp, rng, meas_rcs, train, test))
+        for k, v in base.items():
+            if np.isfinite(v).any():   # as in _metrics: only baselines that have training rows to copy
+                full = np.full(meas_rcs.shape, np.nan)
+                full[test] = v
+                predictions[k] = full
+    cfg = flash_defaults() | dict(config.get("flashes", {}))
+    return score_flashes(asp, rng, freqs, meas_rcs, split == 1, predictions,
+                         min_prominence_db=float(cfg["min_prominence_db"]), window_deg=float(cfg["window_deg"]),
+                         tolerance_db=float(cfg["tolerance_db"]))
 
 
 def _flat(metrics: dict) -> dict:
@@ -242,6 +267,7 @@ def _results(path: Path, name, rf, rf_path, measurements_path, result: PredictRe
         "num_test": result.metrics.get("num_test"), "num_train": result.metrics.get("num_train"),
         "num_gaussians": int(len(rf["rf/opacity"])), "seed": seed,
         "metrics": result.metrics,
+        **({"flashes_test": result.flashes} if result.flashes is not None else {}),
         "fit": {k: (v.item() if hasattr(v, "item") else v) for k, v in training.items()},
         "predict_wall_time_s": result.wall_time_s, "predict_render_time_s": result.render_time_s,
         "num_links": result.num_links,
