@@ -172,6 +172,27 @@ def test_the_po_target_declares_the_physics_rows():
     assert plan.steps["fullwave_po"].outputs == ["results/reproduce/fullwave/fullwave_vs_po.json",
                                                  "results/reproduce/fullwave/fullwave_vs_po.png"]
     assert "fullwave_po" not in quick.steps
+    assert not any(lbl.endswith("range_3__rfir_fit") for lbl in labels)        # one range: no unseen-range rows
+    assert any("no unseen-range rows" in n for n in table.notes)
+    assert not any("held out" in n or "unseen-range" in n for n in qtables["rcs-po"][0].notes)
+
+
+def test_the_po_target_holds_out_an_interior_range():
+    """At the data's six ranges (configs/reproduce.toml) each object gets the row range:3: fit on the other
+    five ranges at 2.4 GHz, predicted at 3 m, the fields trained on the same split."""
+    plan, tables = declare(["rcs-po"], False)
+    table, labels = tables["rcs-po"]
+    rows = [label for label, _ in table.rows]
+    assert len(rows) == 12 and rows.index("trio 2.4 GHz, 3 m held out") == rows.index("trio 2.4 GHz, sector 45-135 "
+                                                                                     "deg held out") + 1
+    for obj in ("lego", "trio"):
+        fit = plan.steps[f"rcs_po_{obj}_2.4_range_3__rfir_fit"]
+        assert "--split range:3 --freq-hz 2.4e+09" in fit.command
+        assert f"data/reproduce/{obj}_po/measurements.h5" in fit.command
+        assert "simulate.rcs.ranges_m=[2,2.5,3,4,4.5,5]" in plan.steps[f"data__{obj}_po"].command
+        for field in ("nerf2", "wrfgs"):
+            assert "--protocol range:3" in plan.steps[f"rcs_po_{obj}_2.4_range_3__{field}"].command
+    assert any(n.startswith("3 m held out: the other ranges (2, 2.5, 4, 4.5, 5 m) train") for n in table.notes)
 
 
 def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
@@ -180,8 +201,10 @@ def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
         if step.outputs[0].endswith(".json"):
             j = Path(step.outputs[0])
             j.parent.mkdir(parents=True, exist_ok=True)
-            j.write_text(json.dumps({"metrics": {"mae_db": 2.0, "baseline_nearest_mae_db": 3.0,
-                                                 "baseline_linear_mae_db": 1.5}}))
+            metrics = {"mae_db": 2.0, "baseline_nearest_mae_db": 3.0, "baseline_linear_mae_db": 1.5}
+            if "range_3" in j.name:     # predict's JSON on a range split: only the range baselines
+                metrics = {"mae_db": 2.0, "baseline_nearest_range_mae_db": 2.5, "baseline_linear_range_mae_db": 1.0}
+            j.write_text(json.dumps({"metrics": metrics}))
     md = to_markdown(tables["rcs-po"][0].resolved())
     row = next(line for line in md.splitlines() if line.startswith("| trio, fit 2.4 GHz, predict 5.8 GHz"))
     cells = [c.strip() for c in row.split("|")[2:-1]]
@@ -189,4 +212,5 @@ def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
     assert cells[1] == cells[2] == "not run: predicts only the frequency it was trained on"
     assert cells[3].startswith("not run") and "(3.00 with the 5.8 GHz training rows" in cells[3]
     assert "| trio 2.4 GHz, even/odd aspects | 2.00 | 2.00 | 2.00 | 3.00 | **1.50** |" in md
-    assert "rfir lowest on 2 of 10 rows" in md
+    assert "| trio 2.4 GHz, 3 m held out | 2.00 | 2.00 | 2.00 | 2.50 | **1.00** |" in md
+    assert "rfir lowest on 2 of 12 rows" in md
