@@ -126,8 +126,8 @@ def _po_data(r: Plan, obj: str) -> tuple[Path, Path]:
     return meas, _surfels(r, f"{obj}_po", obj, _sizes(r)["spacing"])
 
 
-# The unseen-range rows of the rcs-po target: an interior range of the data held out (far field: the RCS
-# should not depend on range, so the physical model predicts it from the other ranges).
+# The unseen-range rows of the rcs-po target: an interior range of the data held out (the physical model
+# predicts any range; the simple baselines copy or interpolate the measured ranges).
 PO_HELD_OUT_RANGE_M = 3.0
 
 
@@ -158,8 +158,8 @@ def _unseen_freq_cell(res: M.Result, key: str) -> Callable[[], Cell]:
 
 def target_rcs_po(r: Plan) -> Table:
     """The physics rows: RCS on physical-optics data (lego; trio: a metal dihedral, a wooden block and a
-    glass pane), rfir's physical model against the fields and the simple baselines, at 2.4 GHz, and
-    the unseen-frequency row (fit 2.4 GHz, predict 5.8 GHz)."""
+    glass pane), rfir's physical model against the fields and the simple baselines, at 2.4 GHz, the
+    unseen-range row (3 m held out; full variant) and the unseen-frequency row (fit 2.4 GHz, predict 5.8 GHz)."""
     t = Table("RCS on physical-optics data: monostatic, 2.4 GHz unless stated, train/test protocols of rfir_stages.rf_fit.splits",
               RCS_METHODS)
     s = _sizes(r)
@@ -221,8 +221,8 @@ def target_rcs_po(r: Plan) -> Table:
         others = ", ".join(f"{x:g}" for x in ranges_m if x != PO_HELD_OUT_RANGE_M)
         t.notes.insert(-2, f"{held} held out: the other ranges ({others} m) train, every aspect at {held} tests; "
                        "nearest / linear there copy the nearest training range or interpolate linearly in range, "
-                       "at the same aspect (far field: nearly range-independent RCS, so the target is rfir "
-                       "within 0.3 dB of the best)")
+                       "at the same aspect (between measured ranges interpolation is hard to beat: the target "
+                       "there is rfir within 0.3 dB of the best)")
     else:
         t.notes.insert(-2, f"no unseen-range rows: the data's ranges ({ranges}) need {held} and another range")
     return t
