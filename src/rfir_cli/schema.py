@@ -196,6 +196,8 @@ _register(KindSpec(
         F("material/scattering", "float", ("N",), "1", "scattering coefficient S in [0, 1)"),
         F("material/thickness_m", "float", ("N",), "m", "slab thickness (0: half-space)"),
         F("material/gamma_normal_abs", "float", ("N", "F"), "1", "|Gamma| at normal incidence per fitted frequency"),
+        F("material/gamma_normal_range", "float", ("N", 2), "1", "low, high |Gamma| at normal incidence (first fitted "
+          "frequency) that the training links cannot tell apart from the fitted material", required=False),
         # the residual on top of the physical model (rfir_stages.model.residual), T training links
         F("residual/tx_pos", "float", ("T", 3), "m", "smooth / blend residual: transmitter of each training link",
           required=False, frame="world"),

@@ -221,6 +221,8 @@ def append_materials(data: dict, free: dict, scene: EditScene) -> None:
                           None if bool((th <= 0).all()) else th.clamp(min=1e-6))
     r = vals.normal_reflection(torch.as_tensor(freqs)).numpy()                     # [N, F]
     data["material/gamma_normal_abs"] = np.abs(r)
+    if scene.new_materials:   # the links' ranges describe fitted materials; an ITU material was not fitted
+        data.pop("material/gamma_normal_range", None)
     index = scene.arrays["material/index"]
     data["rf/gamma_abs"], data["rf/gamma_phase_rad"] = np.abs(r[index, 0]), np.angle(r[index, 0])
     attrs["material_names"] = np.asarray(names, dtype=object)

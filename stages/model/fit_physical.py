@@ -70,6 +70,7 @@ class PhysicalFitConfig:
     fit_gain: bool = False
     half_space: bool = False
     sigma_exponent: float = 1.0
+    reflection_ranges: bool = True
 
 
 @dataclass
@@ -106,16 +107,34 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
         return _fit_materials(agg, num_materials, target_db, cfg, progress, label, priors, devices)
 
 
+def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | None = None):
+    """params -> predicted path gain [M, K] dB of the training links as the fit sees it: the power floor
+    FLOOR_BELOW_DB under the weakest measurement (target_db [M, K] dB) and the device gains, if any."""
+    floor = float(10 ** ((float(torch.as_tensor(target_db).min()) - FLOOR_BELOW_DB) / 10))
+
+    def pred(params: MaterialParams) -> torch.Tensor:
+        out = predict_db(agg, params, floor)
+        return out if devices is None else out + devices.link_db()
+    return pred
+
+
+def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: np.ndarray, freq_hz: float,
+                      devices: DeviceGains | None = None, progress=None) -> np.ndarray:
+    """[N, 2] range of |Gamma| at normal incidence at freq_hz [Hz] (the first fitted frequency) of each
+    fitted material that the training links (target_db [M, K] dB) cannot tell apart from the fitted one
+    (rfir_stages.model.identifiability; one standard error, the residual's SE_MARGIN)."""
+    from .identifiability import normal_reflection_ranges
+    from .residual import SE_MARGIN
+    return normal_reflection_ranges(training_predictor(agg, target_db, devices), params, target_db,
+                                    float(freq_hz), margin=SE_MARGIN, progress=progress)
+
+
 def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig, progress, label: str,
                    priors: dict | None, devices: DeviceGains | None) -> PhysicalFitResult:
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
-    floor = float(10 ** ((float(target.min()) - FLOOR_BELOW_DB) / 10))
-
-    def pred(params: MaterialParams) -> torch.Tensor:
-        out = predict_db(agg, params, floor)
-        return out if devices is None else out + devices.link_db()
+    pred = training_predictor(agg, target, devices)
 
     def objective(params: MaterialParams) -> torch.Tensor:
         p = pred(params)

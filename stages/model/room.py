@@ -50,6 +50,9 @@ class RoomSettings:
     # a gain per transmitter / receiver / both, fitted under a zero-mean prior (device_gains.py)
     device_gains: str = "off"
     device_gain_prior_db: float = 3.0
+    # the materials' |Gamma(0)| ranges the links allow (identifiability.py): off by default in rooms,
+    # where each of the materials x 336 grid points costs an evaluation of every fitted link's paths
+    reflection_ranges: bool = False
 
 
 class RoomGeometry:

@@ -24,7 +24,7 @@ from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "class", "segment", "global")
 LOSSES = ("db_mse", "db_huber")
-FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
+FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent", "reflection_ranges")
 RESIDUAL_LISTS = {"residual_weights": "weights", "residual_lengths_deg": "lengths_deg",
                   "residual_range_lengths": "range_lengths", "residual_gaussian_weights": "gaussian_weights"}
 

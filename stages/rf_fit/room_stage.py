@@ -21,7 +21,7 @@ from rfir_cli.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains
-from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
+from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index, reflection_ranges
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
 
@@ -145,6 +145,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if unseen:
         progress.log(f"warning: no training path reflects off or crosses {', '.join(unseen)}: "
                      "their materials keep the starting values")
+    t_ranges = time.time()
+    ranges = (reflection_ranges(links, res.params, target_db[fit, None], freq_hz, devices, progress)
+              if settings.reflection_ranges else None)
+    ranges_s = time.time() - t_ranges
     with torch.no_grad():
         vals = res.params.values()
     data, model_attrs = physical_fields(vals, torch.as_tensor(material), room.areas, np.asarray([freq_hz]),
@@ -157,9 +161,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
+    if ranges is not None:
+        data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
     training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr, "seed": seed,
                       "train_mae_db": res.train_mae_db, "initial_mae_db": res.initial_mae_db,
                       "wall_time_s": time.time() - t_start, "fit_time_s": res.wall_time_s, "trace_time_s": trace_s,
+                      "ranges_time_s": ranges_s,
                       "measurements": str(meas.path),
                       "split": cfg["split"], "start": res.start,
                       "unseen_materials": "; ".join(unseen),
@@ -179,13 +186,20 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
     table = material_rows(vals, names, freq_hz)
+    for row, span in zip(table, [] if ranges is None else ranges):
+        row["gamma_normal_range"] = [float(span[0]), float(span[1])]
     bounds = bound_warnings(table)
     for w in bounds:
         progress.log(f"warning: {w}")
     for row in table:
         progress.log(f"  {row['material']:<16} eps_r {row['eps_r']:5.2f}  sigma {row['sigma_s_per_m']:8.3g} S/m  "
                      f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
-                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}")
+                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}"
+                     + (f" (links allow {row['gamma_normal_range'][0]:.2f}-{row['gamma_normal_range'][1]:.2f})"
+                        if "gamma_normal_range" in row else ""))
+    if ranges is not None:
+        progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
+                     "(rf_fit.room.reflection_ranges)")
     return RfFitResult(out_path, geom.num, int(len(rows)), [float(freq_hz)], res.train_mae_db, res.initial_mae_db,
                        fit_cfg.iterations, time.time() - t_start, trace_s, room.provider.name,
                        {"trace": trace_s, "fit": res.wall_time_s}, materials=table,

@@ -26,7 +26,7 @@ from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 from rfir_stages.model.band import aggregate_chunk
-from rfir_stages.model.fit_physical import material_index
+from rfir_stages.model.fit_physical import material_index, reflection_ranges
 
 from .antennas import antenna_choice
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
@@ -285,8 +285,14 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     residual = physical.fit_residual(sharing, result, target, tx, rx, protocol,
                                      None if asp is None else np.degrees(np.asarray(asp)[rows]),
                                      None if rng is None else np.asarray(rng)[rows], progress)
-    _, _, names = physical.for_sharing(sharing)
+    agg, _, names = physical.for_sharing(sharing)
     table = material_table(result, names, freqs)
+    t_ranges = time.time()
+    ranges = (reflection_ranges(agg, result.params, target, float(freqs[0]), progress=progress)
+              if phys_cfg.reflection_ranges else None)
+    for row, span in zip(table, [] if ranges is None else ranges):
+        row["gamma_normal_range"] = [float(span[0]), float(span[1])]
+    ranges_s = time.time() - t_ranges
     warnings = list(warnings or [])
     unseen = physical.unseen_materials(sharing)
     if unseen:
@@ -298,6 +304,8 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     data, model_attrs = physical_artifact_fields(physical, sharing, result, freqs, pair_settings, residual, tx, rx)
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
     data["rf/freq_hz"] = np.asarray(freqs, dtype=np.float64)
+    if ranges is not None:
+        data["material/gamma_normal_range"] = np.asarray(ranges, dtype=np.float64)
     model_attrs.update(ant.describe())
     training_attrs = _training_attrs(meas, protocol, rows, selection, seed)
     training_attrs.update({"loss": phys_cfg.loss, "iterations": phys_cfg.iterations, "lr": phys_cfg.lr,
@@ -306,7 +314,7 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
                            "warnings": "; ".join(warnings)})
     training_attrs.update(residual_training_attrs(residual))
     timings = {"trace": trace_s, "select": select_s, "fit": refit_s, "residual": residual.wall_time_s,
-               "total": time.time() - t_start}
+               "ranges": ranges_s, "total": time.time() - t_start}
     training_attrs.update(_timing_attrs(timings))
     prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
     prov.add_input(scene_path)
@@ -320,7 +328,9 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     write_artifact(out_path, "rf", data, attrs=_root_attrs(scene, meas, task), provenance=prov, free=free)
     progress.log("rf-fit: materials " + "; ".join(
         f"{r['material']}: eps_r {r['eps_r']:.2f}, sigma {r['sigma_s_per_m']:.3g} S/m, S {r['scattering']:.2f}, "
-        f"d {r['thickness_m'] * 1e3:.1f} mm, |Gamma(0)| {r['gamma_normal_abs'][0]:.2f}" for r in table[:12])
+        f"d {r['thickness_m'] * 1e3:.1f} mm, |Gamma(0)| {r['gamma_normal_abs'][0]:.2f}"
+        + (f" (links allow {r['gamma_normal_range'][0]:.2f}-{r['gamma_normal_range'][1]:.2f})"
+           if "gamma_normal_range" in r else "") for r in table[:12])
         + (f" (+{len(table) - 12} more)" if len(table) > 12 else ""))
     return RfFitResult(out_path, num_gaussians, int(len(rows)), freqs.tolist(), result.train_mae_db,
                        result.initial_mae_db, phys_cfg.iterations, time.time() - t_start, trace_s,
@@ -330,9 +340,10 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
 def _timing_attrs(timings: dict) -> dict:
     """Training attributes for the wall times [s]: wall_time_s (the whole command, up to writing the
     artifact), trace_time_s, select_time_s (model selection, every candidate; each candidate's own
-    time is in selection_fit_time_<sharing>_s) and refit_time_s (the final fit)."""
+    time is in selection_fit_time_<sharing>_s), refit_time_s (the final fit) and ranges_time_s (the
+    materials' |Gamma(0)| ranges)."""
     out = {"trace_time_s": float(timings.get("trace", 0.0)), "select_time_s": float(timings.get("select", 0.0)),
-           "refit_time_s": float(timings.get("fit", 0.0))}
+           "refit_time_s": float(timings.get("fit", 0.0)), "ranges_time_s": float(timings.get("ranges", 0.0))}
     out["wall_time_s"] = float(timings.get("total", sum(out.values())))
     return out
 

@@ -41,6 +41,15 @@ def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, 
     assert validate_artifact(tmp_path / "rf.h5") == []                  # `rfir check` passes
     assert np.all(np.asarray(rf["rf/gamma_abs"]) > 0.9)                 # attribute maps show the fitted value
     assert rf.free["model@attrs"]["family"] == "physical"
+    # the links pin a metal box's material: its |Gamma(0)| range is narrow, stays metal, holds the fitted value
+    lo, hi = np.asarray(rf["material/gamma_normal_range"])[0]
+    fitted = res.materials[0]["gamma_normal_abs"][0]
+    assert lo <= fitted <= hi and lo > 0.85 and res.materials[0]["gamma_normal_range"] == [lo, hi]
+    from typer.testing import CliRunner
+
+    from rfir_cli.main import app
+    shown = CliRunner().invoke(app, ["info", str(tmp_path / "rf.h5")])
+    assert shown.exit_code == 0 and "links allow" in shown.output and f"{lo:.2f}-{hi:.2f}" in shown.output
     # fitted at 2.4 GHz only; predicted at 5.8 GHz on the odd aspects, against the PO data there
     out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=d / "meas.h5",
                   freqs_hz=[5.8e9], results_path=tmp_path / "r.json")
@@ -52,7 +61,8 @@ def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, 
     two = tmp_path / "rf_two.h5"
     shutil.copy(tmp_path / "rf.h5", two)
     with h5py.File(two, "r+") as h:
-        for key in ("eps_r", "sigma_1ghz_s_per_m", "scattering", "thickness_m", "gamma_normal_abs"):
+        for key in ("eps_r", "sigma_1ghz_s_per_m", "scattering", "thickness_m", "gamma_normal_abs",
+                    "gamma_normal_range"):
             val = h[f"material/{key}"][...]
             del h[f"material/{key}"]
             h[f"material/{key}"] = np.concatenate([val, val])

@@ -49,12 +49,16 @@ def _show_materials(path: str) -> None:
     names = [str(n) for n in art.free.get("model@attrs", {}).get("material_names", [])]
     freqs = art["rf/freq_hz"]
     gam = art["material/gamma_normal_abs"]
+    span = art.get("material/gamma_normal_range")   # what the training links allow (rf_fit.physical.reflection_ranges)
     table = Table("material", "eps_r", "sigma(1 GHz) S/m", "S", "thickness mm",
-                  *[f"|Gamma(0)| {f / 1e9:g} GHz" for f in freqs], box=None, pad_edge=False, title="fitted materials")
+                  *[f"|Gamma(0)| {f / 1e9:g} GHz" for f in freqs],
+                  *([] if span is None else [f"links allow |Gamma(0)| {freqs[0] / 1e9:g} GHz"]),
+                  box=None, pad_edge=False, title="fitted materials")
     for i in range(len(art["material/eps_r"])):
         table.add_row(names[i] if i < len(names) else str(i), f"{art['material/eps_r'][i]:.2f}",
                       f"{art['material/sigma_1ghz_s_per_m'][i]:.3g}", f"{art['material/scattering'][i]:.2f}",
-                      f"{1e3 * art['material/thickness_m'][i]:.1f}", *[f"{g:.2f}" for g in gam[i]])
+                      f"{1e3 * art['material/thickness_m'][i]:.1f}", *[f"{g:.2f}" for g in gam[i]],
+                      *([] if span is None else [f"{span[i][0]:.2f}-{span[i][1]:.2f}"]))
     console.print(table)
 
 

@@ -82,6 +82,12 @@ def predict_rcs(
             if f"baseline_{k}_mae_db" in m:
                 table.add_row(f"baseline: {text}", f"{m[f'baseline_{k}_mae_db']:.2f}")
         console.print(table)
+    fl = getattr(r, "flashes", None)   # specular peaks among the test rows (stages/predict/flashes.py)
+    if fl and fl["num_flashes"]:
+        console.print(f"flashes among the test rows (>= {fl['min_prominence_db']:g} dB prominent), within "
+                      f"{fl['tolerance_db']:g} dB of their peak: " + ", ".join(
+                          f"{name} {v['num_within_tolerance']}/{fl['num_flashes']}" for name, v in fl["methods"].items()),
+                      highlight=False, soft_wrap=True)
     for w in filter(None, m.get("warning_baselines", "").split("; ")):
         console.print(f"[yellow]warning:[/yellow] {w}", highlight=False, soft_wrap=True)
     if r.plots:

@@ -1,0 +1,78 @@
+"""How well the training links determine each fitted material: a range of |Gamma| at normal incidence.
+
+A material fitted from links that barely see it (a small weak object beside a metal one, a floor seen
+only near grazing) can land anywhere within a wide set of materials that all explain the links about
+as well; its fitted |Gamma(0)| alone reads as more certain than it is. For each material in turn, with
+every other material held at its fitted value, the training loss is evaluated at a fixed grid of
+physical materials (eps_r x sigma x slab thickness, the fitted S and S = 0). A candidate is compatible
+with the links when its mean increase of the per-link squared dB error over the fitted state is within
+`margin` standard errors of that increase (the one-standard-error rule of rfir_stages.model.residual:
+a difference the links cannot resolve). Neighbouring links (the next aspect of a turntable, the next
+receiver of a transmitter) err alike, so the standard error is that of the means of NUM_BLOCKS
+contiguous blocks of training rows (batch means), not of independent links. The range is the span of
+|Gamma(0)| over the compatible candidates and the fitted material (docs/physics.md section 8.12).
+
+The grid is coarse by design (it is a profile with the other parameters of the material on a grid,
+not re-optimised), so the range is a lower bound on the true indeterminacy: a material whose range is
+wide is not determined by the links; a narrow range says the grid found no other material that fits.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+
+from rfir_cli.progress import NullProgress
+from rfir_stages.po.geometry import single_thread_torch
+
+from .physical import THICKNESS_M, MaterialParams
+
+EPS_R_GRID = (1.5, 2.0, 3.0, 4.5, 7.0, 10.0, 15.0, 25.0)                 # up to EPS_R_MAX
+SIGMA_1GHZ_GRID = (1e-3, 0.05, 1e6)                                # S/m: a low-loss, a lossy dielectric, a metal
+THICKNESS_GRID_M = (0.003, 0.006, 0.01, 0.02, 0.05, 0.1, 0.2)     # m, within THICKNESS_M
+NUM_BLOCKS = 20   # batch means of the standard error: contiguous blocks of training rows
+
+
+def block_standard_error(d: torch.Tensor, num_blocks: int = NUM_BLOCKS) -> float:
+    """Standard error of mean(d) [M] from the means of num_blocks contiguous blocks (fewer when M is small)."""
+    blocks = [b.mean() for b in torch.tensor_split(d, min(num_blocks, len(d)))]
+    if len(blocks) < 2:
+        return 0.0
+    return float(torch.stack(blocks).std()) / np.sqrt(len(blocks))
+
+
+def normal_reflection_ranges(predict_db: Callable[[MaterialParams], torch.Tensor], params: MaterialParams,
+                             target_db: np.ndarray, freq_hz: float, margin: float = 1.0,
+                             progress=None) -> np.ndarray:
+    """[N, 2] (low, high) |Gamma| at normal incidence at freq_hz [Hz] of each of the N materials of
+    `params` compatible with the training links (module docstring). predict_db(params) -> [M, K] dB
+    predicted path gain of the training links (the fit's own prediction, floor included); target_db
+    [M, K] measured dB. `params` is restored before returning. progress: a rfir_cli.progress reporter."""
+    target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
+    f = torch.tensor([float(freq_hz)], dtype=torch.float64)
+    keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
+    thicknesses = (None,) if params.half_space else tuple(t for t in THICKNESS_GRID_M
+                                                          if THICKNESS_M[0] <= t <= THICKNESS_M[1])
+    progress = progress or NullProgress()
+    grid = [(eps, sig, th) for eps in EPS_R_GRID for sig in SIGMA_1GHZ_GRID for th in thicknesses]
+    fitted_s = params.values().scattering.detach().numpy().copy()
+    total = sum(len({float(s), 0.0}) for s in fitted_s) * len(grid)
+    with torch.no_grad(), single_thread_torch(), progress.task("material ranges", total=total) as bar:
+        def per_link() -> torch.Tensor:   # [M] squared dB error per link, averaged over frequencies
+            return ((predict_db(params) - target) ** 2).reshape(len(target), -1).mean(1)
+
+        base = per_link()
+        fitted = params.values().normal_reflection(f).abs()[:, 0].numpy()
+        out = np.stack([fitted, fitted], 1)
+        for i in range(params.num):
+            for s in sorted({float(fitted_s[i]), 0.0}):
+                for eps, sig, th in grid:
+                    params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
+                    d = per_link() - base
+                    if float(d.mean()) <= margin * block_standard_error(d):
+                        g = float(params.values().normal_reflection(f).abs()[i, 0])
+                        out[i] = min(out[i, 0], g), max(out[i, 1], g)
+                    params.load_state_dict(keep)
+                    bar.advance(1)
+    return out
