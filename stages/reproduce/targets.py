@@ -158,8 +158,9 @@ def _unseen_freq_cell(res: M.Result, key: str) -> Callable[[], Cell]:
 
 def target_rcs_po(r: Plan) -> Table:
     """The physics rows: RCS on physical-optics data (lego; trio: a metal dihedral, a wooden block and a
-    glass pane), rfir's physical model against the fields and the simple baselines, at 2.4 GHz, the
-    unseen-range row (3 m held out; full variant) and the unseen-frequency row (fit 2.4 GHz, predict 5.8 GHz)."""
+    glass pane; car: a metal body; quick: the lego only), rfir's physical model against the fields and the
+    simple baselines, at 2.4 GHz, the unseen-range row (3 m held out; full variant) and the unseen-frequency
+    row (fit 2.4 GHz, predict 5.8 GHz)."""
     t = Table("RCS on physical-optics data: monostatic, 2.4 GHz unless stated, train/test protocols of rfir_stages.rf_fit.splits",
               RCS_METHODS)
     s = _sizes(r)
@@ -167,7 +168,7 @@ def target_rcs_po(r: Plan) -> Table:
     # the unseen-range rows (full variant only) need the held-out range and another one to train on
     ranges_m = [] if r.quick else [float(x) for x in r.sizes["po_ranges_m"]]
     range_rows = PO_HELD_OUT_RANGE_M in ranges_m and len(ranges_m) > 1
-    for obj in ["lego"] if r.quick else ["lego", "trio"]:
+    for obj in ["lego"] if r.quick else ["lego", "trio", "car"]:
         meas, scene = _po_data(r, obj)
         for protocol, text in PO_PROTOCOLS[3:] if r.quick else PO_PROTOCOLS:
             label = f"rcs_po_{obj}_2.4_{protocol.replace(':', '_')}"
@@ -195,12 +196,13 @@ def target_rcs_po(r: Plan) -> Table:
             "linear interpolation": _unseen_freq_cell(res, "baseline_linear_mae_db")})
     ranges = "3 m" if r.quick else ", ".join(f"{x:g}" for x in r.sizes["po_ranges_m"]) + " m"
     t.notes += [
-        "data: physical optics (`rfir simulate lego|trio --no-photos --rcs-backend po`: coherent surface currents "
+        "data: physical optics (`rfir simulate lego|trio|car --no-photos --rcs-backend po`: coherent surface currents "
         "with double bounces, ITU materials as slabs, 40-degree horns; docs/po.md), "
         + ("6-degree aspects, 3 m (quick)" if r.quick else f"1-degree aspects, ranges {ranges}, 2.4 and 5.8 GHz")
         + "; unlike Sionna RT's geometric optics + diffuse, its lobes narrow with frequency, so these are the "
         "physics rows (the rcs table is on Sionna data)",
-        "trio: a metal dihedral (3 mm sheets), a wooden block and a 6 mm glass pane; lego: plasterboard bricks",
+        "trio: a metal dihedral (3 mm sheets), a wooden block and a 6 mm glass pane; lego: plasterboard bricks"
+        + ("" if r.quick else "; car: a metal body"),
         "rfir: the physical model (per-object materials with eps_r, sigma, "
         "thickness and S on surfel physical optics, the residual chosen by validation; docs/rf-model.md) on "
         f"surfels of the true mesh ({s['spacing'] * 100:g} cm), fitted at 2.4 GHz on the protocol's training rows"

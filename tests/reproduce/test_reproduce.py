@@ -144,18 +144,24 @@ def test_table_cli_names_a_missing_result(tmp_path, capsys):
 
 
 def test_the_po_target_declares_the_physics_rows():
-    """rcs-po: lego and trio on physical-optics data, the physical model on four protocols at 2.4 GHz and the
-    even/odd fit predicted at 5.8 GHz; the quick variant adds one row on the rcs target's data."""
+    """rcs-po: lego, trio and car on physical-optics data, the physical model on four protocols at 2.4 GHz and
+    the even/odd fit predicted at 5.8 GHz; the quick variant adds one row on the rcs target's data."""
     plan, tables = declare(["rcs-po"], False, overrides=["reproduce.full.po_ranges_m=[3.0]"])
     table, labels = tables["rcs-po"]
     rows = [label for label, _ in table.rows]
-    assert len(rows) == 10 and "trio 2.4 GHz, sector 45-135 deg held out" in rows
+    assert len(rows) == 15 and "trio 2.4 GHz, sector 45-135 deg held out" in rows
     assert "lego, fit 2.4 GHz, predict 5.8 GHz (odd aspects)" in rows
+    assert rows[10:] == ["car 2.4 GHz, even/odd aspects", "car 2.4 GHz, every 10th aspect trains",
+                         "car 2.4 GHz, every 30th aspect trains", "car 2.4 GHz, sector 45-135 deg held out",
+                         "car, fit 2.4 GHz, predict 5.8 GHz (odd aspects)"]
+    car = plan.steps["data__car_po"]                                        # the metal body, PO like the others
+    assert "simulate car" in car.command and "--rcs-backend po" in car.command
+    assert plan.steps["data__car_po_surfels"].inputs[0] == "data/reproduce/car_po/meshes/car_gt.ply"
     data = plan.steps["data__trio_po"]
     assert "--rcs-backend po" in data.command and "simulate.rcs.freqs_hz=[2.4e9,5.8e9]" in data.command
     assert "simulate.rcs.ranges_m=[3]" in data.command                       # configs/reproduce.toml, overridden
     fits = [plan.steps[lbl] for lbl in labels if lbl.endswith("__rfir_fit")]
-    assert len(fits) == 8
+    assert len(fits) == 12
     for fit in fits:
         assert "--set rf_fit.physical.iterations=200" in fit.command and "--freq-hz 2.4e+09" in fit.command
         assert "--iterations" not in fit.command       # the physical model's steps (rf_fit.physical)
@@ -183,9 +189,9 @@ def test_the_po_target_holds_out_an_interior_range():
     plan, tables = declare(["rcs-po"], False)
     table, labels = tables["rcs-po"]
     rows = [label for label, _ in table.rows]
-    assert len(rows) == 12 and rows.index("trio 2.4 GHz, 3 m held out") == rows.index("trio 2.4 GHz, sector 45-135 "
+    assert len(rows) == 18 and rows.index("trio 2.4 GHz, 3 m held out") == rows.index("trio 2.4 GHz, sector 45-135 "
                                                                                      "deg held out") + 1
-    for obj in ("lego", "trio"):
+    for obj in ("lego", "trio", "car"):
         fit = plan.steps[f"rcs_po_{obj}_2.4_range_3__rfir_fit"]
         assert "--split range:3 --freq-hz 2.4e+09" in fit.command
         assert f"data/reproduce/{obj}_po/measurements.h5" in fit.command
@@ -213,4 +219,4 @@ def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
     assert cells[3].startswith("not run") and "(3.00 with the 5.8 GHz training rows" in cells[3]
     assert "| trio 2.4 GHz, even/odd aspects | 2.00 | 2.00 | 2.00 | 3.00 | **1.50** |" in md
     assert "| trio 2.4 GHz, 3 m held out | 2.00 | 2.00 | 2.00 | 2.50 | **1.00** |" in md
-    assert "rfir lowest on 2 of 12 rows" in md
+    assert "rfir lowest on 3 of 18 rows" in md
