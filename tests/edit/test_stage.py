@@ -214,3 +214,21 @@ def test_an_edit_drops_the_link_space_residual_and_predicts_the_physics_alone(tm
                    for k in edited.free["model@attrs"])
     assert not any(k.startswith("residual/") for k in edited.data)
     assert np.max(np.abs(_gains(tmp_path / "e_res.h5") - _gains(tmp_path / "e_plain.h5"))) < 1e-9
+
+
+def test_links_ranges_of_fitted_materials_survive_a_move_but_not_a_new_material(rf_path, tmp_path):
+    """material/gamma_normal_range describes the fitted materials: a move keeps it, material:NAME (an ITU
+    material the links never saw) drops it rather than leave a row-count mismatch or a made-up range."""
+    import shutil
+
+    import h5py
+    src = tmp_path / "rf_ranges.h5"
+    shutil.copy(rf_path, src)
+    with h5py.File(src, "r+") as h:
+        n = len(h["material/eps_r"])
+        h["material/gamma_normal_range"] = np.tile([0.2, 0.6], (n, 1))
+    moved, metal = tmp_path / "moved.h5", tmp_path / "metal.h5"
+    assert _edit(src, "-o", moved, "--select", "label:crate", "--op", "translate:0,0.1,0").exit_code == 0
+    assert _edit(src, "-o", metal, "--select", "label:crate", "--op", "material:metal").exit_code == 0
+    assert np.array_equal(read_artifact(moved, "rf")["material/gamma_normal_range"], np.tile([0.2, 0.6], (n, 1)))
+    assert read_artifact(metal, "rf").get("material/gamma_normal_range") is None
