@@ -191,6 +191,19 @@ def material_table(result: PhysicalFitResult, names: list[str], freqs_hz: np.nda
              "gamma_normal_abs": [float(x) for x in r[i]]} for i, n in enumerate(names)]
 
 
+def attach_ranges(rows: list[dict], ranges) -> None:
+    """Add to each material row (material_table / room material_rows dicts) its "gamma_normal_range"
+    [low, high] from ranges [N, 2] (fit_physical.reflection_ranges; None: nothing added)."""
+    for row, span in zip(rows, [] if ranges is None else ranges):
+        row["gamma_normal_range"] = [float(span[0]), float(span[1])]
+
+
+def range_words(row: dict) -> str:
+    """" (links allow lo-hi)" for a material row with its range, else ""."""
+    span = row.get("gamma_normal_range")
+    return "" if span is None else f" (links allow {span[0]:.2f}-{span[1]:.2f})"
+
+
 def bound_warnings(rows: list[dict]) -> list[str]:
     """Warnings for fitted materials at the edge of their range (the data ask for something the model
     cannot be): eps_r or thickness within 2 % of its upper bound. rows: material_table's dicts."""

@@ -25,7 +25,7 @@ from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, mat
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
 
-from .physical_stage import bound_warnings
+from .physical_stage import attach_ranges, bound_warnings, range_words
 
 MODEL_KIND = "rssi_physical"
 SHARINGS = ("auto", "class", "label", "segment", "global")
@@ -186,17 +186,14 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
     table = material_rows(vals, names, freq_hz)
-    for row, span in zip(table, [] if ranges is None else ranges):
-        row["gamma_normal_range"] = [float(span[0]), float(span[1])]
+    attach_ranges(table, ranges)
     bounds = bound_warnings(table)
     for w in bounds:
         progress.log(f"warning: {w}")
     for row in table:
         progress.log(f"  {row['material']:<16} eps_r {row['eps_r']:5.2f}  sigma {row['sigma_s_per_m']:8.3g} S/m  "
                      f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
-                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}"
-                     + (f" (links allow {row['gamma_normal_range'][0]:.2f}-{row['gamma_normal_range'][1]:.2f})"
-                        if "gamma_normal_range" in row else ""))
+                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}{range_words(row)}")
     if ranges is not None:
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
                      "(rf_fit.room.reflection_ranges)")

@@ -31,8 +31,9 @@ from rfir_stages.model.fit_physical import material_index, reflection_ranges
 from .antennas import antenna_choice
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from .occlusion import make_provider
-from .physical_stage import (PhysicalSetup, bound_warnings, mae_db, material_table, physical_artifact_fields,
-                             physical_config, residual_training_attrs, sharing_candidates)
+from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_db, material_table,
+                             physical_artifact_fields, physical_config, range_words, residual_training_attrs,
+                             sharing_candidates)
 from .render import RenderSettings
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows, validation_folds
@@ -290,8 +291,7 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     t_ranges = time.time()
     ranges = (reflection_ranges(agg, result.params, target, float(freqs[0]), progress=progress)
               if phys_cfg.reflection_ranges else None)
-    for row, span in zip(table, [] if ranges is None else ranges):
-        row["gamma_normal_range"] = [float(span[0]), float(span[1])]
+    attach_ranges(table, ranges)
     ranges_s = time.time() - t_ranges
     warnings = list(warnings or [])
     unseen = physical.unseen_materials(sharing)
@@ -328,9 +328,8 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     write_artifact(out_path, "rf", data, attrs=_root_attrs(scene, meas, task), provenance=prov, free=free)
     progress.log("rf-fit: materials " + "; ".join(
         f"{r['material']}: eps_r {r['eps_r']:.2f}, sigma {r['sigma_s_per_m']:.3g} S/m, S {r['scattering']:.2f}, "
-        f"d {r['thickness_m'] * 1e3:.1f} mm, |Gamma(0)| {r['gamma_normal_abs'][0]:.2f}"
-        + (f" (links allow {r['gamma_normal_range'][0]:.2f}-{r['gamma_normal_range'][1]:.2f})"
-           if "gamma_normal_range" in r else "") for r in table[:12])
+        f"d {r['thickness_m'] * 1e3:.1f} mm, |Gamma(0)| {r['gamma_normal_abs'][0]:.2f}{range_words(r)}"
+        for r in table[:12])
         + (f" (+{len(table) - 12} more)" if len(table) > 12 else ""))
     return RfFitResult(out_path, num_gaussians, int(len(rows)), freqs.tolist(), result.train_mae_db,
                        result.initial_mae_db, phys_cfg.iterations, time.time() - t_start, trace_s,
