@@ -139,14 +139,15 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     g0 = ant.boresight_gain
     rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
 
-    metrics = _metrics(rcs, meas_rcs, split, asp, rng) if meas_rcs is not None else {}
+    base = _test_baselines(meas_rcs, split, asp, rng) if meas_rcs is not None else {}
+    metrics = _metrics(rcs, meas_rcs, split, base) if meas_rcs is not None else {}
     rcs_phys = None
     if physics_db is not None and metrics.get("num_test"):
         physics_db = apply_recorded_effects(rf, physics_db, tx, rx, freqs, aspect_rad=asp, range_m=rng)
         rcs_phys = 10 * np.log10(rcs_from_path_gain(10 ** (physics_db / 10), rng[:, None], freqs[None], g0, g0))
         test = split == 1
         metrics["mae_db_physics_only"] = float(np.mean(np.abs(rcs_phys[test] - meas_rcs[test])))
-    flashes = (_flashes(config, rcs, rcs_phys, meas_rcs, split, asp, rng, freqs)
+    flashes = (_flashes(config, rcs, rcs_phys, meas_rcs, split, asp, rng, freqs, base)
                if metrics.get("num_test") else None)
     data = {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg_db, "rcs_dbsm": rcs,
             "aspect_rad": asp, "range_m": rng}
@@ -183,7 +184,20 @@ def _protocol_split(rf, meas, where: str) -> np.ndarray:
     return np.where(test, 1, np.where(train, 0, -1))
 
 
-def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
+def _test_baselines(meas_rcs, split, asp, rng) -> dict:
+    """The simple baselines' predictions of the test rows, name -> [T, F] dBsm, for those that predict
+    any (aspect baselines need training rows at the test range, range ones at the aspect); {} without
+    training or test rows. Scored by _metrics and _flashes."""
+    test, train = np.flatnonzero(split == 1), np.flatnonzero(split == 0)
+    if not (test.size and train.size):
+        return {}
+    base = aspect_baselines(asp, rng, meas_rcs, train, test)
+    base.update(range_baselines(asp, rng, meas_rcs, train, test))
+    return {k: v for k, v in base.items() if np.isfinite(v).any()}
+
+
+def _metrics(rcs, meas_rcs, split, base: dict) -> dict:
+    """MAE of rfir and of each baseline of _test_baselines (base) on the test rows."""
     test, train = np.flatnonzero(split == 1), np.flatnonzero(split == 0)
     out = {"num_test": int(test.size), "num_train": int(train.size)}
     if test.size == 0:
@@ -192,30 +206,24 @@ def _metrics(rcs, meas_rcs, split, asp, rng) -> dict:
     out["mae_db_per_freq"] = np.mean(np.abs(rcs[test] - meas_rcs[test]), axis=0).tolist()
     if train.size:
         out["mae_train_db"] = float(np.mean(np.abs(rcs[train] - meas_rcs[train])))
-        base = aspect_baselines(asp, rng, meas_rcs, train, test)
-        base.update(range_baselines(asp, rng, meas_rcs, train, test))
         for k, v in base.items():
-            if np.isfinite(v).any():  # aspect baselines need training rows at the test range, range ones at the aspect
-                out[f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(v - meas_rcs[test])))
+            out[f"baseline_{k}_mae_db"] = float(np.nanmean(np.abs(v - meas_rcs[test])))
         beaten = baselines_beating_model(out)
         if beaten:   # said in the closing lines (predict rcs) and the results JSON
             out["warning_baselines"] = "; ".join(beaten)
     return out
 
 
-def _flashes(config: dict, rcs, rcs_phys, meas_rcs, split, asp, rng, freqs) -> dict:
+def _flashes(config: dict, rcs, rcs_phys, meas_rcs, split, asp, rng, freqs, base: dict | None = None) -> dict:
     """Flashes among the test rows (flashes.py) scored for rfir, the physics alone when a residual is
-    applied, and each baseline that predicts the test rows. rcs, rcs_phys, meas_rcs [L, F] dBsm."""
-    test, train = np.flatnonzero(split == 1), np.flatnonzero(split == 0)
+    applied, and each baseline that predicts the test rows (base: _test_baselines, computed when not
+    given). rcs, rcs_phys, meas_rcs [L, F] dBsm."""
+    test = np.flatnonzero(split == 1)
     predictions = {"rfir": rcs} if rcs_phys is None else {"rfir": rcs, "physics_only": rcs_phys}
-    if train.size:
-        base = aspect_baselines(asp, rng, meas_rcs, train, test)
-        base.update(range_baselines(asp, rng, meas_rcs, train, test))
-        for k, v in base.items():
-            if np.isfinite(v).any():   # as in _metrics: only baselines that have training rows to copy
-                full = np.full(meas_rcs.shape, np.nan)
-                full[test] = v
-                predictions[k] = full
+    for k, v in (_test_baselines(meas_rcs, split, asp, rng) if base is None else base).items():
+        full = np.full(meas_rcs.shape, np.nan)
+        full[test] = v
+        predictions[k] = full
     cfg = flash_defaults() | dict(config.get("flashes", {}))
     return score_flashes(asp, rng, freqs, meas_rcs, split == 1, predictions,
                          min_prominence_db=float(cfg["min_prominence_db"]), window_deg=float(cfg["window_deg"]),
