@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -35,7 +36,7 @@ import torch
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 
 from .materials import C0, fresnel, slab_transmission
-from .second_order import planar_patches
+from .second_order import Patches, planar_patches
 
 MAX_INTERACTIONS = 8      # paths crossing more surfaces than this are dropped (their power is negligible)
 LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
@@ -81,12 +82,38 @@ class PatchSet:
         return out
 
 
+def _labelled_planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
+                             coplanar_m: float) -> Patches:
+    """`planar_patches` of each label's surfels on their own, merged (every surfel in one patch).
+
+    planar_patches joins neighbours within a radius set by the median surfel size; objects tiled at
+    different spacings (fine furniture, coarse walls) would otherwise share one radius, and the coarse
+    walls' surfels, farther apart than the fine median, would fall apart into many small patches."""
+    if labels is None:
+        return planar_patches(geom, areas_m2, None, min_patch_area_m2=0.0, coplanar_m=coplanar_m)
+    lab = labels.numpy()
+    ids = np.full(geom.num, -1)
+    normal, point, area, members = [], [], [], []
+    count = 0
+    for value in np.unique(lab):
+        idx = np.flatnonzero(lab == value)
+        sub = SimpleNamespace(means=geom.means[idx], normals=geom.normals[idx], num=len(idx))
+        part = planar_patches(sub, areas_m2[idx], None, min_patch_area_m2=0.0, coplanar_m=coplanar_m)
+        ids[idx] = np.where(part.id >= 0, part.id + count, -1)
+        count += len(part.area)
+        normal.append(part.normal)
+        point.append(part.point)
+        area.append(part.area)
+        members += [idx[m] for m in part.members]
+    return Patches(ids, np.concatenate(normal), np.concatenate(point), np.concatenate(area), members)
+
+
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
                     coplanar_m: float, max_cells: int = 40_000) -> PatchSet:
     """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints."""
     from scipy.spatial import cKDTree
 
-    raw = planar_patches(geom, areas_m2, labels, min_patch_area_m2=0.0, coplanar_m=coplanar_m)
+    raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m)
     x = geom.means.numpy()
     a = areas_m2.detach().numpy()
     lab = None if labels is None else labels.numpy()

@@ -207,3 +207,32 @@ def test_diffuse_weights_equal_the_direct_lambertian_sum():
         g2 = 0.5 * (np.abs(r_te.numpy()) ** 2 + np.abs(r_tm.numpy()) ** 2)
         want.append(np.sum(0.09 * g2 * cells.area * ci * co * LAM ** 2 / (16 * math.pi ** 3 * di ** 2 * do ** 2)))
     np.testing.assert_allclose(got, want, rtol=2e-3)
+
+
+def test_a_coarse_wall_stays_one_patch_beside_finely_tiled_furniture():
+    """Objects tiled at different spacings: the wall's surfels (1 m apart) are farther apart than the
+    join radius of the fine furniture's median size, yet the wall is one patch and reflects as one."""
+    from rfir_stages.geom.from_mesh import gaussians_from_mesh
+    from rfir_stages.rf_fit.occlusion import FrozenGeometry
+
+    wall = plate_mesh((0, 0, 1.5), (0, 1, 0), (0, 0, 1), 10.0, 3.0)
+    parts = [gaussians_from_mesh(*wall, 1.0, labels=np.zeros(2, np.int64))]
+    for i in range(12):   # twelve 0.5 m boxes' tops, each its own object, at 5 cm
+        top = plate_mesh((2.0 + (i % 4), -2.0 + (i // 4), 0.75), (1, 0, 0), (0, 1, 0), 0.5, 0.5)
+        parts.append(gaussians_from_mesh(*top, 0.05, labels=np.full(2, i + 1, np.int64)))
+    g = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    geom = FrozenGeometry(*(torch.as_tensor(g["gaussians/" + k]).double()
+                            for k in ("means", "log_scales", "rotations", "normals")))
+    labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    patches = build_patch_set(geom, areas, labels, coplanar_m=0.01)
+    on_wall = np.unique(patches.surfel_patch[g["gaussians/labels"] == 0])
+    assert len(on_wall) == 1
+    assert patches.area[on_wall[0]] == pytest.approx(float(areas[labels == 0].sum()), rel=1e-9)
+    assert patches.num == 13                                     # the wall and one patch per top
+    # the wall reflects as the image method says: one first-order path off it for a link in front of it
+    prov = make_provider("auto", geom)
+    tx, rx = np.array([[-3.0, -1.0, 1.5]]), np.array([[-2.0, 2.0, 1.5]])
+    paths = trace_room_paths(tx, rx, np.full(1, F), patches, prov, max_order=1)
+    off_wall = (paths.order == 1) & (paths.patch[:, 0] == int(on_wall[0]))
+    assert int(off_wall.sum()) == 1
