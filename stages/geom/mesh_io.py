@@ -64,3 +64,46 @@ def _label_names(path: Path) -> dict[int, str]:
         return {}
     objects = content.get("objects", []) if isinstance(content, dict) else []
     return {int(o["label"]): str(o["name"]) for o in objects if isinstance(o, dict) and "label" in o and "name" in o}
+
+
+def object_spacings(mesh: Mesh, spacing_m: float, object_cells: int) -> dict[int, float]:
+    """Surfel spacing [m] of each labelled object: min(spacing_m, size / object_cells).
+
+    size is the largest side of the object's axis-aligned bounding box [m]. A room's walls are tiled
+    at spacing_m, while a desk or a chair gets about object_cells surfels across: its outline, the
+    extent of its reflections and the rays it blocks are then resolved to a fraction 1/object_cells
+    of its size rather than to the room's spacing (docs/rssi.md, "Surfels for rooms").
+    object_cells <= 0 or an unlabelled mesh: every face at spacing_m (key -1 for the unlabelled)."""
+    if object_cells <= 0 or mesh.labels is None:
+        return {-1: spacing_m} if mesh.labels is None else {int(v): spacing_m for v in np.unique(mesh.labels)}
+    out = {}
+    for value in np.unique(mesh.labels):
+        corners = mesh.vertices[np.unique(mesh.faces[mesh.labels == value])]
+        size = float(np.max(corners.max(0) - corners.min(0)))
+        out[int(value)] = min(spacing_m, size / object_cells) if size > 0 else spacing_m
+    return out
+
+
+def surfels_per_object(mesh: Mesh, spacings: dict[int, float], report: dict | None = None) -> dict[str, np.ndarray]:
+    """Scene fields (`gaussians_from_mesh`) with each object tiled at its own spacing (object_spacings).
+
+    report, when given, receives gaussians_from_mesh's counts summed over the objects."""
+    from rfir_stages.geom import gaussians_from_mesh
+
+    if mesh.labels is None:
+        return gaussians_from_mesh(mesh.vertices, mesh.faces, spacings[-1], report=report)
+    parts = []
+    for value, spacing in sorted(spacings.items()):
+        keep = mesh.labels == value
+        part_report: dict = {}
+        try:
+            parts.append(gaussians_from_mesh(mesh.vertices, mesh.faces[keep], spacing, labels=mesh.labels[keep],
+                                             report=part_report))
+        except ValueError:   # an object whose facets all have zero area: counted, nothing to tile
+            part_report = {"faces": int(keep.sum()), "degenerate_faces": int(keep.sum())}
+        if report is not None:
+            for k, v in part_report.items():
+                report[k] = max(report.get(k, 0), v) if k == "sliver_width_m" else report.get(k, 0) + v
+    if not parts:
+        raise ValueError("the mesh has no face of non-zero area")
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}

@@ -69,3 +69,35 @@ def test_quads_and_bad_spacing_are_refused(tmp_path):
     mesh = write_ply(tmp_path / "m.ply", v, f)
     result = runner.invoke(app, ["mesh-gaussians", str(mesh), "-o", str(tmp_path / "s.h5"), "--spacing", "0"])
     assert result.exit_code == 4 and "--spacing must be positive" in result.output
+
+
+def test_object_cells_tile_each_object_at_its_size_over_n(tmp_path):
+    """--object-cells N: each labelled object at min(--spacing, its size / N); area and labels kept."""
+    v, f, labels = two_panels()   # sizes 1.0 m (label 0) and 0.4 m (label 1)
+    mesh = write_ply(tmp_path / "m.ply", v, f, labels)
+    result = runner.invoke(app, ["mesh-gaussians", str(mesh), "-o", str(tmp_path / "s.h5"), "--spacing", "0.3",
+                                 "--object-cells", "8"])
+    assert result.exit_code == 0, result.output
+    assert "2 smaller objects at 5-12.5 cm (size / 8)" in " ".join(result.output.split())
+    art = read_artifact(tmp_path / "s.h5", "scene")
+    import torch
+
+    lab = art["gaussians/labels"]
+    sizes = np.exp(art["gaussians/log_scales"]).max(axis=1)
+    cov = covariance(torch.tensor(art["gaussians/log_scales"]), torch.tensor(art["gaussians/rotations"]))
+    area = projected_cross_section_m2(cov.double(), torch.tensor(art["gaussians/normals"])[None]).numpy()[0]
+    for value, size_m, area_m2 in ((0, 1.0, 0.5), (1, 0.4, 0.16)):
+        # a sub-triangle's longest edge is at most size / 8, its largest standard deviation below that
+        assert sizes[lab == value].max() <= size_m / 8
+        assert math.isclose(area[lab == value].sum(), area_m2, rel_tol=1e-3)
+    # without the option both panels are tiled at 0.3 m: far fewer surfels
+    result = runner.invoke(app, ["mesh-gaussians", str(mesh), "-o", str(tmp_path / "u.h5"), "--spacing", "0.3"])
+    assert result.exit_code == 0 and len(read_artifact(tmp_path / "u.h5", "scene")["gaussians/means"]) < len(lab) / 4
+
+
+def test_object_cells_need_labels(tmp_path):
+    v, f, _ = two_panels()
+    mesh = write_ply(tmp_path / "m.ply", v, f)
+    result = runner.invoke(app, ["mesh-gaussians", str(mesh), "-o", str(tmp_path / "s.h5"), "--object-cells", "8"])
+    assert result.exit_code == 2 and "needs a per-face 'label'" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "s.h5").exists()

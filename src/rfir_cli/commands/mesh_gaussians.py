@@ -36,28 +36,42 @@ def mesh_gaussians(
     mesh: Annotated[Path, typer.Argument(help="Triangle mesh (.ply, metres, world frame; optional per-face 'label').")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Scene artifact to write (.h5).")],
     spacing_m: Annotated[float, typer.Option("--spacing", help="Largest surfel size [m] (~ lambda/4 to lambda/2).")] = 0.03,
+    object_cells: Annotated[int, typer.Option(
+        "--object-cells", help="Tile each labelled object at min(--spacing, its size / N), so that small objects "
+        "(furniture in a room) get about N surfels across; 0: every face at --spacing.")] = 0,
 ) -> None:
     """Tile a mesh with flat Gaussians (normals from the faces) and write a scene artifact."""
-    from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
-    from rfir_stages.geom.mesh_io import read_ply_mesh
+    from rfir_stages.geom import write_scene_artifact
+    from rfir_stages.geom.mesh_io import object_spacings, read_ply_mesh, surfels_per_object
 
     def work():
         if not spacing_m > 0:
             raise ConfigError(f"--spacing must be positive, got {spacing_m}")
+        if object_cells < 0:
+            raise ConfigError(f"--object-cells must be 0 (off) or positive, got {object_cells}")
         data = read_ply_mesh(mesh)
+        if object_cells and data.labels is None:
+            raise InputFileError("--object-cells needs a per-face 'label' (one object per label); the mesh has none",
+                                 path=mesh)
+        spacings = object_spacings(data, spacing_m, object_cells)
         report: dict = {}
         try:
-            fields = gaussians_from_mesh(data.vertices, data.faces, spacing_m, labels=data.labels, report=report)
+            fields = surfels_per_object(data, spacings, report=report)
         except ValueError as exc:   # a mesh with no face of non-zero area
             raise InputFileError(str(exc), path=mesh) from None
         names = None
         if data.labels is not None:
             top = int(data.labels.max()) + 1
             names = [data.label_names.get(i, f"label_{i}") for i in range(top)]
-        path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=spacing_m)
-        return path, len(fields["gaussians/means"]), report
+        finer = sorted(v for v in spacings.values() if v < spacing_m)
+        described = spacing_m if not finer else f"{spacing_m} (objects: min(spacing, size / {object_cells}))"
+        path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=described)
+        return path, len(fields["gaussians/means"]), report, finer
 
-    path, count, report = run_guarded(ctx, work)
+    path, count, report, finer = run_guarded(ctx, work)
     for line in degenerate_facet_warnings(report):
         console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
-    console.print(f"[green]wrote[/green] {path}: {count} Gaussians at {spacing_m * 100:g} cm spacing", highlight=False)
+    extra = (f"; {len(finer)} smaller objects at {finer[0] * 100:.3g}-{finer[-1] * 100:.3g} cm (size / {object_cells})"
+             if finer else "")
+    console.print(f"[green]wrote[/green] {path}: {count} Gaussians at {spacing_m * 100:g} cm spacing{extra}",
+                  highlight=False)
