@@ -117,6 +117,8 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
             if edit.op is not None:
                 out_before = _outside(scene.arrays["gaussians/means"], lo, hi)
                 rec.update(apply(scene, mask, edit.op))
+                if edit.op.kind == "material" and n:
+                    rec["op"] = f"{rec['op']} ({describe_new_material(art, scene)})"
                 out_after = _outside(scene.arrays["gaussians/means"], lo, hi)
                 if edit.op.kind in _MOVES and out_after > out_before:
                     rec["warnings"].append(f"{edit.op.text}: {out_after - out_before} Gaussians moved outside the scene "
@@ -200,19 +202,14 @@ def append_materials(data: dict, free: dict, scene: EditScene) -> None:
     attribute-map values (rf/gamma_abs, rf/gamma_phase_rad) of every Gaussian."""
     import torch
 
-    from rfir_stages.model.materials import itu_law
     from rfir_stages.model.physical import MaterialValues
 
     attrs = free.setdefault("model", {}).setdefault("@attrs", {})
     freqs = np.asarray(data["rf/freq_hz"], np.float64)
     exponent = float(attrs.get("sigma_exponent", 1.0))
-    f0 = float(freqs[0]) / 1e9
     names = [str(n) for n in np.atleast_1d(attrs.get("material_names", []))]
     for key, was in scene.new_materials:
-        eps, sigma = itu_law(key, freqs[0])
-        for name, value in (("eps_r", float(eps)), ("sigma_1ghz_s_per_m", float(sigma) / f0 ** exponent),
-                            ("scattering", float(data["material/scattering"][was])),
-                            ("thickness_m", float(data["material/thickness_m"][was]))):
+        for name, value in new_material_values(data, key, was, exponent).items():
             data[f"material/{name}"] = np.append(np.asarray(data[f"material/{name}"], np.float64), value)
         names.append(key)
     t = lambda k: torch.as_tensor(np.asarray(data[k], np.float64))  # noqa: E731
@@ -226,3 +223,34 @@ def append_materials(data: dict, free: dict, scene: EditScene) -> None:
     index = scene.arrays["material/index"]
     data["rf/gamma_abs"], data["rf/gamma_phase_rad"] = np.abs(r[index, 0]), np.angle(r[index, 0])
     attrs["material_names"] = np.asarray(names, dtype=object)
+
+
+def new_material_values(data: dict, key: str, was: int, exponent: float = 1.0) -> dict:
+    """material/* values of the ITU-R P.2040 material `key` that replaces material `was` (its index in
+    data's material/* arrays): eps_r and sigma from the ITU law at the model's first frequency (sigma
+    referred to 1 GHz with the model's exponent); thickness and scattering coefficient S kept from `was`.
+
+    S stays because it describes the surface, not its bulk material: in the effective-roughness model
+    the specular share sqrt(1 - S^2) is set by the surface's height profile (docs/physics.md section 8.8),
+    which an edit of the material does not change."""
+    from rfir_stages.model.materials import itu_law
+
+    f = float(np.asarray(data["rf/freq_hz"], np.float64)[0])
+    eps, sigma = itu_law(key, f)
+    return {"eps_r": float(eps), "sigma_1ghz_s_per_m": float(sigma) / (f / 1e9) ** exponent,
+            "scattering": float(data["material/scattering"][was]), "thickness_m": float(data["material/thickness_m"][was])}
+
+
+def describe_new_material(art, scene: EditScene) -> str:
+    """What the last `material:NAME` edit of scene assumed, in words (printed with the edit, kept in its history)."""
+    key, was = scene.new_materials[-1]
+    while was >= scene.num_materials:           # re-materialled twice: S and thickness come from the first
+        was = scene.new_materials[was - scene.num_materials][1]
+    model = art.free.get("model@attrs", {})
+    names = [str(n) for n in np.atleast_1d(model.get("material_names", []))]
+    v = new_material_values(art.data, key, was, float(model.get("sigma_exponent", 1.0)))
+    f = float(np.asarray(art["rf/freq_hz"], np.float64)[0])
+    sigma = v["sigma_1ghz_s_per_m"] * (f / 1e9) ** float(model.get("sigma_exponent", 1.0))
+    replaced = names[was] if was < len(names) else f"material {was}"
+    return (f"ITU-R P.2040 {key} at {f / 1e9:.3g} GHz: eps_r {v['eps_r']:.3g}, sigma {sigma:.3g} S/m; "
+            f"thickness {v['thickness_m'] * 1e3:.3g} mm and S {v['scattering']:.2f} kept from {replaced}")

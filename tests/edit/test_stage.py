@@ -232,3 +232,24 @@ def test_links_ranges_of_fitted_materials_survive_a_move_but_not_a_new_material(
     assert _edit(src, "-o", metal, "--select", "label:crate", "--op", "material:metal").exit_code == 0
     assert np.array_equal(read_artifact(moved, "rf")["material/gamma_normal_range"], np.tile([0.2, 0.6], (n, 1)))
     assert read_artifact(metal, "rf").get("material/gamma_normal_range") is None
+
+
+def test_material_edit_states_the_values_it_assumed(rf_path, tmp_path):
+    """material:NAME prints (and keeps in the history) the ITU values at the model's frequency and the
+    thickness and S it keeps from the material it replaces; re-materialling twice keeps the first's."""
+    from rfir_stages.model.materials import itu_law
+
+    out = tmp_path / "e.h5"
+    r = _edit(rf_path, "-o", out, "--select", "label:crate", "--op", "material:metal",
+              "--select", "label:crate", "--op", "material:glass")
+    assert r.exit_code == 0, r.output
+    text = " ".join(r.output.split())
+    eps, sigma = itu_law("glass", 10e9)
+    assert "ITU-R P.2040 metal at 10 GHz: eps_r 1, sigma 1e+07 S/m; thickness 20 mm and S 0.10 kept from crate" in text
+    assert (f"ITU-R P.2040 glass at 10 GHz: eps_r {eps:.3g}, sigma {sigma:.3g} S/m; thickness 20 mm and S 0.10 kept "
+            "from crate") in text
+    art = read_artifact(out, "rf")
+    assert np.allclose(art["material/scattering"], [0.1, 0.3, 0.1, 0.1])
+    assert np.allclose(art["material/thickness_m"], [0.02, 0.05, 0.02, 0.02])
+    history = art.provenance.extra["edits"]
+    assert "S 0.10 kept from crate" in history[0]["op"] and history[0]["op"].startswith("material:metal (")
