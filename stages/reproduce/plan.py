@@ -30,8 +30,12 @@ ROOT = Path(__file__).resolve().parents[2]
 # changes the step's code version and reruns it. Everything reads src/rfir_cli (artifacts, config).
 _CORE = ("src/rfir_cli", "configs/general.toml")
 _MODEL = ("stages/model", "ext/rfir_tracer", "ext/csrc")
+# the simulators use the model package for its material laws only (rfir_stages.po.materials): a change
+# of the fitted model must not regenerate their data
+_MATERIAL_LAWS = ("stages/model/__init__.py", "stages/model/materials.py")
 CODE: dict[str, tuple[str, ...]] = {
-    "simulate": (*_CORE, "stages/simulate", "stages/po", "stages/model", "configs/simulate.toml"),
+    "simulate": (*_CORE, "stages/simulate", "stages/po", "stages/render", "stages/rf_fit/splits.py", *_MATERIAL_LAWS,
+                 "configs/simulate.toml"),
     "mesh-gaussians": (*_CORE, "stages/geom", "configs/geom.toml"),
     "calibrate": (*_CORE, "stages/calibrate", "configs/calibrate.toml"),
     "geom": (*_CORE, "stages/geom", "stages/render", "configs/geom.toml"),
@@ -43,7 +47,7 @@ CODE: dict[str, tuple[str, ...]] = {
     "rfir_stages.diagnose.blind": (*_CORE, *_MODEL, "stages/diagnose", "stages/rf_fit", "stages/predict",
                                    "stages/simulate", "stages/po", "configs/rf_fit.toml", "configs/simulate.toml",
                                    "configs/predict.toml"),
-    "rfir_stages.fullwave.compare": (*_CORE, "stages/fullwave", "stages/po", "stages/model"),
+    "rfir_stages.fullwave.compare": (*_CORE, "stages/fullwave", "stages/po", *_MATERIAL_LAWS),
     "scripts/baseline_nerf2.py": (*_CORE, "scripts/baseline_nerf2.py", "stages/baselines"),
     "scripts/baseline_wrfgs.py": (*_CORE, "scripts/baseline_wrfgs.py", "stages/baselines"),
     "scripts/baseline_raytrace.py": (*_CORE, "scripts/baseline_raytrace.py", "stages/simulate"),

@@ -220,3 +220,37 @@ def test_the_po_table_marks_what_cannot_predict_an_unfitted_frequency(tmp_path):
     assert "| trio 2.4 GHz, even/odd aspects | 2.00 | 2.00 | 2.00 | 3.00 | **1.50** |" in md
     assert "| trio 2.4 GHz, 3 m held out | 2.00 | 2.00 | 2.00 | 2.50 | **1.00** |" in md
     assert "rfir lowest on 3 of 18 rows" in md
+
+
+def test_code_paths_exist_and_simulators_do_not_follow_the_fitted_model():
+    """Every source path a step's code version hashes exists (a missing one would be skipped silently,
+    and its changes would never rerun the step), and the simulators' steps hash the material laws they
+    use, not the fitted model: a change of the model reruns the fits, not the data."""
+    from rfir_stages.reproduce.plan import CODE, ROOT
+
+    for command, paths in CODE.items():
+        for rel in paths:
+            assert (ROOT / rel).exists(), f"{command}: {rel} does not exist"
+
+    def covers(paths, rel):
+        return any(rel == p or rel.startswith(p.rstrip("/") + "/") for p in paths)
+
+    for command in ("simulate", "rfir_stages.fullwave.compare"):
+        assert covers(CODE[command], "stages/model/materials.py")
+        assert not covers(CODE[command], "stages/model/physical.py")
+        assert not covers(CODE[command], "stages/model/room.py")
+    for command in ("rf-fit", "predict", "rfir_stages.edit.validate"):
+        assert covers(CODE[command], "stages/model/physical.py")
+
+
+def test_simulators_import_only_the_material_laws_of_the_model_package():
+    """The premise of the simulators' code paths above, checked on their source."""
+    import re
+
+    from rfir_stages.reproduce.plan import ROOT
+
+    allowed = {"rfir_stages.model.materials", "rfir_stages.model import materials"}
+    for folder in ("stages/simulate", "stages/po", "stages/fullwave"):
+        for f in (ROOT / folder).rglob("*.py"):
+            for m in re.finditer(r"^\s*(?:from|import)\s+(rfir_stages\.model[\w.]*(?: import \w+)?)", f.read_text(), re.M):
+                assert m.group(1).split(",")[0] in allowed, f"{f.relative_to(ROOT)} imports {m.group(1)}"
