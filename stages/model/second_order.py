@@ -35,10 +35,9 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0
-from .surfels import footprint_factor
+from .surfels import COPLANAR_M, footprint_factor
 
-PARALLEL_COS = 0.98     # normals this close belong to one plane (and such patches form no dihedral)
-COPLANAR_M = 0.0015     # ... when their offsets along the normal differ by less (the faces of a 3 mm sheet stay apart)
+PARALLEL_COS = 0.98     # normals this close, offsets along them below COPLANAR_M: one plane (such patches form no dihedral)
 DIHEDRAL_COS = 0.5      # patches whose normals are 60-120 degrees apart can form a corner reflector
 
 
