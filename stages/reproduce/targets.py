@@ -36,11 +36,14 @@ def _simulate(r: Plan, name: str, scene: str, sets: dict, args: list[str] = ()) 
     return meas
 
 
-def _surfels(r: Plan, name: str, scene: str, spacing: float) -> Path:
+def _surfels(r: Plan, name: str, scene: str, spacing: float, object_cells: int = 0) -> Path:
+    """Surfels of the scene's true mesh; object_cells > 0 tiles each labelled object at
+    min(spacing, its size / object_cells) (furniture in rooms)."""
     out = r.data / name / "scene.h5"
     mesh = r.data / name / "meshes" / f"{scene}_gt.ply"
-    r.step(f"data__{name}_surfels", [r.rfir, "mesh-gaussians", str(mesh), "-o", str(out), "--spacing", f"{spacing:g}"],
-           out)
+    cells = ["--object-cells", str(object_cells)] if object_cells else []
+    r.step(f"data__{name}_surfels", [r.rfir, "mesh-gaussians", str(mesh), "-o", str(out), "--spacing", f"{spacing:g}",
+                                     *cells], out)
     return out
 
 
@@ -291,7 +294,9 @@ def _classroom(r: Plan) -> tuple[Path, Path]:
     """The room's RSSI data (full: with the photos the geom-mesh baseline needs) and its surfels."""
     sets = {} if not r.quick else {"simulate.rssi.tx_grid": "[2,2]", "simulate.rssi.rx_grid": "[6,5]"}
     meas = _simulate(r, "classroom", "classroom", sets, ["--no-photos"] if r.quick else [])
-    return meas, _surfels(r, "classroom", "classroom", 1.2 if r.quick else 0.8)
+    # the walls at 0.8 m, each piece of furniture about 12 surfels across: reflections off desks and chairs
+    # near the receivers need their extent (docs/rssi.md)
+    return meas, _surfels(r, "classroom", "classroom", 1.2 if r.quick else 0.8, 6 if r.quick else 12)
 
 
 def _geom_mesh(r: Plan) -> Path:
