@@ -164,7 +164,10 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
                  f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, physical model: polarisation "
                  f"{pair_settings.polarisation}, sigma ~ f^{fit_cfg.sigma_exponent:g}, double bounces "
-                 f"{'on' if pair_settings.second_order else 'off'}, system gain {'fitted' if fit_cfg.fit_gain else '0 dB'}")
+                 f"{'on' if pair_settings.second_order else 'off'}, shadows "
+                 + (f"lit/shadowed at transmittance {pair_settings.lit_threshold:g}" if pair_settings.lit_threshold > 0
+                    else "soft (transmittance)")
+                 + f", system gain {'fitted' if fit_cfg.fit_gain else '0 dB'}")
     with progress.task("trace (physical pairs)", total=1) as bar:
         physical = PhysicalSetup.trace(geom, links, ant, provider, pair_settings, labels, phys_table, seed,
                                        label_names)
