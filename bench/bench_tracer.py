@@ -14,7 +14,10 @@ a pinhole camera from inside the room, float32. For each scene size and image si
     all hits (count_intersections, the closer analogue of compositing every hit).
 Writes bench/tracer.json and prints a table.
 
-Usage: python bench/bench_tracer.py [--reps 5] [--quick] [--no-open3d] [--out bench/tracer.json]
+Usage: python bench/bench_tracer.py [--reps 5] [--quick] [--no-open3d] [--device cpu|cuda] [--out bench/tracer.json]
+With --device cuda the scene and rays live on the GPU (the extension must have been built with CUDA):
+times are taken after torch.cuda.synchronize(), memory is the peak of torch's CUDA allocator during one
+forward+backward, and the reference and Open3D columns are left out (they run on the CPU).
 On a shared machine wall times follow the other load; the CPU-time columns are steadier, and
 `OMP_NUM_THREADS=1 python bench/bench_tracer.py --no-open3d --ref-rays 0` gives single-core figures.
 """
@@ -67,14 +70,22 @@ class PeakRSS:
         self.peak_mb = (self.peak - self.base) / 2**20
 
 
+def _sync() -> None:
+    """GPU kernels run asynchronously: a wall time means something only after they finished."""
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        torch.cuda.synchronize()
+
+
 def median_time(fn, reps: int, cpu: list | None = None, best: list | None = None) -> float:
     """Median wall time of fn() over reps calls after one warm-up; appends the median process CPU
     time (all threads) to `cpu` and the fastest wall time to `best` when given."""
     fn()  # warm-up
+    _sync()
     times, cpus = [], []
     for _ in range(reps):
         c, t = time.process_time(), time.perf_counter()
         fn()
+        _sync()
         times.append(time.perf_counter() - t)
         cpus.append(time.process_time() - c)
     if cpu is not None:
@@ -101,6 +112,17 @@ def _memory_child(spec: str) -> None:
     with PeakRSS(interval=0.001) as mem:
         loss_of(rt.trace(scene, o, d, features=p["features"])).backward()
     print(mem.peak_mb)
+
+
+def peak_cuda_memory_mb(s, o, d) -> float:
+    """Peak extra memory of torch's CUDA allocator during one forward+backward (scene on the GPU)."""
+    scene, p = make_scene(s, grad=True)
+    _sync()
+    torch.cuda.reset_peak_memory_stats()
+    base = torch.cuda.memory_allocated()
+    loss_of(rt.trace(scene, o, d, features=p["features"])).backward()
+    _sync()
+    return (torch.cuda.max_memory_allocated() - base) / 2**20
 
 
 def make_scene(s, grad: bool):
@@ -167,8 +189,9 @@ def bench_reference(s, o, d, n_rays, seed=0):
     return fwd / n_rays, fwd_bwd / n_rays
 
 
-def bench_case(s, res, reps, ref_rays, use_o3d):
+def bench_case(s, res, reps, ref_rays, use_o3d, device="cpu"):
     o, d = pinhole_rays(res, res)
+    o, d = o.to(device), d.to(device)
     r = d.shape[0]
     scene, _ = make_scene(s, grad=False)
     with torch.no_grad():
@@ -190,7 +213,11 @@ def bench_case(s, res, reps, ref_rays, use_o3d):
                forward_best_s=best[0], forward_backward_best_s=best[1], rays_per_s=r / fwd, gaussian_evals_per_s=evals / fwd,
                evals_per_ray=evals / r, hits_per_ray=float(out.hit_count.double().mean()),
                mean_transmittance=float(out.transmittance.mean()),
-               peak_extra_rss_mb=peak_memory_mb(s["means"].shape[0], res))
+               device=device)
+    if device == "cuda":
+        row["peak_cuda_mb"] = peak_cuda_memory_mb(s, o, d)
+        return row
+    row["peak_extra_rss_mb"] = peak_memory_mb(s["means"].shape[0], res)
     if ref_rays:  # the reference's autograd keeps O(rays x N) tensors: fewer rays for big scenes
         n = min(ref_rays, r, max(16, 3_000_000 // s["means"].shape[0]))
         ref_fwd, ref_fb = bench_reference(s, o, d, n)
@@ -212,7 +239,7 @@ def print_table(rows):
             ("forward_backward_cpu_s", "f+b cpu ms", "{:>10.1f}"),
             ("rays_per_s", "Mray/s", "{:>6.2f}"),
             ("gaussian_evals_per_s", "Meval/s", "{:>7.1f}"), ("hits_per_ray", "hit/ray", "{:>7.1f}"),
-            ("peak_extra_rss_mb", "peak MB", "{:>7.0f}"), ("speedup_forward", "ref x fwd", "{:>9.0f}"),
+            ("peak_extra_rss_mb", "peak MB", "{:>7.0f}"), ("peak_cuda_mb", "GPU MB", "{:>6.0f}"), ("speedup_forward", "ref x fwd", "{:>9.0f}"),
             ("speedup_forward_backward", "ref x f+b", "{:>9.0f}"),
             ("open3d_closest_s", "o3d-1st ms", "{:>10.1f}"), ("open3d_all_hits_s", "o3d-all ms", "{:>10.1f}"),
             ("ratio_forward_vs_open3d_all_hits", "fwd/o3d-all", "{:>11.2f}")]
@@ -242,8 +269,15 @@ def main(argv=None):
     ap.add_argument("--no-open3d", action="store_true")
     ap.add_argument("--quick", action="store_true", help="tiny smoke run (2k Gaussians, 64x64, 1 rep)")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "tracer.json"))
+    ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                    help="where the scene and rays live (cuda needs the CUDA build of the extension)")
     ap.add_argument("--_memory", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.device == "cuda":
+        if not (torch.cuda.is_available() and rt.backend_info().get("cuda_compiled")):
+            sys.exit("bench_tracer: --device cuda needs a visible GPU and the extension built with CUDA "
+                     f"(backend_info: {rt.backend_info()})")
+        a.no_open3d, a.ref_rays = True, 0
     if a._memory:
         return _memory_child(a._memory)
     if a.quick:
@@ -257,20 +291,21 @@ def main(argv=None):
             use_o3d = False
     rows, builds = [], []
     for n in [int(x) for x in a.gaussians.split(",")]:
-        s = surface_scene(n)
+        s = {k: v.to(a.device) for k, v in surface_scene(n).items()}
         build = median_time(lambda s=s: make_scene(s, grad=False), max(1, a.reps // 2))
         scene, _ = make_scene(s, grad=False)
         refit = median_time(scene.refit, max(1, a.reps // 2))
         builds.append(dict(gaussians=s["means"].shape[0], bvh_build_s=build, bvh_refit_s=refit,
                            bvh_nodes=int(scene.nodes.shape[0])))
         for res in [int(x) for x in a.sizes.split(",")]:
-            rows.append(bench_case(s, res, a.reps, a.ref_rays, use_o3d))
+            rows.append(bench_case(s, res, a.reps, a.ref_rays, use_o3d, a.device))
             print(f"done: {rows[-1]['gaussians']} Gaussians, {res}x{res}", file=sys.stderr, flush=True)
     info = rt.backend_info()
     report = dict(
         machine=dict(platform=platform.platform(), cpu_count=os.cpu_count(), torch=torch.__version__,
                      torch_threads=torch.get_num_threads(), load_avg=os.getloadavg()),
-        backend=info, reps=a.reps, statistic="median", dtype="float32", cases=rows, bvh=builds,
+        gpu=torch.cuda.get_device_name() if a.device == "cuda" else None,
+        backend=info, device=a.device, reps=a.reps, statistic="median", dtype="float32", cases=rows, bvh=builds,
         notes=["reference timed on a random subset of rays (reference_rays_timed) and extrapolated linearly",
                "open3d proxy: one icosahedron per Gaussian scaled to kappa*sigma (kappa^2 = 2 ln 255)",
                "peak_extra_rss_mb: RSS sampled every 1 ms during one forward+backward in a fresh process "

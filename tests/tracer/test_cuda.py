@@ -36,7 +36,10 @@ def test_cuda_matches_cpu(dtype):
     gpu, gg = _run(s, o, d, "cuda")
     tol = dict(rtol=1e-9, atol=1e-11) if dtype == torch.float64 else dict(rtol=2e-4, atol=2e-5)
     same = cpu.hit_count == gpu.hit_count.cpu()
-    assert same.float().mean() > (0.999 if dtype == torch.float32 else 1.0 - 1e-12)
+    if dtype == torch.float64:  # every ray must collect the same hits
+        assert bool(same.all()), f"{int((~same).sum())} rays differ in hit count"
+    else:  # float32 may flip a hit sitting exactly on the alpha_min bound
+        assert same.double().mean() > 0.999
     for f in FIELDS:
         torch.testing.assert_close(getattr(gpu, f).cpu()[same], getattr(cpu, f)[same], **tol, msg=f)
     if dtype == torch.float64:
