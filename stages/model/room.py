@@ -23,7 +23,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
-from .room_diffuse import DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
+from .room_diffuse import CellVisibility, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
 from .room_paths import PatchSet, RoomPaths, build_patch_set, trace_room_paths
 from .surfels import surfel_areas
 
@@ -72,6 +72,9 @@ class RoomGeometry:
         self.cells: DiffuseCells = diffuse_cells(geom.means.numpy(), self.areas.numpy(), self.patches,
                                                  self.material_of_patch, settings.diffuse_cell_m)
         self.provider = make_provider(occlusion, geom, alpha_min)
+        # each end's visibility of the diffuse cells, kept per point: a map's receivers serve every transmitter
+        self.cell_visibility = CellVisibility(self.cells, self.provider, settings.opacity, settings.diffuse_margin_m,
+                                              settings.t_stop)
 
     def links(self, tx_m, rx_m, freq_hz, progress=None) -> "RoomLinks":
         """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]."""
@@ -82,7 +85,7 @@ class RoomGeometry:
         diffuse = None
         if s.diffuse:
             diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.num_materials, self.provider, s.opacity,
-                                    s.diffuse_margin_m, s.t_stop)
+                                    s.diffuse_margin_m, s.t_stop, visibility=self.cell_visibility)
         return RoomLinks(paths, diffuse, torch.as_tensor(self.material_of_patch), self.num_materials)
 
 

@@ -83,22 +83,56 @@ class DiffuseTerms:
         return (self.weight * g2.permute(1, 0, 2)).sum((1, 2))
 
 
+class CellVisibility:
+    """Transmittance from points to every diffuse cell (to its anchor surfel), kept per point.
+
+    It depends on the point and the geometry only, not on the other end of a link: a radio map's
+    receivers are traced once per model and every later transmitter reuses them (the largest part of
+    a map's cost on furniture-resolving surfels). Rows are kept up to max_bytes, the oldest
+    dropped first; points are keyed rounded to 1 nm."""
+
+    def __init__(self, cells: DiffuseCells, provider, opacity: float, margin_m: float, t_stop: float,
+                 max_bytes: float = 256e6):
+        self.cells, self.provider = cells, provider
+        self.margin_m, self.t_stop = float(margin_m), float(t_stop)
+        self.op = torch.full((provider.geom.num,), float(opacity), dtype=torch.float64)
+        self.max_rows = max(1, int(max_bytes // max(1, 8 * len(cells.area))))
+        self._rows: dict[bytes, np.ndarray] = {}
+
+    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(V [U, C] of the distinct points, index [N] of each point's row)."""
+        c = len(self.cells.area)
+        uniq, inv = np.unique(np.round(points, 9), axis=0, return_inverse=True)
+        keys = [u.tobytes() for u in uniq]
+        new = [i for i, k in enumerate(keys) if k not in self._rows]
+        out = np.empty((len(keys), c))
+        if new:
+            origins = torch.as_tensor(np.repeat(uniq[new], c, axis=0))
+            targets = torch.as_tensor(np.tile(self.cells.anchor, len(new)), dtype=torch.int64)
+            v = self.provider.segment_transmittance(origins, targets, self.margin_m, self.op, self.t_stop)
+            out[new] = v.numpy().reshape(len(new), c)
+        old = np.setdiff1d(np.arange(len(keys)), new)
+        for i in old:
+            out[i] = self._rows[keys[i]]
+        if new and len(new) <= self.max_rows:
+            if len(self._rows) + len(new) > self.max_rows:
+                for k in list(self._rows)[:len(self._rows) // 2 + len(new)]:
+                    del self._rows[k]
+            self._rows.update((keys[i], out[i].copy()) for i in new)
+        return out, inv.reshape(-1)
+
+
 def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells, num_materials: int,
                   provider, opacity: float, margin_m: float, t_stop: float, link_chunk: int = 256,
-                  progress_task=None) -> DiffuseTerms:
-    """The weights of DiffuseTerms for links tx_m, rx_m [M, 3] at freq_hz [M] (isotropic antennas)."""
+                  progress_task=None, visibility: CellVisibility | None = None) -> DiffuseTerms:
+    """The weights of DiffuseTerms for links tx_m, rx_m [M, 3] at freq_hz [M] (isotropic antennas).
+
+    visibility: a CellVisibility of these cells, provider and settings to reuse (None: a fresh one)."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
     m, c = len(tx), len(cells.area)
-    op = torch.full((provider.geom.num,), float(opacity), dtype=torch.float64)
-
-    def visibility(points: np.ndarray) -> np.ndarray:
-        uniq, inv = np.unique(np.round(points, 9), axis=0, return_inverse=True)
-        origins = torch.as_tensor(np.repeat(uniq, c, axis=0))
-        targets = torch.as_tensor(np.tile(cells.anchor, len(uniq)), dtype=torch.int64)
-        v = provider.segment_transmittance(origins, targets, margin_m, op, t_stop).numpy().reshape(len(uniq), c)
-        return v, inv.reshape(-1)
-
+    if visibility is None:
+        visibility = CellVisibility(cells, provider, opacity, margin_m, t_stop)
     v_tx, i_tx = visibility(tx)
     v_rx, i_rx = visibility(rx)
     weight = torch.zeros(m, num_materials, NODES, dtype=torch.float64)

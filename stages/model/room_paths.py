@@ -320,50 +320,48 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
     """Specular paths Tx -> patch_1 -> ... -> patch_order -> Rx over sequences of `cand` (no patch twice in a
     row, nor a patch and one coplanar with it).
 
-    Returns (link [N], patch sequence [N, order], reflection points [N, order, 3]). Images of the
-    transmitter are built forward; the reflection points are found backward from the receiver, and each
+    Returns (link [N], patch sequence [N, order], reflection points [N, order, 3]), ordered by patch
+    sequence, then link. Images of the transmitter are built forward, for every link and sequence at
+    once (rows (link, sequence)); the reflection points are found backward from the receiver, and each
     must lie on its patch with the previous vertex on the same side as the image's pre-image."""
-    out_l, out_p, out_c = [], [], []
     nrm, pnt = patches.normal, patches.point
     coplanar = (np.abs(nrm[cand] @ nrm[cand].T) > 0.999) & (
         np.abs(((pnt[cand][None, :, :] - pnt[cand][:, None, :]) * nrm[cand][:, None, :]).sum(2)) < 1e-3)
-
-    def walk(seq: list[int], links: np.ndarray, images: list[np.ndarray]):
-        if len(seq) == order:
-            x = rx[links]
-            pts = []
-            for k in range(order - 1, -1, -1):
-                p = cand[seq[k]]
-                pre = images[k]                                         # the image before reflection k
-                ok = ((x - pnt[p]) @ nrm[p]) * ((pre - pnt[p]) @ nrm[p]) > min_m ** 2
-                c = _plane_cross(images[k + 1], x, np.broadcast_to(pnt[p], x.shape), np.broadcast_to(nrm[p], x.shape))
-                ok &= patches.contains(np.full(len(links), p), c)
-                links, x, images = links[ok], c[ok], [im[ok] for im in images]
-                pts = [q[ok] for q in pts]
-                pts.insert(0, x)
-                if links.size == 0:
-                    return
-            out_l.append(links)
-            out_p.append(np.broadcast_to(cand[np.asarray(seq)], (len(links), order)))
-            out_c.append(np.stack(pts, 1))
-            return
-        for j in range(len(cand)):
-            if seq and (j == seq[-1] or coplanar[seq[-1], j]):
-                continue
-            p = cand[j]
-            side = (images[-1] - pnt[p]) @ nrm[p]
-            ok = np.abs(side) > min_m
-            if not ok.any():
-                continue
-            keep = np.flatnonzero(ok)
-            imgs = [im[keep] for im in images]
-            imgs.append(_mirror(imgs[-1], pnt[p], nrm[p]))
-            walk(seq + [j], links[keep], imgs)
-
-    walk([], np.arange(len(tx)), [tx])
-    if not out_l:
+    links = np.arange(len(tx))
+    seq = np.zeros((len(tx), 0), np.int64)              # indices into cand
+    images = [np.asarray(tx, dtype=np.float64)]
+    cn, cp = nrm[cand], pnt[cand]
+    for level in range(order):
+        # side of the current image to every candidate plane [R, K]; the image must not lie on the plane
+        side = ((images[-1][:, None, :] - cp[None]) * cn[None]).sum(2)
+        ok = np.abs(side) > min_m
+        if level:
+            last = seq[:, -1]
+            ok &= ~coplanar[last]
+            ok[np.arange(len(last)), last] = False
+        r, j = np.nonzero(ok)
+        links, seq = links[r], np.concatenate([seq[r], j[:, None]], 1)
+        images = [im[r] for im in images]
+        images.append(_mirror(images[-1], cp[j], cn[j]))
+        if links.size == 0:
+            break
+    pts = []
+    x = np.asarray(rx, dtype=np.float64)[links]
+    for k in range(order - 1, -1, -1):
+        if links.size == 0:
+            break
+        p = cand[seq[:, k]]
+        ok = ((x - pnt[p]) * nrm[p]).sum(1) * ((images[k] - pnt[p]) * nrm[p]).sum(1) > min_m ** 2
+        c = _plane_cross(images[k + 1], x, pnt[p], nrm[p])
+        ok &= patches.contains(p, c)
+        links, seq, x = links[ok], seq[ok], c[ok]
+        images = [im[ok] for im in images]
+        pts = [q[ok] for q in pts]
+        pts.insert(0, x)
+    if links.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, order), np.int64), np.zeros((0, order, 3))
-    return np.concatenate(out_l), np.concatenate(out_p), np.concatenate(out_c)
+    srt = np.lexsort([links] + [seq[:, k] for k in range(order - 1, -1, -1)])
+    return links[srt], cand[seq[srt]], np.stack(pts, 1)[srt]
 
 
 def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarray, skip_a: np.ndarray,
@@ -383,10 +381,11 @@ def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarra
         keep = (t > LEG_MARGIN_M) & (t < length[q] - LEG_MARGIN_M)
         q, p = q[keep], patches.surfel_patch[g[keep]]
         keep = (p >= 0) & (p != skip_a[lo:hi][q]) & (p != skip_b[lo:hi][q])
-        pair = np.unique(np.stack([q[keep], p[keep]], 1), axis=0)
+        # distinct (leg, patch) pairs, by leg then patch: one crossing per surface however many surfels tile it
+        pair = np.unique(q[keep] * patches.num + p[keep])
         if len(pair) == 0:
             continue
-        q, p = pair[:, 0], pair[:, 1]
+        q, p = pair // patches.num, pair % patches.num
         n, o = patches.normal[p], patches.point[p]
         da = ((a[q] - o) * n).sum(1)
         db = ((b[q] - o) * n).sum(1)

@@ -1,0 +1,122 @@
+"""The room model's fast path for radio maps equals a per-link reference computation.
+
+A map traces every (link, patch sequence) at once and keeps each receiver's visibility of the
+diffuse cells for the next transmitter (room_paths.reflection_paths, room_diffuse.CellVisibility).
+On the reduced room (a partition with a doorway, a table) both must give what a link traced alone on
+a fresh model gives, to 1e-9 relative: the reflection points from a plain per-link, per-sequence
+image method here, and the received power of a second transmitter's map against each link traced
+alone with nothing kept.
+"""
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from rfir_stages.model.physical import MaterialValues
+from rfir_stages.model.room import RoomGeometry, RoomLinks, RoomSettings
+from rfir_stages.model.room_diffuse import diffuse_terms
+from rfir_stages.model.room_paths import reflection_paths, trace_room_paths
+from rfir_stages.rf_fit.occlusion import FrozenGeometry
+
+from .helpers import ROOM, scene_fields
+
+F = 2.4e9
+
+
+@pytest.fixture(scope="module")
+def room():
+    fields, _ = scene_fields(0.3)
+    t = lambda k: torch.as_tensor(np.asarray(fields[k], np.float64))  # noqa: E731
+    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
+                          t("gaussians/normals"))
+    labels = torch.as_tensor(np.asarray(fields["gaussians/labels"], np.int64))
+    return RoomGeometry(geom, labels, labels.numpy(), RoomSettings(), occlusion="auto")
+
+
+def _grid(z=1.0, n=(7, 5)):
+    lx, ly, _ = ROOM
+    return np.array([[x, y, z] for x in np.linspace(0.25, lx - 0.25, n[0]) for y in np.linspace(0.25, ly - 0.25, n[1])])
+
+
+def _per_link_image_method(tx, rx, patches, cand, order, min_m=1e-4):
+    """{(link, patch sequence): reflection points [order, 3]}: each link and each sequence on its own."""
+    nrm, pnt = patches.normal, patches.point
+    out = {}
+    for m, (t, r) in enumerate(zip(tx, rx)):
+        for seq in itertools.product(cand, repeat=order):
+            if any(a == b or (abs(nrm[a] @ nrm[b]) > 0.999 and abs((pnt[b] - pnt[a]) @ nrm[a]) < 1e-3)
+                   for a, b in zip(seq[:-1], seq[1:])):
+                continue
+            images, ok = [t], True
+            for p in seq:
+                side = (images[-1] - pnt[p]) @ nrm[p]
+                if abs(side) <= min_m:
+                    ok = False
+                    break
+                images.append(images[-1] - 2.0 * side * nrm[p])
+            if not ok:
+                continue
+            x, pts = r, []
+            for k in range(order - 1, -1, -1):
+                p = seq[k]
+                if ((x - pnt[p]) @ nrm[p]) * ((images[k] - pnt[p]) @ nrm[p]) <= min_m ** 2:
+                    ok = False
+                    break
+                a, b = images[k + 1], x
+                da, db = (a - pnt[p]) @ nrm[p], (b - pnt[p]) @ nrm[p]
+                x = a + da / (da - db) * (b - a)
+                if not patches.contains(np.array([p]), x[None])[0]:
+                    ok = False
+                    break
+                pts.insert(0, x)
+            if ok:
+                out[(m, tuple(int(p) for p in seq))] = np.array(pts)
+    return out
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_reflection_paths_equal_the_per_link_image_method(room, order):
+    rng = np.random.default_rng(order)
+    lx, ly, lz = ROOM
+    tx = rng.uniform([0.2, 0.2, 1.2], [lx - 0.2, ly - 0.2, lz - 0.2], (12, 3))
+    rx = rng.uniform([0.2, 0.2, 0.3], [lx - 0.2, ly - 0.2, 1.6], (12, 3))
+    patches = room.patches
+    cand = np.flatnonzero(patches.area >= (0.0 if order == 1 else 1.0))
+    link, seq, pts = reflection_paths(tx, rx, patches, cand, order)
+    want = _per_link_image_method(tx, rx, patches, cand, order)
+    got = {(int(m), tuple(int(p) for p in s)): c for m, s, c in zip(link, seq, pts)}
+    assert len(want) > (20 if order == 1 else 5)          # the room has paths of this order to compare
+    assert set(got) == set(want)
+    for key, c in want.items():
+        np.testing.assert_allclose(got[key], c, rtol=0, atol=1e-12)
+
+
+def _materials(n):
+    return MaterialValues(torch.linspace(2.0, 6.0, n, dtype=torch.float64), torch.linspace(0.01, 0.3, n, dtype=torch.float64),
+                          0.0, torch.full((n,), 0.3, dtype=torch.float64), torch.linspace(0.03, 0.2, n, dtype=torch.float64))
+
+
+def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_alone(room):
+    rx = _grid()
+    mats = _materials(room.num_materials)
+    freq = np.full(len(rx), F)
+    room.links(np.broadcast_to([1.0, 1.0, 2.0], rx.shape), rx, freq)             # a first map keeps the receivers
+    kept = len(room.cell_visibility._rows)
+    tx_b = np.array([3.1, 2.2, 1.8])
+    fast = room.links(np.broadcast_to(tx_b, rx.shape), rx, freq).power(mats)[:, 0].numpy()
+    assert len(room.cell_visibility._rows) == kept + 1                              # only the new transmitter traced
+    s = room.settings
+    ref = []
+    for r in rx:                                                                    # each link alone, nothing kept
+        t1, r1 = tx_b[None], r[None]
+        paths = trace_room_paths(t1, r1, np.full(1, F), room.patches, room.provider, polarisation=s.polarisation,
+                                 max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
+                                 third_order_min_area_m2=s.third_order_min_area_m2)
+        diff = diffuse_terms(t1, r1, np.full(1, F), room.cells, room.num_materials, room.provider, s.opacity,
+                             s.diffuse_margin_m, s.t_stop)
+        one = RoomLinks(paths, diff, torch.as_tensor(room.material_of_patch), room.num_materials)
+        ref.append(one.power(mats)[0, 0].item())
+    ref = np.array(ref)
+    assert np.ptp(10 * np.log10(ref)) > 10.0                  # the map spans the partition's shadow and the open side
+    np.testing.assert_allclose(fast, ref, rtol=1e-9, atol=0)
