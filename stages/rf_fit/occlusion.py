@@ -148,20 +148,27 @@ class TracerOcclusion:
 
     name = "rfir_tracer"
 
-    def __init__(self, geom: FrozenGeometry, alpha_min: float = 1e-3, chunk: int = 2_000_000):
+    def __init__(self, geom: FrozenGeometry, alpha_min: float = 1e-3, chunk: int = 2_000_000, device: str = "cpu"):
+        """device: where the BVH and the traversal live ("cpu" or "cuda"); queries and answers stay on
+        the CPU (they are moved), so callers do not change. float64 on both: the same answers."""
         import rfir_tracer
 
         self._rt = rfir_tracer
-        self.alpha_min, self.chunk = float(alpha_min), int(chunk)
+        self.alpha_min, self.chunk, self.device = float(alpha_min), int(chunk), torch.device(device)
+        self.name = "rfir_tracer" if self.device.type == "cpu" else f"rfir_tracer ({self.device.type})"
         self.geom = geom
-        self.scene = rfir_tracer.GaussianScene(geom.means.double().contiguous(), geom.log_scales.double().contiguous(),
-                                               geom.rotations.double().contiguous(),
-                                               normals=geom.normals.double().contiguous())
+        self.scene = rfir_tracer.GaussianScene(*(t.double().to(self.device).contiguous()
+                                                 for t in (geom.means, geom.log_scales, geom.rotations)),
+                                               normals=geom.normals.double().to(self.device).contiguous())
+
+    def _dev(self, t: torch.Tensor) -> torch.Tensor:
+        return t.double().to(self.device).contiguous()
 
     @staticmethod
     def _table(res, first: int) -> tuple:
         h = res.hits
-        return h.ray_ids().long() + first, h.gaussian_ids.long(), h.t.double(), h.response.double()
+        return (h.ray_ids().long().cpu() + first, h.gaussian_ids.long().cpu(), h.t.double().cpu(),
+                h.response.double().cpu())
 
     def _chunks(self, n: int, fn) -> HitTable:
         parts = [fn(i, min(n, i + self.chunk)) for i in range(0, n, self.chunk)]
@@ -173,10 +180,10 @@ class TracerOcclusion:
     def ray_hits(self, origins: torch.Tensor, directions: torch.Tensor, opacity: torch.Tensor | None = None,
                  t_stop: float = 0.0) -> HitTable:
         """Hits along rays; with `opacity` [G] and t_stop > 0 the list ends where T < t_stop."""
-        op = None if opacity is None else opacity.double().contiguous()
+        op = None if opacity is None else self._dev(opacity)
 
         def part(a, b):
-            res = self._rt.trace(self.scene, origins[a:b].double().contiguous(), directions[a:b].double().contiguous(),
+            res = self._rt.trace(self.scene, self._dev(origins[a:b]), self._dev(directions[a:b]),
                                  opacities=op, alpha_min=self.alpha_min, t_stop=t_stop if op is not None else 0.0,
                                  return_hits=True)
             return self._table(res, a)
@@ -186,7 +193,7 @@ class TracerOcclusion:
     def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4) -> torch.Tensor:
         """V [Q] from origins to the targets' means, ignoring the last margin_m before each target."""
         out = torch.empty(len(target_ids), dtype=torch.float64)
-        op = opacity.double().contiguous()
+        op = self._dev(opacity)
         with torch.no_grad():
             for a in range(0, len(target_ids), self.chunk):
                 b = min(len(target_ids), a + self.chunk)
@@ -195,20 +202,21 @@ class TracerOcclusion:
                 d = (self.geom.means[ids].double() - o)
                 length = d.norm(dim=-1).clamp(min=1e-12)
                 t_max = (1.0 - margin_m / length).clamp(min=0.0)
-                out[a:b] = self._rt.trace_transmittance(self.scene, o, d.contiguous(), opacities=op, t_min=0.0,
-                                                        t_max=t_max, alpha_min=self.alpha_min, t_stop=t_stop,
-                                                        exclude=ids)
+                out[a:b] = self._rt.trace_transmittance(self.scene, self._dev(o), self._dev(d), opacities=op,
+                                                        t_min=0.0, t_max=self._dev(t_max), alpha_min=self.alpha_min,
+                                                        t_stop=t_stop, exclude=ids.to(self.device)).cpu()
         return out
 
-def make_provider(kind: str, geom: FrozenGeometry, alpha_min: float = 1e-3) -> OcclusionProvider:
-    """kind "auto" (the tracer when importable, else brute force), "tracer" or "brute-force"."""
+def make_provider(kind: str, geom: FrozenGeometry, alpha_min: float = 1e-3, device: str = "cpu") -> OcclusionProvider:
+    """kind "auto" (the tracer when importable, else brute force), "tracer" or "brute-force"; device:
+    where the tracer runs ("cuda" needs the extension's CUDA build; the brute force is CPU only)."""
     if kind in ("auto", "tracer"):
         try:
-            provider = TracerOcclusion(geom, alpha_min)
+            provider = TracerOcclusion(geom, alpha_min, device=device)
             provider.segment_transmittance(geom.means[:1] + 1.0, torch.zeros(1, dtype=torch.int64), 0.0,  # smoke test
                                            torch.ones(geom.num, dtype=torch.float64))
             return provider
         except Exception:  # noqa: BLE001 - a tracer that is missing or mid-rebuild: use the oracle
-            if kind == "tracer":
+            if kind == "tracer" or torch.device(device).type != "cpu":   # a GPU asked for is not swapped silently for the CPU
                 raise
     return BruteForceOcclusion(geom, alpha_min)

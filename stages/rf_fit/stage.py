@@ -83,8 +83,9 @@ def _key(*parts) -> str:
 
 def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0, config_toml: str = "",
         progress=None, checkpoint: Path | None = None, resume: bool = False, select=None,
-        t_start: float | None = None) -> RfFitResult:
-    """Fit the physical model; see the module docstring. config: the [rf_fit] table. select: a
+        t_start: float | None = None, device: str = "cpu") -> RfFitResult:
+    """Fit the physical model; see the module docstring. device: where the tracer runs the frozen
+    visibility ("cpu" or "cuda"; the fit itself is small and stays on the CPU). config: the [rf_fit] table. select: a
     rfir_stages.importers.select.RowSelection of ranges / aspects narrowing the training rows.
     The material sharing chosen by validation is recorded in CHECKPOINT.selection (checkpoint default:
     OUT.ckpt.pt); resume: reuse that record when it was made for the same run, instead of selecting again."""
@@ -159,7 +160,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         progress.log("rf-fit: one object class among the labels: its material is the scene's "
                      "(rf_fit.physical.sharing = auto -> global)")
     t0 = time.time()
-    provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min) \
+    provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min, device) \
         if render_cfg.visibility else None
     progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
                  f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, physical model: polarisation "
@@ -199,7 +200,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     warnings = [selection.pop("warning")] if "warning" in selection else []
     return _run_physical(physical, selection, target, fit_cfg, pair_settings, scene, meas, task, freqs, rows,
                          ant, protocol, scene_path, measurements_path, out_path, config_toml, seed, progress,
-                         t_start, trace_s, select_s, geom.num, starts, warnings)
+                         t_start, trace_s, select_s, geom.num, starts, warnings, device)
 
 
 def _save_selection(path: Path, key: str, selection: dict) -> None:
@@ -269,7 +270,7 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
                   task: str, freqs: np.ndarray, rows: np.ndarray, ant, protocol: str, scene_path: Path,
                   measurements_path: Path, out_path: Path, config_toml: str, seed: int, progress, t_start: float,
                   trace_s: float, select_s: float, num_gaussians: int, starts: list | None = None,
-                  warnings: list | None = None) -> RfFitResult:
+                  warnings: list | None = None, device: str = "cpu") -> RfFitResult:
     """Refit the selected physical candidate on every training link and write the rf artifact.
     starts: the candidate's fits in model selection (PhysicalFitResult per fold); when one of them
     predicts every training link better than the refit, it is kept (a refit never ends worse)."""
@@ -319,7 +320,7 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     timings = {"trace": trace_s, "select": select_s, "fit": refit_s, "residual": residual.wall_time_s,
                "ranges": ranges_s, "total": time.time() - t_start}
     training_attrs.update(_timing_attrs(timings))
-    prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
+    prov = Provenance(stage="rf-fit", config_toml=config_toml, device=device)   # where the tracing ran
     prov.add_input(scene_path)
     prov.add_input(measurements_path)
     prov.wall_time_s = timings["total"]

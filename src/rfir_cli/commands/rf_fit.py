@@ -54,7 +54,7 @@ def rf_fit(
         with RichReporter(opts.verbosity) as reporter:
             return run(scene, measurements, out, table, seed=opts.seed, config_toml=opts.config_toml(),
                        progress=reporter, checkpoint=checkpoint, resume=resume, select=select,
-                       t_start=t_start)
+                       t_start=t_start, device=opts.torch_device())
 
     r = run_guarded(ctx, work)
     from rfir_stages.rf_fit.stage import sharing_words
