@@ -13,6 +13,7 @@ fit_physical.fit_materials expects, so the fit (starts, start switching, best st
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -53,6 +54,9 @@ class RoomSettings:
     # the materials' |Gamma(0)| ranges the links allow (identifiability.py): off by default in rooms,
     # where each of the materials x 336 grid points costs an evaluation of every fitted link's paths
     reflection_ranges: bool = False
+    # keep each receiver's visibility of the diffuse cells for the default radio map ([predict.rssi] grid)
+    # in the model: a map for a new transmitter then traces no receiver (a few MB, a few s of the fit)
+    map_visibility: bool = True
 
 
 class RoomGeometry:
@@ -60,7 +64,7 @@ class RoomGeometry:
 
     def __init__(self, geom: FrozenGeometry, labels: torch.Tensor | None, material_of_gaussian: np.ndarray,
                  settings: RoomSettings, alpha_min: float = 1e-3, occlusion: str = "auto"):
-        self.geom, self.settings = geom, settings
+        self.geom, self.settings, self.alpha_min = geom, settings, float(alpha_min)
         self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
         self.patches: PatchSet = build_patch_set(geom, self.areas, labels, settings.coplanar_m)
         mat = np.asarray(material_of_gaussian, dtype=np.int64)
@@ -75,6 +79,18 @@ class RoomGeometry:
         # each end's visibility of the diffuse cells, kept per point: a map's receivers serve every transmitter
         self.cell_visibility = CellVisibility(self.cells, self.provider, settings.opacity, settings.diffuse_margin_m,
                                               settings.t_stop)
+
+    def visibility_key(self) -> str:
+        """Fingerprint of what a point's visibility of the diffuse cells depends on: the Gaussians, the cells'
+        anchors, the tracing settings and the tracer. Stored rows are used only where it matches (an edit
+        that moves or deletes Gaussians leaves them unused)."""
+        h = hashlib.sha256()
+        for t in (self.geom.means, self.geom.log_scales, self.geom.rotations):
+            h.update(np.ascontiguousarray(t.detach().numpy(), dtype=np.float64).tobytes())
+        h.update(np.ascontiguousarray(self.cells.anchor, dtype=np.int64).tobytes())
+        s = self.settings
+        h.update(repr((s.opacity, s.diffuse_margin_m, s.t_stop, self.alpha_min, self.provider.name)).encode())
+        return h.hexdigest()
 
     def links(self, tx_m, rx_m, freq_hz, progress=None) -> "RoomLinks":
         """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]."""
@@ -198,6 +214,8 @@ class RoomPredictor:
                                  model.material_of_gaussian.numpy(), RoomSettings(**kw),
                                  float(attrs.get("render.alpha_min", 1e-3)), occlusion)
         self.provider = self.room.provider
+        if attrs.get("map_visibility_key") == self.room.visibility_key() and "map_rx_m" in stored:
+            self.room.cell_visibility.keep(np.asarray(stored["map_rx_m"]), np.asarray(stored["map_cell_visibility"]))
 
     def memory_estimate_bytes(self, num_links: int, chunk_links: int) -> int:
         return int(min(num_links, chunk_links) * self.BYTES_PER_LINK + num_links * 200)

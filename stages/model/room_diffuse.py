@@ -122,6 +122,14 @@ class CellVisibility:
         return out, inv.reshape(-1)
 
 
+    def keep(self, points: np.ndarray, rows: np.ndarray) -> None:
+        """Keep rows V [U, C] of points [U, 3] traced elsewhere with the same geometry and settings (a model's
+        stored map receivers; RoomGeometry.visibility_key says when they apply)."""
+        for p, r in zip(np.round(np.asarray(points, np.float64), 9), np.asarray(rows, np.float64)):
+            if len(self._rows) < self.max_rows:
+                self._rows[p.tobytes()] = r
+
+
 def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells, num_materials: int,
                   provider, opacity: float, margin_m: float, t_stop: float, link_chunk: int = 256,
                   progress_task=None, visibility: CellVisibility | None = None) -> DiffuseTerms:

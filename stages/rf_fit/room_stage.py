@@ -163,6 +163,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     if ranges is not None:
         data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
+    map_rows = map_visibility(room, geom) if settings.map_visibility and settings.diffuse else {}
+    if map_rows:
+        model_attrs["map_visibility_key"] = room.visibility_key()
+        progress.log(f"kept the default map's {len(map_rows['map_rx_m'])} receivers' visibility of "
+                     f"{map_rows['map_cell_visibility'].shape[1]} diffuse cells in the model "
+                     f"({map_rows['map_cell_visibility'].nbytes / 1e6:.1f} MB; rf_fit.room.map_visibility)")
     training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr, "seed": seed,
                       "train_mae_db": res.train_mae_db, "initial_mae_db": res.initial_mae_db,
                       "wall_time_s": time.time() - t_start, "fit_time_s": res.wall_time_s, "trace_time_s": trace_s,
@@ -180,7 +186,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     prov.add_input(measurements_path)
     prov.wall_time_s = time.time() - t_start
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s, "fit_time_s": res.wall_time_s}
-    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table())},
+    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table()), **map_rows},
             "training": {"loss_curve": res.loss_curve, "train_rows": np.asarray(rows, np.int64),
                          "fit_rows": np.asarray(rows, np.int64)[fit],
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
@@ -202,6 +208,21 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                        {"trace": trace_s, "fit": res.wall_time_s}, materials=table,
                        warnings=([f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
                        + bounds)
+
+
+def map_visibility(room: RoomGeometry, geom) -> dict:
+    """{"map_rx_m": [U, 3], "map_cell_visibility": [U, C]}: each receiver of the default radio map of
+    `predict rssi` ([predict.rssi] grid over the Gaussians' floor plan) and its visibility of the diffuse
+    cells, which no transmitter changes (RoomPredictor keeps them)."""
+    from rfir_stages.predict.rssi import rssi_defaults
+    from rfir_stages.predict.rssi_checks import floor_grid
+
+    means = geom.means.numpy()
+    height, step = rssi_defaults()["grid"]
+    rx = floor_grid((means.min(0), means.max(0)), float(height), float(step))
+    with torch.no_grad():
+        rows, _ = room.cell_visibility(rx)
+    return {"map_rx_m": np.unique(np.round(rx, 9), axis=0), "map_cell_visibility": rows}
 
 
 def material_rows(vals, names: list[str], freq_hz: float) -> list[dict]:

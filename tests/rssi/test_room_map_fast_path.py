@@ -120,3 +120,38 @@ def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_a
     ref = np.array(ref)
     assert np.ptp(10 * np.log10(ref)) > 10.0                  # the map spans the partition's shadow and the open side
     np.testing.assert_allclose(fast, ref, rtol=1e-9, atol=0)
+
+
+def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path):
+    """rf-fit keeps the default map's receivers' visibility in the model; predicting with those rows equals
+    tracing them again, and a model whose Gaussians moved (an edit) does not use them."""
+    from typer.testing import CliRunner
+
+    from rfir_cli.artifacts import read_artifact, write_artifact
+    from rfir_cli.main import app
+    from rfir_stages.model.room import RoomPredictor
+    from rfir_stages.predict.rssi import rssi_defaults
+    from rfir_stages.predict.rssi_checks import floor_grid
+
+    from .helpers import write_measurements, write_scene
+
+    write_scene(tmp_path / "scene.h5", spacing_m=0.3)
+    write_measurements(tmp_path / "meas.h5")
+    r = CliRunner().invoke(app, ["--set", "rf_fit.physical.iterations=4", "--set", "rf_fit.physical.start_iterations=2",
+                                 "rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"), "-o",
+                                 str(tmp_path / "rf.h5")])
+    assert r.exit_code == 0, r.output
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    pred = RoomPredictor(rf)
+    means = pred.geom.means.numpy()
+    rx = floor_grid((means.min(0), means.max(0)), *rssi_defaults()["grid"])
+    assert len(pred.room.cell_visibility._rows) == len(rx)          # every map receiver kept
+    tx = np.broadcast_to([3.1, 2.2, 1.8], rx.shape)
+    kept = pred.path_gain_db(tx, rx)
+    assert len(pred.room.cell_visibility._rows) == len(rx) + 1      # the transmitter alone was traced
+    pred.room.cell_visibility._rows.clear()
+    np.testing.assert_allclose(10 ** (kept / 10), 10 ** (pred.path_gain_db(tx, rx) / 10), rtol=1e-9, atol=0)
+    data = dict(rf.data)
+    data["gaussians/means"] = data["gaussians/means"] + np.array([0.0, 0.0, 1e-6])
+    write_artifact(tmp_path / "moved.h5", "rf", data, attrs=rf.attrs, free=rf.free_for_write())
+    assert len(RoomPredictor(read_artifact(tmp_path / "moved.h5", "rf")).room.cell_visibility._rows) == 0
