@@ -90,12 +90,41 @@ def link_coords(tx_m: np.ndarray, rx_m: np.ndarray, centre: np.ndarray) -> tuple
     return vt / dt[:, None], vr / dr[:, None], np.log(0.5 * (dt + dr))
 
 
-def kernel(a, b, length_rad: float, range_length: float) -> np.ndarray:
-    """k(a_i, b_j) [La, Lb] for coordinates a, b from link_coords (module docstring)."""
+def link_distances(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """(a_tx^2 + a_rx^2 [La, Lb] rad^2, (ln rho - ln rho')^2 [La, Lb]) between coordinates a, b from
+    link_coords: what the kernel depends on, apart from its lengths."""
     at = np.arccos(np.clip(a[0] @ b[0].T, -1.0, 1.0))
     ar = np.arccos(np.clip(a[1] @ b[1].T, -1.0, 1.0))
-    dr = a[2][:, None] - b[2][None]
-    return np.exp(-(at**2 + ar**2) / (4 * length_rad**2) - dr**2 / (2 * range_length**2))
+    return at**2 + ar**2, (a[2][:, None] - b[2][None]) ** 2
+
+
+def kernel_of_distances(angle_sq: np.ndarray, log_range_sq: np.ndarray, length_rad: float,
+                        range_length: float) -> np.ndarray:
+    """k (module docstring) from link_distances' output."""
+    return np.exp(-angle_sq / (4 * length_rad**2) - log_range_sq / (2 * range_length**2))
+
+
+def kernel(a, b, length_rad: float, range_length: float) -> np.ndarray:
+    """k(a_i, b_j) [La, Lb] for coordinates a, b from link_coords (module docstring)."""
+    return kernel_of_distances(*link_distances(a, b), length_rad, range_length)
+
+
+def _factor(k_fit: np.ndarray, eta: float):
+    """Cholesky factor of K + eta I."""
+    k = k_fit.copy()
+    k[np.diag_indices_from(k)] += eta
+    return cho_factor(k, lower=True)
+
+
+def _form_at(kind: str, k_new: np.ndarray, factor, weights_db: np.ndarray, mean_db: np.ndarray,
+             phys_new: np.ndarray) -> np.ndarray:
+    """Prediction [V, F] dB of the smooth / blend form (module docstring) from k(x, X) [V, T], the
+    factor of K + eta I, the fitted weights [T, F] and mean [F], and the physics there [V, F]."""
+    corr = k_new @ weights_db
+    if kind == "smooth":
+        return phys_new + corr
+    share = np.clip(np.sum(k_new * cho_solve(factor, k_new.T).T, 1), 0.0, 1.0)[:, None]
+    return share * (mean_db[None] + corr) + (1.0 - share) * phys_new
 
 
 def _pick(c, rows):
@@ -104,9 +133,7 @@ def _pick(c, rows):
 
 def smooth_weights(coords, resid_db: np.ndarray, length_rad: float, range_length: float, eta: float) -> np.ndarray:
     """(K + eta I)^-1 r [T, F] for training coordinates and residuals r [T, F] dB."""
-    k = kernel(coords, coords, length_rad, range_length)
-    k[np.diag_indices_from(k)] += eta
-    return cho_solve(cho_factor(k, lower=True), resid_db)
+    return cho_solve(_factor(kernel(coords, coords, length_rad, range_length), eta), resid_db)
 
 
 def smooth_correction(coords_train, weights_db: np.ndarray, coords, length_rad: float, range_length: float,
@@ -188,18 +215,13 @@ def blend_at(kind: str, coords_fit, params: dict, coords_new, phys_new: np.ndarr
              range_length: float, eta: float, chunk: int = 2048) -> np.ndarray:
     """Prediction [V, F] dB of a fitted smooth / blend form (module docstring) where the physics gives
     phys_new [V, F] (columns: the fitted frequencies)."""
-    corr = smooth_correction(coords_fit, params["weights_db"], coords_new, length_rad, range_length)
-    if kind == "smooth":
-        return phys_new + corr
-    k = kernel(coords_fit, coords_fit, length_rad, range_length)
-    k[np.diag_indices_from(k)] += eta
-    factor = cho_factor(k, lower=True)
-    share = np.zeros(len(phys_new))
-    for a in range(0, len(share), chunk):
-        kn = kernel(_pick(coords_new, slice(a, a + chunk)), coords_fit, length_rad, range_length)   # [v, T]
-        share[a:a + chunk] = np.sum(kn * cho_solve(factor, kn.T).T, 1)
-    share = np.clip(share, 0.0, 1.0)[:, None]
-    return share * (params["mean_db"][None] + corr) + (1.0 - share) * phys_new
+    factor = None if kind == "smooth" else _factor(kernel(coords_fit, coords_fit, length_rad, range_length), eta)
+    out = np.zeros(np.shape(phys_new))
+    for a in range(0, len(out), chunk):
+        sl = slice(a, a + chunk)
+        kn = kernel(_pick(coords_new, sl), coords_fit, length_rad, range_length)   # [v, T]
+        out[sl] = _form_at(kind, kn, factor, params["weights_db"], params["mean_db"], phys_new[sl])
+    return out
 
 
 def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[np.ndarray], cfg: ResidualConfig,
@@ -214,12 +236,25 @@ def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[n
     grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
             for lr in cfg.range_lengths for eta in ((cfg.weight,) if cfg.weight is not None else cfg.weights)]
     grid = [g for g in grid if math.isfinite(g[3])]
-    for kind, ld, lr, eta in grid:
-        pred = []
-        for val in folds:
-            rows = np.setdiff1d(np.arange(m), val)
-            pred.append(kernel_predict(kind, _pick(coords, rows), target_db[rows], phys_db[rows], _pick(coords, val),
-                                       phys_db[val], math.radians(ld), lr, eta)[0])
+    # Every candidate on every fold, as kernel_predict computes it, but with the link distances found
+    # once and one factor of K + eta I per (fold, l, l_rho, eta) shared by both forms: the same numbers
+    # at a fraction of the cost (the kernels and factors were the bulk of a large fit's model selection).
+    preds: dict = {g: [] for g in grid}
+    angle_sq, log_range_sq = link_distances(coords, coords)
+    for val in folds:
+        rows = np.setdiff1d(np.arange(m), val)
+        fit_fit, new_fit = np.ix_(rows, rows), np.ix_(val, rows)
+        y, phys = target_db[rows], phys_db[rows]
+        for ld, lr in dict.fromkeys((g[1], g[2]) for g in grid):
+            k_fit = kernel_of_distances(angle_sq[fit_fit], log_range_sq[fit_fit], math.radians(ld), lr)
+            k_new = kernel_of_distances(angle_sq[new_fit], log_range_sq[new_fit], math.radians(ld), lr)
+            for eta in dict.fromkeys(g[3] for g in grid if g[1:3] == (ld, lr)):
+                factor = _factor(k_fit, eta)
+                for kind in dict.fromkeys(g[0] for g in grid if g[1:] == (ld, lr, eta)):
+                    mean = np.zeros(y.shape[1]) if kind == "smooth" else y.mean(0)
+                    weights = cho_solve(factor, y - (phys if kind == "smooth" else mean[None]))
+                    preds[(kind, ld, lr, eta)].append(_form_at(kind, k_new, factor, weights, mean, phys_db[val]))
+    for (kind, ld, lr, eta), pred in preds.items():
         errors[f"{kind} l={ld:g} deg, l_rho={lr:g}, eta={eta:g}"] = np.abs(np.concatenate(pred) - target_db[val_all])
     chosen, scores = choose(errors)
     out = ResidualFit("off", validation=scores, chosen=chosen, how=how)

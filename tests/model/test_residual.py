@@ -216,3 +216,35 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=tmp_path / "meas.h5")
     assert out.metrics["mae_db"] < 0.5 * out.metrics["mae_db_physics_only"], out.metrics
     assert res.train_mae_db > 0.5                                        # the materials alone cannot fit the error
+
+
+def test_validation_scores_equal_the_literal_computation_of_every_candidate(scene):
+    """fit_smooth shares link distances and factors between candidates: its scores must be those of
+    kernel_predict run candidate by candidate, fold by fold (the definition)."""
+    rng = np.random.default_rng(5)
+    target = scene["phys"] + _perturbation(scene["aspects"]) + rng.normal(0.0, 0.5, scene["phys"].shape)
+    train = np.arange(0, 360, 2)
+    coords = link_coords(scene["pos"], scene["pos"], CENTRE)
+    pick = lambda c, rows: tuple(x[rows] for x in c)  # noqa: E731
+    fit_coords = pick(coords, train)
+    folds, how = residual_folds("data", scene["aspects"][train], None, len(train))
+    cfg = ResidualConfig(form="auto", lengths_deg=(2.0, 8.0), range_lengths=(0.1, 1.0), weights=(0.03, 3.0))
+    fit = fit_smooth(fit_coords, scene["phys"][train], target[train], folds, cfg, how)
+    y, phys = target[train], scene["phys"][train]
+    val_all = np.concatenate(folds)
+    literal = {"physics only": float(np.mean(np.abs(phys[val_all] - y[val_all])))}
+    for kind in ("smooth", "blend"):
+        for ld in cfg.lengths_deg:
+            for lr in cfg.range_lengths:
+                for eta in cfg.weights:
+                    pred = []
+                    for val in folds:
+                        rows = np.setdiff1d(np.arange(len(train)), val)
+                        pred.append(kernel_predict(kind, pick(fit_coords, rows), y[rows], phys[rows],
+                                                   pick(fit_coords, val), phys[val], math.radians(ld), lr, eta)[0])
+                    literal[f"{kind} l={ld:g} deg, l_rho={lr:g}, eta={eta:g}"] = float(
+                        np.mean(np.abs(np.concatenate(pred) - y[val_all])))
+    assert list(fit.validation) == list(literal)
+    for name, value in literal.items():
+        assert fit.validation[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
+    assert fit.chosen != "physics only"    # a smooth 2 dB error: a kernel form must win
