@@ -1,19 +1,28 @@
-"""Benchmark of `predict rssi` (issue 8): a 440-point radio map for a new transmitter in the classroom.
+"""Benchmark of `predict rssi` (issue 23): radio maps for new transmitters in the classroom.
 
-    .venv/bin/python bench/bench_rssi.py                 # classroom surfels at 0.8 m, 22 x 20 receivers
-    .venv/bin/python bench/bench_rssi.py --spacing 0.5
+    .venv/bin/python bench/bench_rssi.py                       # furniture-resolving surfels (0.8 m, size / 12)
+    .venv/bin/python bench/bench_rssi.py --object-cells 0      # uniform 0.8 m surfels
     .venv/bin/python bench/bench_rssi.py --rf rf.h5 --results results/classroom_rssi_speed.json   # a fitted model
 
-Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes); a short
-fit of the room model on free-space data for two transmitters gives an `rf` artifact, then the map
-of a third transmitter (not fitted) is timed: trace the paths of 440 links and evaluate them.
-Budget in the issue: 2 s on the 2-core CPU.
-Prints the timings and writes bench/rssi.json.
+Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes) and tiled as
+`rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12` tiles them; a 5-step fit of the
+room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
+- map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: every receiver's visibility
+  of the diffuse cells traced (what every map cost before receivers were kept);
+- map_new_tx_s: a map of the same receivers for a transmitter not seen before, the receivers kept from
+  an earlier map of the same model (RoomGeometry.cell_visibility);
+- default_map_s: `predict rssi --tx ... --grid` 's default map ([predict.rssi] grid) from a freshly
+  loaded model, whose receivers rf-fit stored (rf_fit.room.map_visibility);
+- the second order's share: the same new-transmitter map with rf_fit.room.max_order = 1.
+The budget in the issue: 2 s on the 2-core CPU. Prints the timings, the load average they ran under,
+and writes bench/rssi.json.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -22,65 +31,104 @@ import numpy as np
 
 from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.physics.closed_forms import friis_path_gain
-from rfir_stages.geom import scene_from_mesh, write_scene_artifact
+from rfir_stages.geom import write_scene_artifact
+from rfir_stages.predict.rssi import rssi_defaults
+from rfir_stages.predict.rssi_checks import floor_grid
 from rfir_stages.predict.rssi_model_io import load_predictor
 from rfir_stages.rf_fit.stage import run as rf_fit
 from rfir_stages.simulate.rssi import grid_positions
 
 FREQ = 2.4e9
+NEW_TX = np.array([[4.1, 3.3, 1.7], [6.0, 2.0, 2.2], [2.5, 5.1, 2.0], [7.2, 4.4, 1.5], [3.3, 1.2, 2.4]])
+
+
+def classroom_fields(spacing_m: float, object_cells: int):
+    """Surfels of the code-built classroom as `mesh-gaussians --spacing --object-cells` tiles its mesh."""
+    from rfir_stages.geom.mesh_io import Mesh, object_spacings, surfels_per_object
+    from rfir_stages.simulate import build_scene
+
+    spec = build_scene("classroom")
+    verts, faces, labels, off = [], [], [], 0
+    for obj in spec.objects:
+        verts.append(obj.vertices)
+        faces.append(np.asarray(obj.faces) + off)
+        labels.append(np.full(len(obj.faces), obj.label))
+        off += len(obj.vertices)
+    names = spec.label_names()
+    mesh = Mesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(labels), dict(enumerate(names)))
+    return surfels_per_object(mesh, object_spacings(mesh, spacing_m, object_cells)), names
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--spacing", type=float, default=0.8, help="surfel spacing [m]")
+    ap.add_argument("--object-cells", type=int, default=12, help="objects at min(spacing, size / N); 0: uniform")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--rf", type=Path, help="time this fitted RSSI model instead of a 5-step synthetic fit")
     ap.add_argument("--results", type=Path, help="also write the figures to this JSON")
     args = ap.parse_args()
     bounds = np.array([[0.0, 0.0, 0.0], [9.0, 7.0, 3.0]])
     rx = grid_positions(bounds, 22, 20, 1.0, 0.4)
-    tx = np.array([[2.4, 2.7, 2.2], [6.6, 4.3, 2.2]])
     if args.rf is not None:
         rf = read_artifact(args.rf, "rf")
-        out = {"rf": str(args.rf), "num_gaussians": int(len(rf["rf/opacity"])), "num_points": len(rx),
-               "new_tx_m": [4.1, 3.3, 1.7], "budget_s": 2.0, **_time_map(args.rf, rx, args.repeats),
+        out = {"rf": str(args.rf), "num_gaussians": int(len(rf["rf/opacity"])),
+               **_time_maps(args.rf, rx, args.repeats),
                "fit_s": float(rf.free["training@attrs"]["wall_time_s"]),
-               "fit_trace_s": float(rf.free["training@attrs"]["trace_time_s"]),
-               "fit_budget_s": 1800.0, "note": "map_time_s: RoomPredictor.path_gain_db; load_time_s: read rf.h5 "
-               "and build the BVH; python and torch start-up not included"}
+               "fit_trace_s": float(rf.free["training@attrs"]["trace_time_s"])}
         return _report(out, args.results)
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        fields, names = scene_from_mesh("classroom", args.spacing)
+        fields, names = classroom_fields(args.spacing, args.object_cells)
         write_scene_artifact(d / "scene.h5", fields, label_names=names)
+        tx = np.array([[2.4, 2.7, 2.2], [6.6, 4.3, 2.2]])
         t, r = np.repeat(tx, len(rx), 0), np.tile(rx, (len(tx), 1))
         gain = 10 * np.log10(friis_path_gain(np.linalg.norm(r - t, axis=1), FREQ))
         write_artifact(d / "meas.h5", "measurements", {
             "tx_pos": t, "rx_pos": r, "freq_hz": np.array([FREQ]), "path_gain_db": gain[:, None],
             "split": np.zeros(len(t), np.int64), "tx_id": np.repeat(np.arange(len(tx)), len(rx)),
             "scene_bounds": bounds}, attrs={"task": "rssi", "scene": "classroom"})
-        cfg = {"physical": {"iterations": 5, "start_iterations": 2}}
         t0 = time.time()
-        rf_fit(d / "scene.h5", d / "meas.h5", d / "rf.h5", cfg)
+        rf_fit(d / "scene.h5", d / "meas.h5", d / "rf.h5", {"physical": {"iterations": 5, "start_iterations": 2}})
         fit_s = time.time() - t0
-        out = {"num_gaussians": int(len(fields["gaussians/means"])), "spacing_m": args.spacing, "num_points": len(rx),
-               **_time_map(d / "rf.h5", rx, args.repeats), "fit_5_steps_s": fit_s, "budget_s": 2.0}
+        out = {"num_gaussians": int(len(fields["gaussians/means"])), "spacing_m": args.spacing,
+               "object_cells": args.object_cells, **_time_maps(d / "rf.h5", rx, args.repeats),
+               "fit_5_steps_s": fit_s}
     _report(out, args.results)
 
 
-def _time_map(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
-    """Best-of-`repeats` load and map times for a new transmitter at (4.1, 3.3, 1.7) m."""
-    new_tx = np.array([4.1, 3.3, 1.7])
-    times = []
-    for _ in range(repeats):
-        t0 = time.time()
-        pred = load_predictor(read_artifact(rf_path, "rf"))
-        load_s = time.time() - t0
-        t1 = time.time()
-        pg = pred.path_gain_db(np.broadcast_to(new_tx, rx.shape), rx)
-        times.append((load_s, time.time() - t1))
-    load_s, map_s = (min(x) for x in zip(*times))
-    return {"map_time_s": map_s, "load_time_s": load_s, "finite": bool(np.isfinite(pg).all())}
+def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
+    """Medians of `repeats` runs (module docstring); each map is RoomPredictor.path_gain_db alone."""
+    def timed(fn, *a):
+        t0 = time.perf_counter()
+        value = fn(*a)
+        return time.perf_counter() - t0, value
+
+    def tx_of(i):
+        return np.broadcast_to(NEW_TX[i % len(NEW_TX)], rx.shape)
+
+    load, cold, new_tx, first_order, default = [], [], [], [], []
+    pred = load_predictor(read_artifact(rf_path, "rf"))
+    means = pred.geom.means.numpy()
+    grid = floor_grid((means.min(0), means.max(0)), *rssi_defaults()["grid"])
+    for i in range(repeats):
+        t, pred = timed(load_predictor, read_artifact(rf_path, "rf"))
+        load.append(t)
+        default.append(timed(pred.path_gain_db, np.broadcast_to(NEW_TX[0], grid.shape), grid)[0])
+        pred.room.cell_visibility._rows.clear()                       # nothing kept: every receiver traced
+        cold.append(timed(pred.path_gain_db, tx_of(i), rx)[0])
+        t, pg = timed(pred.path_gain_db, tx_of(i + 1), rx)           # the receivers kept from the map above
+        new_tx.append(t)
+        finite = bool(np.isfinite(pg).all())
+    pred.room.settings.max_order = 1
+    for i in range(repeats):
+        first_order.append(timed(pred.path_gain_db, tx_of(i + 2), rx)[0])
+    med = statistics.median
+    return {"num_points": len(rx), "default_map_points": len(grid), "load_time_s": med(load),
+            "map_cold_s": med(cold), "map_new_tx_s": med(new_tx), "map_new_tx_first_order_s": med(first_order),
+            "second_order_share_s": med(new_tx) - med(first_order), "default_map_s": med(default),
+            "finite": finite, "budget_s": 2.0, "repeats": repeats, "load_average_1min": os.getloadavg()[0],
+            "note": "medians; map times: RoomPredictor.path_gain_db alone; load_time_s: read rf.h5, patches, "
+                    "cells and the BVH; python and torch start-up not included"}
 
 
 def _report(out: dict, results: Path | None) -> None:

@@ -331,22 +331,30 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
     seq = np.zeros((len(tx), 0), np.int64)              # indices into cand
     images = [np.asarray(tx, dtype=np.float64)]
     cn, cp = nrm[cand], pnt[cand]
+    offset = (cp * cn).sum(1)
+    rx = np.asarray(rx, dtype=np.float64)
     for level in range(order):
-        # side of the current image to every candidate plane [R, K]; the image must not lie on the plane
-        side = ((images[-1][:, None, :] - cp[None]) * cn[None]).sum(2)
-        ok = np.abs(side) > min_m
+        # the image must not lie on the plane, and the receiver must lie on the image's side of the last
+        # plane: screened for every (row, candidate) with matrix products and half the margins, then
+        # decided exactly on the rows kept (the receiver's side again in the backward pass)
+        side = images[-1] @ cn.T - offset                                      # [R, K]
+        ok = np.abs(side) > 0.5 * min_m
+        if level == order - 1:
+            ok &= side * (rx[links] @ cn.T - offset) > 0.5 * min_m ** 2
         if level:
             last = seq[:, -1]
             ok &= ~coplanar[last]
             ok[np.arange(len(last)), last] = False
         r, j = np.nonzero(ok)
+        exact = np.abs(((images[-1][r] - cp[j]) * cn[j]).sum(1)) > min_m
+        r, j = r[exact], j[exact]
         links, seq = links[r], np.concatenate([seq[r], j[:, None]], 1)
         images = [im[r] for im in images]
         images.append(_mirror(images[-1], cp[j], cn[j]))
         if links.size == 0:
             break
     pts = []
-    x = np.asarray(rx, dtype=np.float64)[links]
+    x = rx[links]
     for k in range(order - 1, -1, -1):
         if links.size == 0:
             break
