@@ -121,7 +121,6 @@ class CellVisibility:
             self._rows.update((keys[i], out[i].copy()) for i in new)
         return out, inv.reshape(-1)
 
-
     def keep(self, points: np.ndarray, rows: np.ndarray) -> None:
         """Keep rows V [U, C] of points [U, 3] traced elsewhere with the same geometry and settings (a model's
         stored map receivers; RoomGeometry.visibility_key says when they apply)."""

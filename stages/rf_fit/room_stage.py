@@ -163,12 +163,14 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     if ranges is not None:
         data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
+    t_map = time.time()
     map_rows = map_visibility(room, geom) if settings.map_visibility and settings.diffuse else {}
     if map_rows:
         model_attrs["map_visibility_key"] = room.visibility_key()
         progress.log(f"kept the default map's {len(map_rows['map_rx_m'])} receivers' visibility of "
                      f"{map_rows['map_cell_visibility'].shape[1]} diffuse cells in the model "
-                     f"({map_rows['map_cell_visibility'].nbytes / 1e6:.1f} MB; rf_fit.room.map_visibility)")
+                     f"({map_rows['map_cell_visibility'].nbytes / 1e6:.1f} MB, {time.time() - t_map:.1f} s; "
+                     "rf_fit.room.map_visibility)")
     training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr, "seed": seed,
                       "train_mae_db": res.train_mae_db, "initial_mae_db": res.initial_mae_db,
                       "wall_time_s": time.time() - t_start, "fit_time_s": res.wall_time_s, "trace_time_s": trace_s,
