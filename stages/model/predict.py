@@ -23,6 +23,7 @@ from .artifact import load_physical
 from .band import EXACT_MAX_FREQS, band_field, band_power
 from .physical import build_pairs
 from .residual import kernel_form_at
+from .sampling import cell_size_m, coarse_surfels_warning
 from .second_order import planar_patches
 
 FLOOR_DB = -250.0
@@ -48,6 +49,9 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
                      f"{', '.join(f'{f / 1e9:g}' for f in unfitted[:4])} GHz: materials per label fitted at one "
                      "frequency carry over less well than one for the object (docs/rf-model.md, unseen frequency)")
     geom = geometry_from_artifact(rf)
+    coarse = coarse_surfels_warning(cell_size_m(geom.log_scales, geom.rotations, geom.normals, model.areas_m2), freqs)
+    if coarse:
+        progress.log(f"warning: {coarse}")
     centre = scene_centre(geom)
     provider = make_provider(occlusion, geom) if model.settings.visibility else None
     labels = rf.get("gaussians/labels")

@@ -27,6 +27,7 @@ from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
 from rfir_stages.model.band import aggregate_chunk
 from rfir_stages.model.fit_physical import material_index, reflection_ranges
+from rfir_stages.model.sampling import cell_size_m, coarse_surfels_warning
 
 from .antennas import antenna_choice
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
@@ -198,6 +199,10 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         _save_selection(chosen, key, selection)
     select_s = time.time() - t_sel
     warnings = [selection.pop("warning")] if "warning" in selection else []
+    coarse = coarse_surfels_warning(cell_size_m(geom.log_scales, geom.rotations, geom.normals, physical.areas_m2), freqs)
+    if coarse:
+        progress.log(f"warning: {coarse}")
+        warnings.append(coarse)
     return _run_physical(physical, selection, target, fit_cfg, pair_settings, scene, meas, task, freqs, rows,
                          ant, protocol, scene_path, measurements_path, out_path, config_toml, seed, progress,
                          t_start, trace_s, select_s, geom.num, starts, warnings, device)
