@@ -113,6 +113,14 @@ class DoubleBounce(Effect):
         lam = rows.wavelength_m
         return _add_power(base_db, 10 ** (x[0] / 10) * (lam / (4 * np.pi * (rows.dist_m + x[1]))) ** 2)
 
+    def consistent(self, x, rows, mask):
+        # An extra path at its upper bound makes the added power nearly the same on every link: the fit
+        # wants a constant (a noise floor), not a longer path, and would win over it only by its extra
+        # parameter's freedom (a noise floor hidden in a room scored within 2 % of the floor itself).
+        ok = x[1] < self.upper[1] * (1 - 1e-6)
+        return ok, "" if ok else (f"the extra path sits at its bound ({self.upper[1]:g} m): the added power is "
+                                  "nearly constant over the links, a noise floor rather than a double bounce")
+
 
 class DiffuseLobe(Effect):
     """A missing diffuse-scattering lobe: incoherent power proportional to the smooth reference level;

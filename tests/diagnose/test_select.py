@@ -56,6 +56,7 @@ CASES = [
     ("wall_transmission", room_rows, [-6.0], {"loss_per_crossing_db": (-6.0, 1.5)}),
     ("saturation", room_rows, [-50.0], {"level_db": (-50.0, 1.5)}),
     ("ground_bounce", room_rows, [-0.8, 0.0], {"plane_height_m": (0.0, 0.1)}),
+    ("double_bounce", room_rows, [0.0, 3.0], {"extra_path_m": (3.0, 1.0)}),
     ("turntable_offset", radar_rows, [3.0], {"offset_deg": (3.0, 0.3)}),
     ("leakage", radar_rows, [-78.0], {"level_db": (-78.0, 1.5)}),
     ("diffuse_lobe", radar_rows, [-8.0], {"level_db": (-8.0, 1.5)}),
@@ -125,3 +126,15 @@ def test_incidence_on_the_dominant_surface_of_a_plate():
     radar = np.stack([3 * np.cos(ang), 3 * np.sin(ang), np.zeros_like(ang)], 1)
     got = incidence_deg(fields, radar)
     assert np.allclose(got, [0.0, 30.0, 60.0, 0.0], atol=2.0), got
+
+
+@pytest.mark.parametrize("noise_db", [0.5, 1.0])
+def test_a_noise_floor_is_not_read_as_a_double_bounce_with_an_endless_path(noise_db):
+    """Fitted to a floor, the double bounce runs its extra path to the bound (a constant power) and scored
+    within 2 % of the floor itself; at the bound it is inconsistent, and the floor is the one named."""
+    rows = _hide(room_rows(), "noise_floor", [-62.0], noise_db=noise_db)
+    cands = {c.name: c for c in evaluate(rows, rows.pred_db)}
+    assert cands["double_bounce"].params["extra_path_m"] > 45.0 and not cands["double_bounce"].significant
+    assert "noise floor" in cands["double_bounce"].reason
+    best, _ = choose(list(cands.values()))
+    assert best is not None and best.name == "noise_floor"
