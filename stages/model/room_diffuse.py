@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from rfir_stages.po.geometry import single_thread_torch
+
 from .materials import C0, fresnel
 from .room_paths import PatchSet
 
@@ -145,28 +147,30 @@ def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells
     weight = torch.zeros(m, num_materials, NODES, dtype=torch.float64)
     lam2 = (C0 / np.asarray(freq_hz, dtype=np.float64)) ** 2
     step = math.radians(90.0 / (NODES - 1))
-    for lo in range(0, m, link_chunk):
-        hi = min(m, lo + link_chunk)
-        wi = tx[lo:hi, None, :] - cells.centre[None]                        # [B, C, 3]
-        wo = rx[lo:hi, None, :] - cells.centre[None]
-        di = np.linalg.norm(wi, axis=2)
-        do = np.linalg.norm(wo, axis=2)
-        ci = (wi * cells.normal[None]).sum(2) / di
-        co = (wo * cells.normal[None]).sum(2) / do
-        lit = ci * co > 0                                                      # both ends on one side
-        ci, co = np.abs(ci), np.abs(co)
-        g = (cells.area[None] * ci * co * lam2[lo:hi, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)
-             * v_tx[i_tx[lo:hi]] * v_rx[i_rx[lo:hi]] * lit)
-        theta = np.arccos(np.clip(ci, 0.0, 1.0)) / step
-        j = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
-        frac = np.clip(theta - j, 0.0, 1.0)
-        b = hi - lo
-        row = np.repeat(np.arange(b), c)
-        mat = np.tile(cells.material, b)
-        flat = weight[lo:hi].view(-1)
-        base = (row * num_materials + mat) * NODES
-        flat.index_add_(0, torch.as_tensor(base + j.ravel()), torch.as_tensor((g * (1 - frac)).ravel()))
-        flat.index_add_(0, torch.as_tensor(base + j.ravel() + 1), torch.as_tensor((g * frac).ravel()))
-        if progress_task is not None:
-            progress_task.advance(hi - lo)
+    # many small tensor ops per chunk: on a shared CPU, thread hand-offs cost more than the work
+    with single_thread_torch():
+        for lo in range(0, m, link_chunk):
+            hi = min(m, lo + link_chunk)
+            wi = tx[lo:hi, None, :] - cells.centre[None]                        # [B, C, 3]
+            wo = rx[lo:hi, None, :] - cells.centre[None]
+            di = np.linalg.norm(wi, axis=2)
+            do = np.linalg.norm(wo, axis=2)
+            ci = (wi * cells.normal[None]).sum(2) / di
+            co = (wo * cells.normal[None]).sum(2) / do
+            lit = ci * co > 0                                                      # both ends on one side
+            ci, co = np.abs(ci), np.abs(co)
+            g = (cells.area[None] * ci * co * lam2[lo:hi, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)
+                 * v_tx[i_tx[lo:hi]] * v_rx[i_rx[lo:hi]] * lit)
+            theta = np.arccos(np.clip(ci, 0.0, 1.0)) / step
+            j = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
+            frac = np.clip(theta - j, 0.0, 1.0)
+            b = hi - lo
+            row = np.repeat(np.arange(b), c)
+            mat = np.tile(cells.material, b)
+            flat = weight[lo:hi].view(-1)
+            base = (row * num_materials + mat) * NODES
+            flat.index_add_(0, torch.as_tensor(base + j.ravel()), torch.as_tensor((g * (1 - frac)).ravel()))
+            flat.index_add_(0, torch.as_tensor(base + j.ravel() + 1), torch.as_tensor((g * frac).ravel()))
+            if progress_task is not None:
+                progress_task.advance(hi - lo)
     return DiffuseTerms(weight, torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))
