@@ -43,6 +43,12 @@ LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfac
 FOOTPRINT_REACH = 0.75    # a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of [..., 3] arrays, summed in the order (a b)_x + (a b)_y + (a b)_z as
+    numpy's sum over a last axis of 3 does (several times faster than that reduction on long arrays)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 @dataclass
 class PatchSet:
     """Planar patches with their extents.
@@ -71,8 +77,8 @@ class PatchSet:
     def contains(self, pid: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """[N] bool: point pts[n] (on patch pid[n]'s plane) lies on that patch."""
         rel = pts - self.point[pid]
-        a = (rel * self.u[pid]).sum(1)
-        b = (rel * self.v[pid]).sum(1)
+        a = _dot(rel, self.u[pid])
+        b = _dot(rel, self.v[pid])
         i = np.floor((a - self.grid_origin[pid, 0]) / self.cell_m[pid]).astype(np.int64)
         j = np.floor((b - self.grid_origin[pid, 1]) / self.cell_m[pid]).astype(np.int64)
         inside = (i >= 0) & (j >= 0) & (i < self.grid_shape[pid, 0]) & (j < self.grid_shape[pid, 1])
@@ -304,13 +310,13 @@ class RoomPaths:
 # tracing the paths
 # ---------------------------------------------------------------------------------------------------
 def _mirror(x: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    return x - 2.0 * ((x - point) * normal).sum(-1, keepdims=True) * normal
+    return x - 2.0 * _dot(x - point, normal)[..., None] * normal
 
 
 def _plane_cross(a: np.ndarray, b: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Points [N, 3] where segments a -> b cross the planes (point, normal) [N, 3] each."""
-    da = ((a - point) * normal).sum(1)
-    db = ((b - point) * normal).sum(1)
+    da = _dot(a - point, normal)
+    db = _dot(b - point, normal)
     f = da / np.where(np.abs(da - db) > 1e-15, da - db, 1e-15)
     return a + f[:, None] * (b - a)
 
@@ -346,7 +352,7 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
             ok &= ~coplanar[last]
             ok[np.arange(len(last)), last] = False
         r, j = np.nonzero(ok)
-        exact = np.abs(((images[-1][r] - cp[j]) * cn[j]).sum(1)) > min_m
+        exact = np.abs(_dot(images[-1][r] - cp[j], cn[j])) > min_m
         r, j = r[exact], j[exact]
         links, seq = links[r], np.concatenate([seq[r], j[:, None]], 1)
         images = [im[r] for im in images]
@@ -359,7 +365,7 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
         if links.size == 0:
             break
         p = cand[seq[:, k]]
-        ok = ((x - pnt[p]) * nrm[p]).sum(1) * ((images[k] - pnt[p]) * nrm[p]).sum(1) > min_m ** 2
+        ok = _dot(x - pnt[p], nrm[p]) * _dot(images[k] - pnt[p], nrm[p]) > min_m ** 2
         c = _plane_cross(images[k + 1], x, pnt[p], nrm[p])
         ok &= patches.contains(p, c)
         links, seq, x = links[ok], seq[ok], c[ok]
@@ -400,8 +406,8 @@ def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarra
             continue
         q, p = pair // patches.num, pair % patches.num
         n, o = patches.normal[p], patches.point[p]
-        da = ((a[q] - o) * n).sum(1)
-        db = ((b[q] - o) * n).sum(1)
+        da = _dot(a[q] - o, n)
+        db = _dot(b[q] - o, n)
         cross = da * db < 0
         f = da / np.where(cross, da - db, 1.0)
         x = a[q] + f[:, None] * d[q]
@@ -416,7 +422,7 @@ def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarra
 
 def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
     """(cos, s, p_in, p_out) of interactions with incoming unit directions k and normals n [N, 3]."""
-    cos = np.abs((k * n).sum(1))
+    cos = np.abs(_dot(k, n))
     s = np.cross(k, n)
     sn = np.linalg.norm(s, axis=1, keepdims=True)
     # normal incidence: any direction across k is TE (TE and TM agree there up to the reference)
