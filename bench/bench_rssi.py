@@ -114,7 +114,7 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
         t, pred = timed(load_predictor, read_artifact(rf_path, "rf"))
         load.append(t)
         default.append(timed(pred.path_gain_db, np.broadcast_to(NEW_TX[0], grid.shape), grid)[0])
-        pred.room.cell_visibility._rows.clear()                       # nothing kept: every receiver traced
+        pred.room.cell_visibility.clear()                       # nothing kept: every receiver traced
         cold.append(timed(pred.path_gain_db, tx_of(i), rx)[0])
         t, pg = timed(pred.path_gain_db, tx_of(i + 1), rx)           # the receivers kept from the map above
         new_tx.append(t)

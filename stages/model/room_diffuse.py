@@ -123,6 +123,13 @@ class CellVisibility:
             self._rows.update((keys[i], out[i].copy()) for i in new)
         return out, inv.reshape(-1)
 
+    def __len__(self) -> int:
+        """Points kept."""
+        return len(self._rows)
+
+    def clear(self) -> None:
+        self._rows.clear()
+
     def keep(self, points: np.ndarray, rows: np.ndarray) -> None:
         """Keep rows V [U, C] of points [U, 3] traced elsewhere with the same geometry and settings (a model's
         stored map receivers; RoomGeometry.visibility_key says when they apply)."""

@@ -102,10 +102,10 @@ def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_a
     mats = _materials(room.num_materials)
     freq = np.full(len(rx), F)
     room.links(np.broadcast_to([1.0, 1.0, 2.0], rx.shape), rx, freq)             # a first map keeps the receivers
-    kept = len(room.cell_visibility._rows)
+    kept = len(room.cell_visibility)
     tx_b = np.array([3.1, 2.2, 1.8])
     fast = room.links(np.broadcast_to(tx_b, rx.shape), rx, freq).power(mats)[:, 0].numpy()
-    assert len(room.cell_visibility._rows) == kept + 1                              # only the new transmitter traced
+    assert len(room.cell_visibility) == kept + 1                              # only the new transmitter traced
     s = room.settings
     ref = []
     for r in rx:                                                                    # each link alone, nothing kept
@@ -145,13 +145,13 @@ def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path):
     pred = RoomPredictor(rf)
     means = pred.geom.means.numpy()
     rx = floor_grid((means.min(0), means.max(0)), *rssi_defaults()["grid"])
-    assert len(pred.room.cell_visibility._rows) == len(rx)          # every map receiver kept
+    assert len(pred.room.cell_visibility) == len(rx)          # every map receiver kept
     tx = np.broadcast_to([3.1, 2.2, 1.8], rx.shape)
     kept = pred.path_gain_db(tx, rx)
-    assert len(pred.room.cell_visibility._rows) == len(rx) + 1      # the transmitter alone was traced
-    pred.room.cell_visibility._rows.clear()
+    assert len(pred.room.cell_visibility) == len(rx) + 1      # the transmitter alone was traced
+    pred.room.cell_visibility.clear()
     np.testing.assert_allclose(10 ** (kept / 10), 10 ** (pred.path_gain_db(tx, rx) / 10), rtol=1e-9, atol=0)
     data = dict(rf.data)
     data["gaussians/means"] = data["gaussians/means"] + np.array([0.0, 0.0, 1e-6])
     write_artifact(tmp_path / "moved.h5", "rf", data, attrs=rf.attrs, free=rf.free_for_write())
-    assert len(RoomPredictor(read_artifact(tmp_path / "moved.h5", "rf")).room.cell_visibility._rows) == 0
+    assert len(RoomPredictor(read_artifact(tmp_path / "moved.h5", "rf")).room.cell_visibility) == 0
