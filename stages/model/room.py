@@ -64,9 +64,13 @@ class RoomGeometry:
     """Patches, diffuse cells and the occlusion provider of a frozen set of surfels."""
 
     def __init__(self, geom: FrozenGeometry, labels: torch.Tensor | None, material_of_gaussian: np.ndarray,
-                 settings: RoomSettings, alpha_min: float = 1e-3, occlusion: str = "auto"):
+                 settings: RoomSettings, alpha_min: float = 1e-3, occlusion: str = "auto",
+                 areas_m2: torch.Tensor | None = None):
+        """areas_m2 [G]: the surfels' areas when already known for exactly these Gaussians (a model's stored
+        areas, geometry_key matching); None: computed (surfels.surfel_areas)."""
         self.geom, self.settings, self.alpha_min = geom, settings, float(alpha_min)
-        self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+        self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) if areas_m2 is None \
+            else torch.as_tensor(areas_m2, dtype=torch.float64)
         self.patches: PatchSet = build_patch_set(geom, self.areas, labels, settings.coplanar_m)
         mat = np.asarray(material_of_gaussian, dtype=np.int64)
         # a patch lies within one label, so its surfels share one material: take the first
@@ -80,6 +84,10 @@ class RoomGeometry:
         # each end's visibility of the diffuse cells, kept per point: a map's receivers serve every transmitter
         self.cell_visibility = CellVisibility(self.cells, self.provider, settings.opacity, settings.diffuse_margin_m,
                                               settings.t_stop)
+
+    def geometry_key(self) -> str:
+        """Fingerprint of the Gaussians (means, scales, rotations, normals)."""
+        return geometry_key(self.geom)
 
     def visibility_key(self) -> str:
         """Fingerprint of what a point's visibility of the diffuse cells depends on: the Gaussians, the cells'
@@ -105,6 +113,14 @@ class RoomGeometry:
                                     s.diffuse_margin_m, s.t_stop, visibility=self.cell_visibility)
         with single_thread_torch():   # small tensor ops: on a shared CPU thread hand-offs cost more than the work
             return RoomLinks(paths, diffuse, torch.as_tensor(self.material_of_patch), self.num_materials)
+
+
+def geometry_key(geom: FrozenGeometry) -> str:
+    """sha256 of the Gaussians' means, log-scales, rotations and normals (what a surfel's area depends on)."""
+    h = hashlib.sha256()
+    for t in (geom.means, geom.log_scales, geom.rotations, geom.normals):
+        h.update(np.ascontiguousarray(t.detach().numpy(), dtype=np.float64).tobytes())
+    return h.hexdigest()
 
 
 ANGLE_NODES = 91   # Fresnel coefficients tabulated at 1-degree steps of the incidence angle, linear between
@@ -212,9 +228,13 @@ class RoomPredictor:
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])
+        # the fit's surfel areas, while the Gaussians are the fitted ones (an edit that moves or deletes some
+        # changes the areas of their neighbours: then they are computed again)
+        same = attrs.get("geometry_key") == geometry_key(self.geom)
         self.room = RoomGeometry(self.geom, None if labels is None else torch.as_tensor(np.asarray(labels, np.int64)),
                                  model.material_of_gaussian.numpy(), RoomSettings(**kw),
-                                 float(attrs.get("render.alpha_min", 1e-3)), occlusion)
+                                 float(attrs.get("render.alpha_min", 1e-3)), occlusion,
+                                 areas_m2=model.areas_m2 if same else None)
         self.provider = self.room.provider
         if attrs.get("map_visibility_key") == self.room.visibility_key() and "map_rx_m" in stored:
             self.room.cell_visibility.keep(np.asarray(stored["map_rx_m"]), np.asarray(stored["map_cell_visibility"]))

@@ -159,6 +159,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                                      "(docs/physics.md section 8.10)"})
     model_attrs.update({f"room.{f.name}": getattr(settings, f.name) for f in fields(RoomSettings)})
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
+    model_attrs["geometry_key"] = room.geometry_key()     # the stored surfel areas are these Gaussians'
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     if ranges is not None:

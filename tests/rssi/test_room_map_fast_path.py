@@ -122,9 +122,12 @@ def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_a
     np.testing.assert_allclose(fast, ref, rtol=1e-9, atol=0)
 
 
-def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path):
+def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path, monkeypatch):
     """rf-fit keeps the default map's receivers' visibility in the model; predicting with those rows equals
-    tracing them again, and a model whose Gaussians moved (an edit) does not use them."""
+    tracing them again, and a model whose Gaussians moved (an edit) does not use them. The model's stored
+    surfel areas are used while its Gaussians are the fitted ones, and equal the areas computed again."""
+    import rfir_stages.model.room as room_module
+    from rfir_stages.model.surfels import surfel_areas
     from typer.testing import CliRunner
 
     from rfir_cli.artifacts import read_artifact, write_artifact
@@ -142,7 +145,12 @@ def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path):
                                  str(tmp_path / "rf.h5")])
     assert r.exit_code == 0, r.output
     rf = read_artifact(tmp_path / "rf.h5", "rf")
-    pred = RoomPredictor(rf)
+    with monkeypatch.context() as m:
+        m.setattr(room_module, "surfel_areas", None)               # the stored areas, not computed again
+        pred = RoomPredictor(rf)
+    g = pred.geom
+    np.testing.assert_array_equal(pred.room.areas.numpy(),
+                                  surfel_areas(g.means, g.log_scales, g.rotations, g.normals).numpy())
     means = pred.geom.means.numpy()
     rx = floor_grid((means.min(0), means.max(0)), *rssi_defaults()["grid"])
     assert len(pred.room.cell_visibility) == len(rx)          # every map receiver kept
@@ -154,4 +162,8 @@ def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path):
     data = dict(rf.data)
     data["gaussians/means"] = data["gaussians/means"] + np.array([0.0, 0.0, 1e-6])
     write_artifact(tmp_path / "moved.h5", "rf", data, attrs=rf.attrs, free=rf.free_for_write())
-    assert len(RoomPredictor(read_artifact(tmp_path / "moved.h5", "rf")).room.cell_visibility) == 0
+    moved = read_artifact(tmp_path / "moved.h5", "rf")
+    assert len(RoomPredictor(moved).room.cell_visibility) == 0
+    with monkeypatch.context() as m, pytest.raises(TypeError):
+        m.setattr(room_module, "surfel_areas", None)               # moved Gaussians: the areas are computed again
+        RoomPredictor(moved)
