@@ -121,7 +121,7 @@ def fresnel(eta, cos_theta, k0=None, thickness_m=None) -> tuple[torch.Tensor, to
         slab = th > 0
         r_te = torch.where(slab, r_te * (1.0 - ph) / (1.0 - r_te**2 * ph), r_te)
         r_tm = torch.where(slab, r_tm * (1.0 - ph) / (1.0 - r_tm**2 * ph), r_tm)
-    shape = torch.broadcast_shapes(r_te.shape, pec.shape)
+    shape = np.broadcast_shapes(tuple(r_te.shape), tuple(pec.shape))   # torch.broadcast_shapes imports sympy (1 s)
     r_te = torch.where(pec, torch.full(shape, -1.0 + 0j, dtype=torch.complex128), r_te.expand(shape))
     r_tm = torch.where(pec, torch.full(shape, 1.0 + 0j, dtype=torch.complex128), r_tm.expand(shape))
     return r_te, r_tm
