@@ -378,16 +378,21 @@ def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
 
 def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, mats: MaterialValues,
                          k0: torch.Tensor) -> torch.Tensor:
-    """Second-order field [M, K]: sum of coef Gamma_A Gamma_B sqrt(1 - S_A^2) sqrt(1 - S_B^2) per link."""
+    """Second-order field [M, K]: sum of coef sum_XY c_XY R_X(A) R_Y(B) sqrt(1 - S_A^2) sqrt(1 - S_B^2)
+    per link (c_XY = db.pol, second_order.polarisation_chain)."""
     eta = mats.eta(db.freq_hz)
     out = torch.zeros((db.num_links, db.freq_hz.numel()), dtype=torch.complex128)
-    gammas = []
-    for g, cos, te in ((db.gauss_a, db.cos_a, db.te_a), (db.gauss_b, db.cos_b, db.te_b)):
+    coefs = []
+    for g, cos in ((db.gauss_a, db.cos_a), (db.gauss_b, db.cos_b)):
         mat = material_of_gaussian[g]
         th = None if mats.thickness_m is None else mats.thickness_m[mat][:, None]
         r_te, r_tm = fresnel(eta[mat], cos[:, None], k0[None], th)
-        gammas.append(co_polar_reflection(r_te, r_tm, te[:, None]) * torch.sqrt(1.0 - mats.scattering[mat] ** 2)[:, None])
-    return out.index_add(0, db.link, db.coef * gammas[0] * gammas[1])
+        spec = torch.sqrt(1.0 - mats.scattering[mat] ** 2)[:, None]
+        coefs.append((r_te * spec, r_tm * spec))
+    (a_te, a_tm), (b_te, b_tm) = coefs
+    c = db.pol[:, :, None]
+    product = c[:, 0] * a_te * b_te + c[:, 1] * a_te * b_tm + c[:, 2] * a_tm * b_te + c[:, 3] * a_tm * b_tm
+    return out.index_add(0, db.link, db.coef * product)
 
 
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
@@ -399,15 +404,15 @@ def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: i
                       cull_rel: float) -> dict:
     """Double-bounce items summed per cell (link, material A, angle node A, material B, angle node B),
     each item split bilinearly between the four node pairs around its two incidence angles, and into
-    the four products of its TE shares (te_a te_b, te_a (1 - te_b), (1 - te_a) te_b, (1 - te_a)(1 - te_b)).
+    the four products R_X(A) R_Y(B) with its polarisation factors c_XY (db.pol).
     Per link the weakest cells carrying `cull_rel` of its sum of magnitudes are dropped (cost)."""
     ends = []
-    for g, cos, te in ((db.gauss_a, db.cos_a, db.te_a), (db.gauss_b, db.cos_b, db.te_b)):
+    for g, cos in ((db.gauss_a, db.cos_a), (db.gauss_b, db.cos_b)):
         pos = torch.arccos(cos.clamp(0.0, 1.0)) / step
         lo = pos.floor().long().clamp(0, j - 2)
-        ends.append((material_of_gaussian[g], lo, (pos - lo).clamp(0.0, 1.0), te))
-    (ma, lo_a, wa, te_a), (mb, lo_b, wb, te_b) = ends
-    moments = torch.stack([te_a * te_b, te_a * (1 - te_b), (1 - te_a) * te_b, (1 - te_a) * (1 - te_b)], 1)   # [I, 4]
+        ends.append((material_of_gaussian[g], lo, (pos - lo).clamp(0.0, 1.0)))
+    (ma, lo_a, wa), (mb, lo_b, wb) = ends
+    moments = db.pol                                                                   # [I, 4]
     keys, weights = [], []
     for da, w_a in ((0, 1 - wa), (1, wa)):
         for dbb, w_b in ((0, 1 - wb), (1, wb)):
@@ -531,7 +536,7 @@ class AggregatedPairs:
             ua, ub = d["mat_a"] * DOUBLE_NODES + d["node_a"], d["mat_b"] * DOUBLE_NODES + d["node_b"]
             a_te, a_tm = te_flat.index_select(0, ua), tm_flat.index_select(0, ua)   # index_select: cheap backward
             b_te, b_tm = te_flat.index_select(0, ub), tm_flat.index_select(0, ub)
-            product = d["c_tt"] * a_te * b_te - d["c_tm"] * a_te * b_tm - d["c_mt"] * a_tm * b_te + d["c_mm"] * a_tm * b_tm
+            product = d["c_tt"] * a_te * b_te + d["c_tm"] * a_te * b_tm + d["c_mt"] * a_tm * b_te + d["c_mm"] * a_tm * b_tm
             field = field.index_add(0, d["link"], product)
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
         moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]

@@ -1,19 +1,21 @@
-"""Second-order (double-bounce) specular terms by images over planar patches (docs/physics.md section 8).
+"""Second-order (double-bounce) specular terms by images over planar patches (docs/physics.md section 8.7).
 
 A dihedral's flash is a double bounce: Tx -> plane A -> surfel m of plane B -> Rx. With the image
 Tx_A of the transmitter in plane A, the second bounce is the surfel physical optics of B lit by
-Tx_A, times A's reflection coefficient:
+Tx_A, with the polarisation carried through both reflections:
 
-    S_2 = sum_(A, m in B) j sqrt(G_T G_R) Gamma_A(theta_A) Gamma_B(theta_B) A_m ((cos_i' + cos_o) / 2)
-          * F_m(k) * V * exp(-j k (d_i' + d_o)) / (4 pi d_i' d_o)
+    S_2 = sum_(A, m in B) j sqrt(G_T G_R) P_m A_m ((cos_i' + cos_o) / 2) F_m(k) V
+          * exp(-j k (d_i' + d_o)) / (4 pi d_i' d_o),   P_m = sum_XY c_XY R_X(A, theta_A) R_Y(B, theta_B)
 
 d_i' = |Tx_A - x_m| (the length of Tx -> A -> m), cos_i' = n_B . w_i' with w_i' toward Tx_A, theta_A
-the incidence angle at the crossing point c of the segment Tx_A -> x_m with plane A. A term exists
-only when c lies on patch A (within its surfels' reach: a hard aperture, A's edge diffraction is
-left out), Tx and m are on the same side of A, Tx_A and Rx on the same side of B, and both legs
-are lit: V = V(Tx -> the surfel of A nearest c) V(Rx -> m), looked up in the first-order pairs.
-That lookup makes the term exact for co-located antennas (monostatic radar); links with
-separated antennas get no second order here (rooms need per-leg tracing).
+the incidence angle at the crossing point c of the segment Tx_A -> x_m with plane A; c_XY the
+geometric polarisation factors of the TE/TM paths (`polarisation_chain`). A term exists only when c
+lies on one of A's surfel cells (within CELL_MARGIN of its sides: a hard aperture, A's edge
+diffraction is left out; a crossing past A's edge, as at a convex edge, makes none), Tx and m are
+on the same side of A, Tx_A and Rx on the same side of B, and both legs are lit: V = V(Tx -> that
+surfel of A) V(Rx -> m), looked up in the first-order pairs. That lookup makes the term exact for
+co-located antennas (monostatic radar); links with separated antennas get no second order here
+(rooms need per-leg tracing).
 
 Planar patches: surfels joined when neighbours (within `join_factor` spacings), with normals within
 `PARALLEL_COS` and on the same plane; patches smaller than `min_patch_area_m2` carry no double
@@ -39,6 +41,7 @@ from .surfels import COPLANAR_M, footprint_factor
 
 PARALLEL_COS = 0.98     # normals this close, offsets along them below COPLANAR_M: one plane (such patches form no dihedral)
 DIHEDRAL_COS = 0.5      # patches whose normals are 60-120 degrees apart can form a corner reflector
+CELL_MARGIN = 0.5       # a crossing within half a half-side past a cell is on it (the cells of a triangle tiling leave gaps)
 
 
 @dataclass
@@ -103,8 +106,9 @@ class DoubleBounce:
     """Double-bounce terms: I items (link, first patch A, surfel m of B). Gamma enters per step.
 
     link [I]; gauss_a [I] (the surfel of A nearest the crossing: its material), gauss_b [I] (m);
-    cos_a, cos_b [I] incidence cosines at A and B; te_a, te_b [I] TE shares; coef [I, K] complex:
-    everything but the two reflection coefficients and the sqrt(1 - S^2) factors."""
+    cos_a, cos_b [I] incidence cosines at A and B; pol [I, 4]: the polarisation factors c_XY of the
+    products R_X(A) R_Y(B) for XY = (TE, TE), (TE, TM), (TM, TE), (TM, TM) (`polarisation_chain`);
+    coef [I, K] complex: everything but the reflection coefficients and the sqrt(1 - S^2) factors."""
 
     num_links: int
     link: torch.Tensor
@@ -112,8 +116,7 @@ class DoubleBounce:
     gauss_b: torch.Tensor
     cos_a: torch.Tensor
     cos_b: torch.Tensor
-    te_a: torch.Tensor
-    te_b: torch.Tensor
+    pol: torch.Tensor
     coef: torch.Tensor
     freq_hz: torch.Tensor
 
@@ -127,15 +130,14 @@ class DoubleBounce:
         new_id[rows] = torch.arange(rows.numel())
         keep = new_id[self.link] >= 0
         return DoubleBounce(int(rows.numel()), new_id[self.link][keep], self.gauss_a[keep], self.gauss_b[keep],
-                            self.cos_a[keep], self.cos_b[keep], self.te_a[keep], self.te_b[keep], self.coef[keep],
-                            self.freq_hz)
+                            self.cos_a[keep], self.cos_b[keep], self.pol[keep], self.coef[keep], self.freq_hz)
 
 
 def empty_double_bounce(num_links: int, freq_hz: torch.Tensor) -> DoubleBounce:
     z = torch.zeros(0, dtype=torch.int64)
     f = torch.zeros(0, dtype=torch.float64)
-    return DoubleBounce(num_links, z, z, z, f, f, f, f, torch.zeros((0, int(freq_hz.numel())), dtype=torch.complex128),
-                        freq_hz.double())
+    return DoubleBounce(num_links, z, z, z, f, f, torch.zeros((0, 4), dtype=torch.float64),
+                        torch.zeros((0, int(freq_hz.numel())), dtype=torch.complex128), freq_hz.double())
 
 
 def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
@@ -146,8 +148,6 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
     vis_lookup(link, gauss) -> V: visibility of a surfel from the link's antenna (the first-order
     pairs'; 0 where the surfel is not lit), for index tensors of any broadcastable shapes."""
     from scipy.spatial import cKDTree
-
-    from .physical import _te_share
 
     freq = links.freq_hz.double()
     k0 = 2 * math.pi * freq / C0
@@ -167,15 +167,15 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
         xb = x[mb]                                                        # [B, 3]
         side_b = (xb - pa_pt) @ na                                        # B's surfels relative to plane A
         item = _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, trees[pa], patches.members[pa],
-                           reach[pa], vis_lookup, tx_ant, rx_ant, cells, areas_m2, k0, polarisation, _te_share,
+                           reach[pa], vis_lookup, tx_ant, rx_ant, cells, areas_m2, k0, polarisation,
                            patches.point[pa], radius[pa])
         if item is not None:
             parts.append(item)
     if not parts:
         return empty_double_bounce(links.num, freq)
     cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-    return DoubleBounce(links.num, cat["link"], cat["ga"], cat["gb"], cat["cos_a"], cat["cos_b"], cat["te_a"],
-                        cat["te_b"], cat["coef"], freq)
+    return DoubleBounce(links.num, cat["link"], cat["ga"], cat["gb"], cat["cos_a"], cat["cos_b"], cat["pol"],
+                        cat["coef"], freq)
 
 
 def dihedral_partners(patches: Patches, radius: np.ndarray) -> list[list[int]]:
@@ -195,7 +195,7 @@ def dihedral_partners(patches: Patches, radius: np.ndarray) -> list[list[int]]:
 
 
 def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, members_a, reach_a, vis_lookup,
-                tx_ant, rx_ant, cells, areas_m2, k0, polarisation, te_share, centre_a, radius_a):
+                tx_ant, rx_ant, cells, areas_m2, k0, polarisation, centre_a, radius_a):
     """Items of the double bounces off patch A, then one of the surfels mb of its partners, for every
     co-located link."""
     tx = links.tx_m.numpy()
@@ -236,9 +236,12 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
         return None
     link = ml[li]
     lt = torch.as_tensor(link)
-    # the lit surfel of A nearest the crossing (a thin plate's far face is close by, and shadowed)
+    # the lit surfel of A nearest the crossing whose cell holds it (a thin plate's far face is close
+    # by, and shadowed; past A's edge no cell holds it: a convex edge makes no double bounce)
     v_near = vis_lookup(lt[:, None], torch.as_tensor(members_a[near]))   # [I, k_near]
-    v_near = torch.where(torch.as_tensor(dist) < reach_a, v_near, torch.zeros_like(v_near))
+    on_cell = _in_cell(torch.as_tensor(c)[:, None], geom.means[torch.as_tensor(members_a[near])],
+                       cells[torch.as_tensor(members_a[near])])
+    v_near = torch.where(on_cell, v_near, torch.zeros_like(v_near))
     v_a, pick = v_near.max(1)
     ga = members_a[near[np.arange(len(near)), pick.numpy()]]
     gb = mb[bi]
@@ -279,8 +282,78 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     coef = (1j * amp)[:, None] * footprint_factor(q_cell, k0) \
         * torch.exp(-1j * (d_i + d_o)[:, None] * k0[None])
     return {"link": torch.as_tensor(link), "ga": torch.as_tensor(ga), "gb": torch.as_tensor(gb),
-            "cos_a": cos_a, "cos_b": cos_b, "te_a": te_share(-u_c, na_t, polarisation),
-            "te_b": te_share(w_i, nb, polarisation), "coef": coef}
+            "cos_a": cos_a, "cos_b": cos_b, "pol": polarisation_chain(u_c, na_t, -w_i, nb, w_o, polarisation),
+            "coef": coef}
+
+
+def _unit(v: torch.Tensor) -> torch.Tensor:
+    return v / v.norm(dim=-1, keepdim=True).clamp(min=1e-300)
+
+
+def antenna_polarisation(pointing: torch.Tensor, pol: str) -> torch.Tensor:
+    """[I, 3] unit E-field direction of an antenna whose wave leaves along `pointing` [I, 3] (unit):
+    V, the part of +z transverse to it (+x where it is vertical); H = V x pointing. Transmit and
+    receive use the same rule, as a radar does."""
+    z = torch.zeros_like(pointing)
+    z[:, 2] = 1.0
+    v = z - (pointing * z).sum(-1, keepdim=True) * pointing
+    vertical = v.norm(dim=-1) < 1e-9
+    if vertical.any():
+        x = torch.zeros_like(pointing[vertical])
+        x[:, 0] = 1.0
+        v[vertical] = x - (pointing[vertical] * x).sum(-1, keepdim=True) * pointing[vertical]
+    v = _unit(v)
+    return v if pol == "V" else torch.linalg.cross(v, pointing, dim=-1)
+
+
+def _reflection_basis(i: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(e_TE, e_TM incident, e_TM reflected) [I, 3] for a wave along i reflected by a plane of normal
+    n (facing it): e_TE = i x n / |i x n|, e_TM = k x e_TE for k = i and its mirror image. At normal
+    incidence any tangent serves (R_TM = -R_TE there, the reflection is the same)."""
+    e_te = torch.linalg.cross(i, n, dim=-1)
+    normal = e_te.norm(dim=-1) < 1e-9
+    if normal.any():
+        ref = torch.zeros_like(n[normal])
+        use_x = n[normal][:, 0].abs() < 0.9
+        ref[use_x, 0] = 1.0
+        ref[~use_x, 1] = 1.0
+        e_te[normal] = torch.linalg.cross(n[normal], ref, dim=-1)
+    e_te = _unit(e_te)
+    r = i - 2.0 * (i * n).sum(-1, keepdim=True) * n
+    return e_te, torch.linalg.cross(i, e_te, dim=-1), torch.linalg.cross(r, e_te, dim=-1)
+
+
+def polarisation_chain(i_a: torch.Tensor, n_a: torch.Tensor, i_b: torch.Tensor, n_b: torch.Tensor,
+                       to_rx: torch.Tensor, pol: str) -> torch.Tensor:
+    """[I, 4] factors c_XY with p_r . T_B T_A p_t = sum_XY c_XY R_X(A) R_Y(B), XY = (TE, TE), (TE, TM),
+    (TM, TE), (TM, TM).
+
+    i_a: the wave's direction Tx -> A, n_a: A's normal facing it; i_b: A -> B (the reflected
+    direction), n_b: B's normal facing it; to_rx: B -> Rx; all [I, 3] unit. A reflection is
+    T = R_TE e_TE e_TE^T + R_TM e_TM,r e_TM,i^T (`_reflection_basis`; a perfect conductor has R_TE = -1,
+    R_TM = +1, T = minus the mirror image); p_t, p_r the antennas' polarisations (`antenna_polarisation`,
+    the receiver's along -to_rx). The polarisation is carried from one bounce to the next: a scalar
+    co-polarised coefficient per bounce gets the sign of the TM-TM path wrong (a dihedral returns
+    E across its fold with the opposite sign to E along it: +1 and -1 times a plate's return)."""
+    p_t = antenna_polarisation(i_a, pol)
+    p_r = antenna_polarisation(-to_rx, pol)
+    te_a, tmi_a, tmr_a = _reflection_basis(i_a, n_a)
+    te_b, tmi_b, tmr_b = _reflection_basis(i_b, n_b)
+    dot = lambda u, v: (u * v).sum(-1)  # noqa: E731
+    out = [dot(p_r, out_b) * dot(in_b, out_a) * dot(in_a, p_t)
+           for in_a, out_a in ((te_a, te_a), (tmi_a, tmr_a))
+           for in_b, out_b in ((te_b, te_b), (tmi_b, tmr_b))]
+    return torch.stack(out, -1)
+
+
+def _in_cell(point: torch.Tensor, centre: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:
+    """[...] bool: `point` [..., 3] lies on the rectangle cell (surfels.footprint_cells) of the surfel
+    at `centre` [..., 3] with half-side axes `cell` [..., 2, 3], within CELL_MARGIN of its half-sides
+    (projected on its plane)."""
+    rel = point - centre
+    half2 = (cell * cell).sum(-1).clamp(min=1e-300)                      # [..., 2] squared half-sides
+    coord = torch.einsum("...j,...cj->...c", rel, cell) / half2           # in units of half-sides
+    return (coord.abs() <= 1.0 + CELL_MARGIN).all(-1)
 
 
 def _crossing_near(tx_rel: np.ndarray, side_tx: np.ndarray, xb_rel: np.ndarray, side_b: np.ndarray, na: np.ndarray,
