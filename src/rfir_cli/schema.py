@@ -13,12 +13,14 @@ Change history
 - 1.1.0 (2026-11-25): optional measurement set-up attributes of `measurements` (antenna_tx,
   antenna_rx, their pattern tables, polarisation, power, tx_power_dbm).
 - 1.2.0 (2026-11-25): optional residual/* fields of `rf` (the residual on top of the physical model).
+- 1.4.0 (2026-11-26): optional residual/floor_db of `rf` (the floor under the physics of a kernel residual;
+  read as none when absent).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.3.0"
+SCHEMA_VERSION = "1.4.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -207,6 +209,8 @@ _register(KindSpec(
           "frequency", required=False),
         F("residual/mean_db", "float", ("F",), "dB", "blend residual: mean measured path gain (0 for smooth)",
           required=False),
+        F("residual/floor_db", "float", ("F",), "dB", "smooth / blend residual: floor under the physics the form "
+          "was fitted on (30 dB below the weakest training row)", required=False),
         F("residual/surfel", "float", ("G", 2), "1", "gaussian residual: real, imaginary part of each surfel's "
           "factor r (its specular term times 1 + r)", required=False),
     ),

@@ -14,7 +14,8 @@ Datasets (schema: rfir_cli.schema, kind "rf"; N materials, G Gaussians, F fitted
   the first fitted frequency (what attribute maps show); rf/opacity [G]: the RF opacity of the
   traced visibility; rf/roughness [G]: 1 (no lobe exponent in this model).
 - residual/* (residual.py): the smooth / blend form's training links residual/tx_pos,
-  residual/rx_pos [T, 3], weights residual/weights_db [T, F] and mean residual/mean_db [F]; or the
+  residual/rx_pos [T, 3], weights residual/weights_db [T, F], mean residual/mean_db [F] and the floor under
+  the physics residual/floor_db [F]; or the
   gaussian form's factor residual/surfel [G, 2] (real, imaginary parts).
 Attributes of group model: family = "physical", sigma_exponent, polarisation, gain_db,
 material_names, the PairSettings (pairs.*) and the residual's residual.form ("off", "smooth",

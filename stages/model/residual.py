@@ -17,6 +17,9 @@ Two forms:
   by validation (`choose`: the physics alone unless a candidate beats it by one standard error).
   Zero prior mean: farther than a few l from every training link the correction is zero and the
   physics predicts alone (a held-out sector); at a frequency that was not fitted it is zero too.
+  The physics enters both kernel forms floored at BELOW_WEAKEST_DB under the weakest training row:
+  where it predicts no echo at all (a plate edge-on, PO's zero) the residual would otherwise learn a
+  correction of hundreds of dB and spread it over the neighbouring aspects.
 - "blend": near the training links the measurement itself, interpolated by the same kernel, far from
   them the physics:
       pred(x) = s(x) I(x) + (1 - s(x)) phys(x),  I(x) = mean(y) + k(x, X) (K + eta I)^-1 (y - mean(y)),
@@ -49,6 +52,7 @@ KFOLDS = 5          # interpolation protocols: every 5th training aspect held ou
 FLOOR_DB = -250.0   # as predict.FLOOR_DB (a link that sees no lit surfel)
 MIN_FOLD_LINKS = 50  # the gaussian form validates on its first fold alone when that holds this many links
 SE_MARGIN = 1.0    # choose: standard errors by which a residual must beat the physics alone
+BELOW_WEAKEST_DB = 30.0   # smooth / blend: the physics is floored this far below the weakest training row
 
 
 @dataclass
@@ -233,6 +237,8 @@ def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[n
     m = len(target_db)
     val_all = np.concatenate(folds)
     errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
+    floor_db = np.min(target_db, axis=0) - BELOW_WEAKEST_DB          # [F] (module docstring)
+    phys_db = np.maximum(phys_db, floor_db[None])                      # what the kernel forms see
     grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
             for lr in cfg.range_lengths for eta in ((cfg.weight,) if cfg.weight is not None else cfg.weights)]
     grid = [g for g in grid if math.isfinite(g[3])]
@@ -263,7 +269,7 @@ def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[n
         _, params = kernel_predict(kind, coords, target_db, phys_db, _pick(coords, slice(0, 0)), phys_db[:0],
                                    math.radians(ld), lr, eta)
         out.form = kind
-        out.params = dict(params, length_deg=ld, range_length=lr, weight=eta)
+        out.params = dict(params, length_deg=ld, range_length=lr, weight=eta, floor_db=floor_db)
     out.wall_time_s = time.time() - t0
     return out
 
@@ -340,7 +346,8 @@ def residual_fields(fit: ResidualFit, train_tx_m: np.ndarray, train_rx_m: np.nda
     if fit.form in ("smooth", "blend"):
         data = {"residual/tx_pos": np.asarray(train_tx_m, float), "residual/rx_pos": np.asarray(train_rx_m, float),
                 "residual/weights_db": np.asarray(fit.params["weights_db"], float),
-                "residual/mean_db": np.asarray(fit.params["mean_db"], float)}
+                "residual/mean_db": np.asarray(fit.params["mean_db"], float),
+                "residual/floor_db": np.asarray(fit.params["floor_db"], float)}
         attrs.update({"residual.length_deg": float(fit.params["length_deg"]),
                       "residual.range_length": float(fit.params["range_length"]),
                       "residual.weight": float(fit.params["weight"])})
@@ -360,6 +367,8 @@ def load_residual(rf) -> ResidualFit:
                                   "rx_m": np.asarray(rf["residual/rx_pos"], float),
                                   "weights_db": np.asarray(rf["residual/weights_db"], float),
                                   "mean_db": np.asarray(rf["residual/mean_db"], float),
+                                  "floor_db": np.asarray(rf.get("residual/floor_db", np.full(   # none before schema 1.4
+                                      len(np.atleast_1d(rf["residual/mean_db"])), -np.inf)), float),
                                   "length_deg": float(attrs["residual.length_deg"]),
                                   "range_length": float(attrs["residual.range_length"]),
                                   "weight": float(attrs["residual.weight"])}, chosen=str(attrs.get("residual.chosen", "")))
@@ -386,7 +395,8 @@ def kernel_form_at(fit: ResidualFit, tx_m: np.ndarray, rx_m: np.ndarray, centre:
     if have:
         sel = [cols[k] for k in have]
         params = {"weights_db": p["weights_db"][:, sel], "mean_db": p["mean_db"][sel]}
+        floored = np.maximum(out[:, have], p["floor_db"][sel][None])   # as the form was fitted
         out[:, have] = blend_at(fit.form, link_coords(p["tx_m"], p["rx_m"], centre), params,
-                                link_coords(tx_m, rx_m, centre), out[:, have], math.radians(p["length_deg"]),
+                                link_coords(tx_m, rx_m, centre), floored, math.radians(p["length_deg"]),
                                 p["range_length"], p["weight"])
     return out, missing

@@ -248,3 +248,37 @@ def test_validation_scores_equal_the_literal_computation_of_every_candidate(scen
     for name, value in literal.items():
         assert fit.validation[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
     assert fit.chosen != "physics only"    # a smooth 2 dB error: a kernel form must win
+
+
+def test_no_echo_from_the_physics_does_not_spread_hundreds_of_db_to_the_neighbours():
+    """A plate edge-on has no PO echo (the physics at its floor, -250 dB) but a measured one: the kernel
+    forms see the physics floored under the weakest training row, so the correction learnt there stays
+    finite and the aspects beside it keep their level (unfloored: over 100 dB off)."""
+    from rfir_stages.model.residual import BELOW_WEAKEST_DB, kernel_form_at
+    aspects = np.arange(0.0, 360.0, 2.0)
+    a = np.radians(aspects)
+    pos = np.stack([5 * np.cos(a), 5 * np.sin(a), np.zeros_like(a)], 1)
+    phys = (-60.0 + 10.0 * np.cos(a) ** 2)[:, None]
+    edge_on = np.isin(aspects, (90.0, 270.0))
+    phys[edge_on] = -250.0
+    target = (-60.0 + 10.0 * np.cos(a) ** 2 + 4.0 * np.sin(3 * a))[:, None]   # a smooth 4 dB error to learn
+    target[edge_on] = -75.0
+    train = np.flatnonzero(aspects % 4 == 2)                    # every 4 deg; 90 and 270 among them
+    test = np.flatnonzero(aspects % 4 == 0)
+    coords = link_coords(pos, pos, CENTRE)
+    pick = lambda rows: tuple(c[rows] for c in coords)  # noqa: E731
+    folds, how = residual_folds("data", aspects[train], None, len(train))
+    fit = fit_smooth(pick(train), phys[train], target[train], folds, ResidualConfig(form="smooth"), how)
+    assert fit.form == "smooth"
+    assert fit.params["floor_db"][0] == pytest.approx(target[train].min() - BELOW_WEAKEST_DB)
+    fit.params.update(tx_m=pos[train], rx_m=pos[train])
+    pred, _ = kernel_form_at(fit, pos[test], pos[test], CENTRE, phys[test], np.array([F_HZ]), np.array([F_HZ]))
+    off = (aspects[test] - 90.0) % 180.0
+    near = np.minimum(off, 180.0 - off) <= 6.0                  # within 6 deg of edge-on: 84-96 and 264-276
+    assert near.sum() == 8
+    assert np.abs(pred - target[test])[near].max() < 15.0
+    assert np.mean(np.abs(pred - target[test])) < 2.0
+    at_edge, _ = kernel_form_at(fit, pos[edge_on], pos[edge_on], CENTRE, phys[edge_on], np.array([F_HZ]),
+                                np.array([F_HZ]))
+    # the floor applies when predicting too: within the 30 dB the form was fitted to bridge (unfloored: 160 dB off)
+    assert np.abs(at_edge - target[edge_on]).max() < BELOW_WEAKEST_DB
