@@ -44,18 +44,11 @@ NEW_TX = np.array([[4.1, 3.3, 1.7], [6.0, 2.0, 2.2], [2.5, 5.1, 2.0], [7.2, 4.4,
 
 def classroom_fields(spacing_m: float, object_cells: int):
     """Surfels of the code-built classroom as `mesh-gaussians --spacing --object-cells` tiles its mesh."""
+    from rfir_stages.geom.from_mesh import scene_triangles
     from rfir_stages.geom.mesh_io import Mesh, object_spacings, surfels_per_object
-    from rfir_stages.simulate import build_scene
 
-    spec = build_scene("classroom")
-    verts, faces, labels, off = [], [], [], 0
-    for obj in spec.objects:
-        verts.append(obj.vertices)
-        faces.append(np.asarray(obj.faces) + off)
-        labels.append(np.full(len(obj.faces), obj.label))
-        off += len(obj.vertices)
-    names = spec.label_names()
-    mesh = Mesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(labels), dict(enumerate(names)))
+    verts, faces, labels, names = scene_triangles("classroom")
+    mesh = Mesh(verts, faces, labels, dict(enumerate(names)))
     return surfels_per_object(mesh, object_spacings(mesh, spacing_m, object_cells)), names
 
 

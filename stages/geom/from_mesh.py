@@ -185,8 +185,9 @@ def _scaled_to_area(cov: np.ndarray, area_m2: float) -> np.ndarray:
     return cov * (area_m2 / (math.pi * math.sqrt(det2)))
 
 
-def scene_from_mesh(scene_name: str, spacing_m: float, thickness_ratio: float = 0.05):
-    """Surfels of a simulate scene (`rfir_stages.simulate.build_scene`): (fields, label_names)."""
+def scene_triangles(scene_name: str):
+    """A simulate scene's objects (`rfir_stages.simulate.build_scene`) as one mesh: (vertices [V, 3] m,
+    faces [F, 3], labels [F], label_names)."""
     from rfir_stages.simulate import build_scene
 
     spec = build_scene(scene_name)
@@ -196,9 +197,14 @@ def scene_from_mesh(scene_name: str, spacing_m: float, thickness_ratio: float = 
         faces.append(np.asarray(obj.faces) + off)
         labels.append(np.full(len(obj.faces), obj.label))
         off += len(obj.vertices)
-    fields = gaussians_from_mesh(np.concatenate(verts), np.concatenate(faces), spacing_m,
-                                 labels=np.concatenate(labels), thickness_ratio=thickness_ratio)
-    return fields, spec.label_names()
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels), spec.label_names()
+
+
+def scene_from_mesh(scene_name: str, spacing_m: float, thickness_ratio: float = 0.05):
+    """Surfels of a simulate scene (`rfir_stages.simulate.build_scene`): (fields, label_names)."""
+    verts, faces, labels, names = scene_triangles(scene_name)
+    fields = gaussians_from_mesh(verts, faces, spacing_m, labels=labels, thickness_ratio=thickness_ratio)
+    return fields, names
 
 
 def write_scene_artifact(path: str | Path, fields: dict, *, label_names=None, source: str = "mesh",
