@@ -339,6 +339,13 @@ def fit_gaussian(pairs: PairGeometry, material_of_gaussian, mats: MaterialValues
 
 # ----- the artifact -----
 
+def floor_of(params: dict) -> np.ndarray:
+    """The floor [F] dB under the physics of a kernel form's params (-inf, none, where not given)."""
+    if "floor_db" in params:
+        return np.asarray(params["floor_db"], float)
+    return np.full(len(np.atleast_1d(params["mean_db"])), -np.inf)
+
+
 def residual_fields(fit: ResidualFit, train_tx_m: np.ndarray, train_rx_m: np.ndarray) -> tuple[dict, dict]:
     """(datasets, model attributes) of a residual for the rf artifact (schema: residual/*)."""
     attrs = {"residual.form": fit.form, "residual.chosen": fit.chosen}
@@ -346,8 +353,9 @@ def residual_fields(fit: ResidualFit, train_tx_m: np.ndarray, train_rx_m: np.nda
     if fit.form in ("smooth", "blend"):
         data = {"residual/tx_pos": np.asarray(train_tx_m, float), "residual/rx_pos": np.asarray(train_rx_m, float),
                 "residual/weights_db": np.asarray(fit.params["weights_db"], float),
-                "residual/mean_db": np.asarray(fit.params["mean_db"], float),
-                "residual/floor_db": np.asarray(fit.params["floor_db"], float)}
+                "residual/mean_db": np.asarray(fit.params["mean_db"], float)}
+        if "floor_db" in fit.params:     # a form fitted by fit_smooth; none on one made by hand
+            data["residual/floor_db"] = floor_of(fit.params)
         attrs.update({"residual.length_deg": float(fit.params["length_deg"]),
                       "residual.range_length": float(fit.params["range_length"]),
                       "residual.weight": float(fit.params["weight"])})
@@ -367,8 +375,8 @@ def load_residual(rf) -> ResidualFit:
                                   "rx_m": np.asarray(rf["residual/rx_pos"], float),
                                   "weights_db": np.asarray(rf["residual/weights_db"], float),
                                   "mean_db": np.asarray(rf["residual/mean_db"], float),
-                                  "floor_db": np.asarray(rf.get("residual/floor_db", np.full(   # none before schema 1.4
-                                      len(np.atleast_1d(rf["residual/mean_db"])), -np.inf)), float),
+                                  **({"floor_db": np.asarray(rf["residual/floor_db"], float)}   # schema >= 1.4
+                                     if rf.get("residual/floor_db") is not None else {}),
                                   "length_deg": float(attrs["residual.length_deg"]),
                                   "range_length": float(attrs["residual.range_length"]),
                                   "weight": float(attrs["residual.weight"])}, chosen=str(attrs.get("residual.chosen", "")))
@@ -395,7 +403,7 @@ def kernel_form_at(fit: ResidualFit, tx_m: np.ndarray, rx_m: np.ndarray, centre:
     if have:
         sel = [cols[k] for k in have]
         params = {"weights_db": p["weights_db"][:, sel], "mean_db": p["mean_db"][sel]}
-        floored = np.maximum(out[:, have], p["floor_db"][sel][None])   # as the form was fitted
+        floored = np.maximum(out[:, have], floor_of(p)[sel][None])   # as the form was fitted
         out[:, have] = blend_at(fit.form, link_coords(p["tx_m"], p["rx_m"], centre), params,
                                 link_coords(tx_m, rx_m, centre), floored, math.radians(p["length_deg"]),
                                 p["range_length"], p["weight"])
