@@ -93,9 +93,7 @@ class RoomGeometry:
         """Fingerprint of what a point's visibility of the diffuse cells depends on: the Gaussians, the cells'
         anchors, the tracing settings and the tracer. Stored rows are used only where it matches (an edit
         that moves or deletes Gaussians leaves them unused)."""
-        h = hashlib.sha256()
-        for t in (self.geom.means, self.geom.log_scales, self.geom.rotations):
-            h.update(np.ascontiguousarray(t.detach().numpy(), dtype=np.float64).tobytes())
+        h = hashlib.sha256(self.geometry_key().encode())
         h.update(np.ascontiguousarray(self.cells.anchor, dtype=np.int64).tobytes())
         s = self.settings
         h.update(repr((s.opacity, s.diffuse_margin_m, s.t_stop, self.alpha_min, self.provider.name)).encode())

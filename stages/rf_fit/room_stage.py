@@ -224,8 +224,10 @@ def map_visibility(room: RoomGeometry, geom) -> dict:
     height, step = rssi_defaults()["grid"]
     rx = floor_grid((means.min(0), means.max(0)), float(height), float(step))
     with torch.no_grad():
-        rows, _ = room.cell_visibility(rx)
-    return {"map_rx_m": np.unique(np.round(rx, 9), axis=0), "map_cell_visibility": rows}
+        rows, index = room.cell_visibility(rx)
+    points = np.empty((len(rows), 3))
+    points[index] = rx                     # the point of each distinct row (CellVisibility's own keying)
+    return {"map_rx_m": points, "map_cell_visibility": rows}
 
 
 def material_rows(vals, names: list[str], freq_hz: float) -> list[dict]:
