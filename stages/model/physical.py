@@ -391,8 +391,14 @@ def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, m
         coefs.append((r_te * spec, r_tm * spec))
     (a_te, a_tm), (b_te, b_tm) = coefs
     c = db.pol[:, :, None]
-    product = c[:, 0] * a_te * b_te + c[:, 1] * a_te * b_tm + c[:, 2] * a_tm * b_te + c[:, 3] * a_tm * b_tm
-    return out.index_add(0, db.link, db.coef * product)
+    return out.index_add(0, db.link, db.coef * polarised_product(c[:, 0], c[:, 1], c[:, 2], c[:, 3],
+                                                                 a_te, a_tm, b_te, b_tm))
+
+
+def polarised_product(c_tt, c_tm, c_mt, c_mm, a_te, a_tm, b_te, b_tm):
+    """sum_XY c_XY R_X(A) R_Y(B): a double bounce's two reflections with its polarisation factors
+    (second_order.polarisation_chain); one definition for the exact and the aggregated sums."""
+    return c_tt * a_te * b_te + c_tm * a_te * b_tm + c_mt * a_tm * b_te + c_mm * a_tm * b_tm
 
 
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
@@ -536,8 +542,8 @@ class AggregatedPairs:
             ua, ub = d["mat_a"] * DOUBLE_NODES + d["node_a"], d["mat_b"] * DOUBLE_NODES + d["node_b"]
             a_te, a_tm = te_flat.index_select(0, ua), tm_flat.index_select(0, ua)   # index_select: cheap backward
             b_te, b_tm = te_flat.index_select(0, ub), tm_flat.index_select(0, ub)
-            product = d["c_tt"] * a_te * b_te + d["c_tm"] * a_te * b_tm + d["c_mt"] * a_tm * b_te + d["c_mm"] * a_tm * b_tm
-            field = field.index_add(0, d["link"], product)
+            field = field.index_add(0, d["link"], polarised_product(d["c_tt"], d["c_tm"], d["c_mt"], d["c_mm"],
+                                                                    a_te, a_tm, b_te, b_tm))
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
         moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
         # sum over (material, node, moment) as one [M, N J 3] x [N J 3, K] product (batched tiny products are slow)
