@@ -17,33 +17,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-import re
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from rfir_stages.simulate.truth import object_class, true_materials
+
 TARGET_GAMMA = 0.1
 TARGET_EPS = 0.3
 METAL_GAMMA = 0.9
-
-
-def true_materials(scene_name: str, names: list[str], freq_hz: float) -> dict:
-    """{material name: (ITU name, thickness m, eps_r, sigma S/m at freq_hz, |Gamma(0)|)} of the simulator's scene."""
-    from rfir_stages.model.materials import C0, itu_law, normal_incidence_reflection, permittivity
-    from rfir_stages.simulate import build_scene
-
-    out = {}
-    for obj in build_scene(scene_name).objects:
-        cls = re.sub(r"_\d+$", "", obj.name)
-        if cls not in names or cls in out:
-            continue
-        eps, sig = (float(np.asarray(x).reshape(-1)[0]) for x in itu_law(obj.radio_material, freq_hz))
-        eta = permittivity(torch.tensor(eps), torch.tensor(sig), torch.tensor(freq_hz))
-        g = normal_incidence_reflection(eta, 2 * math.pi * freq_hz / C0, torch.tensor(obj.thickness_m))
-        out[cls] = (obj.radio_material, obj.thickness_m, eps, sig, float(abs(g)))
-    return out
 
 
 def links_touching(room, links, label_names: list[str]) -> tuple[np.ndarray, dict]:
@@ -58,7 +41,7 @@ def links_touching(room, links, label_names: list[str]) -> tuple[np.ndarray, dic
     fewest = {}
     for lab in np.unique(room.patches.label[room.patches.label >= 0]):
         name = label_names[lab] if lab < len(label_names) else str(lab)
-        cls = re.sub(r"_\d+$", "", name)
+        cls = object_class(name)
         n = len(np.unique(link[obj == lab]))
         fewest[cls] = min(fewest.get(cls, n), n)
     return per_mat, fewest

@@ -1,0 +1,38 @@
+"""The simulator's true materials of a scene, for reports that compare fitted materials with them.
+
+`true_materials(scene, names, freq_hz)` gives each object class's ITU-R P.2040 material, slab
+thickness, eps_r and sigma at the frequency, and |Gamma(0)|: the normal-incidence reflection of
+that slab (materials.normal_incidence_reflection, docs/physics.md section 8.2), which is what
+rf-fit reports for a fitted material. An object class is the object name without a trailing
+"_<number>" (desk_03 and desk_07 are "desk").
+"""
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import torch
+
+
+def object_class(name: str) -> str:
+    """desk_03 -> desk; names without a numbered suffix are their own class."""
+    return re.sub(r"_\d+$", "", name)
+
+
+def true_materials(scene_name: str, names: list[str], freq_hz: float) -> dict:
+    """{class name: (ITU name, thickness m, eps_r, sigma S/m at freq_hz, |Gamma(0)|)} for the classes in
+    `names` of the simulator's scene `scene_name` (the first object of each class)."""
+    from rfir_stages.model.materials import C0, itu_law, normal_incidence_reflection, permittivity
+    from rfir_stages.simulate import build_scene
+
+    out = {}
+    for obj in build_scene(scene_name).objects:
+        cls = object_class(obj.name)
+        if cls not in names or cls in out:
+            continue
+        eps, sig = (float(np.asarray(x).reshape(-1)[0]) for x in itu_law(obj.radio_material, freq_hz))
+        eta = permittivity(torch.tensor(eps), torch.tensor(sig), torch.tensor(freq_hz))
+        g = normal_incidence_reflection(eta, 2 * math.pi * freq_hz / C0, torch.tensor(obj.thickness_m))
+        out[cls] = (obj.radio_material, obj.thickness_m, eps, sig, float(abs(g)))
+    return out
