@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy.linalg import cho_factor, cho_solve
+
+from rfir_stages.po.geometry import single_thread_torch
 
 from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms
 
@@ -97,8 +98,8 @@ def link_coords(tx_m: np.ndarray, rx_m: np.ndarray, centre: np.ndarray) -> tuple
 def link_distances(a, b) -> tuple[np.ndarray, np.ndarray]:
     """(a_tx^2 + a_rx^2 [La, Lb] rad^2, (ln rho - ln rho')^2 [La, Lb]) between coordinates a, b from
     link_coords: what the kernel depends on, apart from its lengths."""
-    at = np.arccos(np.clip(a[0] @ b[0].T, -1.0, 1.0))
-    ar = np.arccos(np.clip(a[1] @ b[1].T, -1.0, 1.0))
+    at = np.arccos(np.clip(_mm(a[0], b[0].T), -1.0, 1.0))
+    ar = np.arccos(np.clip(_mm(a[1], b[1].T), -1.0, 1.0))
     return at**2 + ar**2, (a[2][:, None] - b[2][None]) ** 2
 
 
@@ -113,21 +114,41 @@ def kernel(a, b, length_rad: float, range_length: float) -> np.ndarray:
     return kernel_of_distances(*link_distances(a, b), length_rad, range_length)
 
 
-def _factor(k_fit: np.ndarray, eta: float):
-    """Cholesky factor of K + eta I."""
-    k = k_fit.copy()
-    k[np.diag_indices_from(k)] += eta
-    return cho_factor(k, lower=True)
+# The linear algebra runs in torch, one thread (callers hold single_thread_torch): a model selection is
+# ~100 factorisations of ~1000 x 1000, each too small to share between threads; on a busy 2-core CPU
+# the multi-threaded BLAS behind numpy/scipy spent 8x the time waiting for its own threads
+# (bench/bench_rf_fit.py).
+
+def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b (float64) by torch."""
+    return (torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))
+            @ torch.from_numpy(np.ascontiguousarray(b, dtype=np.float64))).numpy()
+
+
+def _factor(k_fit: np.ndarray, eta: float) -> torch.Tensor:
+    """Lower Cholesky factor of K + eta I."""
+    k = torch.from_numpy(np.array(k_fit, dtype=np.float64))
+    k.diagonal().add_(eta)
+    return torch.linalg.cholesky(k)
+
+
+def _solve(factor: torch.Tensor, b: np.ndarray) -> np.ndarray:
+    """(K + eta I)^-1 b for the factor of K + eta I (b [T] or [T, F])."""
+    b = np.asarray(b, dtype=np.float64)
+    x = torch.cholesky_solve(torch.from_numpy(np.ascontiguousarray(b.reshape(len(b), -1))), factor)
+    return x.numpy().reshape(b.shape)
 
 
 def _form_at(kind: str, k_new: np.ndarray, factor, weights_db: np.ndarray, mean_db: np.ndarray,
              phys_new: np.ndarray) -> np.ndarray:
     """Prediction [V, F] dB of the smooth / blend form (module docstring) from k(x, X) [V, T], the
     factor of K + eta I, the fitted weights [T, F] and mean [F], and the physics there [V, F]."""
-    corr = k_new @ weights_db
+    corr = _mm(k_new, weights_db)
     if kind == "smooth":
         return phys_new + corr
-    share = np.clip(np.sum(k_new * cho_solve(factor, k_new.T).T, 1), 0.0, 1.0)[:, None]
+    # s = k (K + eta I)^-1 k^T = |L^-1 k^T|^2 per column, L the factor: one triangular solve, not two
+    half = torch.linalg.solve_triangular(factor, torch.from_numpy(np.ascontiguousarray(k_new.T)), upper=False)
+    share = np.clip((half * half).sum(0).numpy(), 0.0, 1.0)[:, None]
     return share * (mean_db[None] + corr) + (1.0 - share) * phys_new
 
 
@@ -137,16 +158,18 @@ def _pick(c, rows):
 
 def smooth_weights(coords, resid_db: np.ndarray, length_rad: float, range_length: float, eta: float) -> np.ndarray:
     """(K + eta I)^-1 r [T, F] for training coordinates and residuals r [T, F] dB."""
-    return cho_solve(_factor(kernel(coords, coords, length_rad, range_length), eta), resid_db)
+    with single_thread_torch():
+        return _solve(_factor(kernel(coords, coords, length_rad, range_length), eta), resid_db)
 
 
 def smooth_correction(coords_train, weights_db: np.ndarray, coords, length_rad: float, range_length: float,
                       chunk: int = 4096) -> np.ndarray:
     """delta [L, F] dB at coordinates `coords` (link_coords) from smooth_weights' output."""
     out = np.zeros((len(coords[0]), weights_db.shape[1]))
-    for a in range(0, len(out), chunk):
-        sl = slice(a, a + chunk)
-        out[sl] = kernel(_pick(coords, sl), coords_train, length_rad, range_length) @ weights_db
+    with single_thread_torch():
+        for a in range(0, len(out), chunk):
+            sl = slice(a, a + chunk)
+            out[sl] = _mm(kernel(_pick(coords, sl), coords_train, length_rad, range_length), weights_db)
     return out
 
 
@@ -219,33 +242,23 @@ def blend_at(kind: str, coords_fit, params: dict, coords_new, phys_new: np.ndarr
              range_length: float, eta: float, chunk: int = 2048) -> np.ndarray:
     """Prediction [V, F] dB of a fitted smooth / blend form (module docstring) where the physics gives
     phys_new [V, F] (columns: the fitted frequencies)."""
-    factor = None if kind == "smooth" else _factor(kernel(coords_fit, coords_fit, length_rad, range_length), eta)
-    out = np.zeros(np.shape(phys_new))
-    for a in range(0, len(out), chunk):
-        sl = slice(a, a + chunk)
-        kn = kernel(_pick(coords_new, sl), coords_fit, length_rad, range_length)   # [v, T]
-        out[sl] = _form_at(kind, kn, factor, params["weights_db"], params["mean_db"], phys_new[sl])
+    with single_thread_torch():
+        factor = None if kind == "smooth" else _factor(kernel(coords_fit, coords_fit, length_rad, range_length), eta)
+        out = np.zeros(np.shape(phys_new))
+        for a in range(0, len(out), chunk):
+            sl = slice(a, a + chunk)
+            kn = kernel(_pick(coords_new, sl), coords_fit, length_rad, range_length)   # [v, T]
+            out[sl] = _form_at(kind, kn, factor, params["weights_db"], params["mean_db"], phys_new[sl])
     return out
 
 
-def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[np.ndarray], cfg: ResidualConfig,
-               how: str) -> ResidualFit:
-    """Choose the kernel form (smooth / blend, as cfg.form allows) and its (l, l_rho, eta) by validation
-    over `folds` (physics only among the candidates, `choose`) and fit it on every training row.
-    coords: link_coords of the training rows; [M, K] arrays."""
-    t0 = time.time()
+def _select(coords, folds: list[np.ndarray], grid: list, target_db: np.ndarray, phys_db: np.ndarray,
+            preds: dict) -> None:
+    """Every candidate (kind, l, l_rho, eta) of `grid` on every fold, as kernel_predict computes it,
+    appended to preds[candidate] ([V, F] dB per fold), with the link distances found once and one
+    factor of K + eta I per (fold, l, l_rho, eta) shared by both forms: the same numbers at a fraction
+    of the cost (the kernels and factors are the bulk of a large fit's model selection)."""
     m = len(target_db)
-    val_all = np.concatenate(folds)
-    errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
-    floor_db = np.min(target_db, axis=0) - BELOW_WEAKEST_DB          # [F] (module docstring)
-    phys_db = np.maximum(phys_db, floor_db[None])                      # what the kernel forms see
-    grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
-            for lr in cfg.range_lengths for eta in ((cfg.weight,) if cfg.weight is not None else cfg.weights)]
-    grid = [g for g in grid if math.isfinite(g[3])]
-    # Every candidate on every fold, as kernel_predict computes it, but with the link distances found
-    # once and one factor of K + eta I per (fold, l, l_rho, eta) shared by both forms: the same numbers
-    # at a fraction of the cost (the kernels and factors were the bulk of a large fit's model selection).
-    preds: dict = {g: [] for g in grid}
     angle_sq, log_range_sq = link_distances(coords, coords)
     for val in folds:
         rows = np.setdiff1d(np.arange(m), val)
@@ -258,8 +271,26 @@ def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[n
                 factor = _factor(k_fit, eta)
                 for kind in dict.fromkeys(g[0] for g in grid if g[1:] == (ld, lr, eta)):
                     mean = np.zeros(y.shape[1]) if kind == "smooth" else y.mean(0)
-                    weights = cho_solve(factor, y - (phys if kind == "smooth" else mean[None]))
+                    weights = _solve(factor, y - (phys if kind == "smooth" else mean[None]))
                     preds[(kind, ld, lr, eta)].append(_form_at(kind, k_new, factor, weights, mean, phys_db[val]))
+
+
+def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[np.ndarray], cfg: ResidualConfig,
+               how: str) -> ResidualFit:
+    """Choose the kernel form (smooth / blend, as cfg.form allows) and its (l, l_rho, eta) by validation
+    over `folds` (physics only among the candidates, `choose`) and fit it on every training row.
+    coords: link_coords of the training rows; [M, K] arrays."""
+    t0 = time.time()
+    val_all = np.concatenate(folds)
+    errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
+    floor_db = np.min(target_db, axis=0) - BELOW_WEAKEST_DB          # [F] (module docstring)
+    phys_db = np.maximum(phys_db, floor_db[None])                      # what the kernel forms see
+    grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
+            for lr in cfg.range_lengths for eta in ((cfg.weight,) if cfg.weight is not None else cfg.weights)]
+    grid = [g for g in grid if math.isfinite(g[3])]
+    preds: dict = {g: [] for g in grid}
+    with single_thread_torch():
+        _select(coords, folds, grid, target_db, phys_db, preds)
     for (kind, ld, lr, eta), pred in preds.items():
         errors[f"{kind} l={ld:g} deg, l_rho={lr:g}, eta={eta:g}"] = np.abs(np.concatenate(pred) - target_db[val_all])
     chosen, scores = choose(errors)
