@@ -208,9 +208,14 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     tx_img = tx[ml] - 2.0 * side_tx[ml, None] * na[None]                  # [M', 3]
     # every (link, m of B) with m on Tx's side of A whose segment Tx_A -> m crosses plane A near A: a
     # conservative test on the [M', B] grid first (most candidates end here), then the exact one
-    same_side = np.sign(side_tx[ml])[:, None] == np.sign(side_b)[None]    # [M', B]
-    li, bi = np.nonzero(same_side & _crossing_near(tx[ml] - pa_pt, side_tx[ml], xb - pa_pt, side_b, na,
-                                                   radius_a + reach_a))
+    li, bi = crossing_candidates(tx[ml] - pa_pt, side_tx[ml], xb - pa_pt, side_b, na, radius_a + reach_a)
+    if li.size == 0:
+        return None
+    # the second leg lit: V(Rx -> m) among the first-order pairs (a lookup, cheaper than the exact
+    # crossing below and leaving few candidates to it: first)
+    v_b = vis_lookup(torch.as_tensor(ml[li]), torch.as_tensor(mb[bi]))
+    lit = (v_b > 0).numpy()
+    li, bi, v_b = li[lit], bi[lit], v_b[torch.as_tensor(lit)]
     if li.size == 0:
         return None
     src = tx_img[li]
@@ -220,11 +225,7 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     t = ((pa_pt - src) @ na) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
     c = src + t[:, None] * d                                              # crossing with plane A
     valid = (t > 0) & (t < 1) & (np.linalg.norm(c - centre_a, axis=1) <= radius_a + reach_a)  # near A at all
-    li, bi, c = li[valid], bi[valid], c[valid]
-    # the second leg lit: V(Rx -> m) among the first-order pairs
-    v_b = vis_lookup(torch.as_tensor(ml[li]), torch.as_tensor(mb[bi]))
-    lit = (v_b > 0).numpy()
-    li, bi, c, v_b = li[lit], bi[lit], c[lit], v_b[torch.as_tensor(lit)]
+    li, bi, c, v_b = li[valid], bi[valid], c[valid], v_b[torch.as_tensor(valid)]
     if li.size == 0:
         return None
     k_near = min(4, len(members_a))
@@ -354,6 +355,43 @@ def _in_cell(point: torch.Tensor, centre: torch.Tensor, cell: torch.Tensor) -> t
     half2 = (cell * cell).sum(-1).clamp(min=1e-300)                      # [..., 2] squared half-sides
     coord = torch.einsum("...j,...cj->...c", rel, cell) / half2           # in units of half-sides
     return (coord.abs() <= 1.0 + CELL_MARGIN).all(-1)
+
+
+def crossing_candidates(tx_rel: np.ndarray, side_tx: np.ndarray, xb_rel: np.ndarray, side_b: np.ndarray,
+                        na: np.ndarray, reach: float, block: int = 1 << 22) -> tuple[np.ndarray, np.ndarray]:
+    """(li, bi): the (link, m) index pairs, in row-major order, with Tx and m on the same side of plane A
+    (side_tx, side_b of one sign) that pass `_crossing_near`'s test; arguments as there.
+
+    The same test as `np.nonzero(same_side & _crossing_near(...))`, computed as one [M', B] product:
+    with the in-plane parts q, r and offsets s, b, |b q + s r|^2 - R^2 (s + b)^2 = F_i . G_j for
+        F = (|q|^2 - R^2, 2 s q, -2 R^2 s, s^2),  G = (b^2, b r, b, |r|^2 - R^2),
+    evaluated only between the links and surfels on one side of A and the other (the grid of the
+    co-located radar's every link against every surfel of the partner patches is the bulk of the
+    double bounces' cost). The expansion rounds differently from `_crossing_near`'s; both are
+    conservative by the reach's widening (1e-6 of it, orders of magnitude above the rounding), and
+    the exact crossing test follows, so the items are the same (tests/model)."""
+    q = tx_rel - side_tx[:, None] * na[None]
+    r = xb_rel - side_b[:, None] * na[None]
+    r2 = (reach * (1.0 + 1e-6) + 1e-12) ** 2
+    f = np.concatenate([((q * q).sum(1) - r2)[:, None], 2.0 * side_tx[:, None] * q, (-2.0 * r2 * side_tx)[:, None],
+                        (side_tx * side_tx)[:, None]], 1)                                  # [M', 6]
+    g = np.concatenate([(side_b * side_b)[:, None], side_b[:, None] * r, side_b[:, None],
+                        ((r * r).sum(1) - r2)[:, None]], 1)                                # [B, 6]
+    ft, gt = torch.from_numpy(f), torch.from_numpy(g)
+    keys = []
+    for sign in (1.0, -1.0):
+        rows = np.flatnonzero(np.sign(side_tx) == sign)
+        cols = np.flatnonzero(np.sign(side_b) == sign)
+        if rows.size == 0 or cols.size == 0:
+            continue
+        gs = gt[torch.from_numpy(cols)].T.contiguous()                                    # [6, B_side]
+        step = max(1, block // cols.size)          # bounded memory: [step, B_side] per product
+        for a in range(0, rows.size, step):
+            rr = rows[a:a + step]
+            i, j = torch.nonzero(ft[torch.from_numpy(rr)] @ gs <= 0.0, as_tuple=True)
+            keys.append(rr[i.numpy()] * len(side_b) + cols[j.numpy()])
+    key = np.sort(np.concatenate(keys)) if keys else np.zeros(0, dtype=np.int64)
+    return key // len(side_b), key % len(side_b)
 
 
 def _crossing_near(tx_rel: np.ndarray, side_tx: np.ndarray, xb_rel: np.ndarray, side_b: np.ndarray, na: np.ndarray,
