@@ -51,6 +51,15 @@ class OcclusionProvider(Protocol):
                               opacity: torch.Tensor, t_stop: float = 1e-4) -> torch.Tensor: ...
 
 
+def lit_stop(t_stop: float, lit_threshold: float) -> float:
+    """The t_stop to trace with when the transmittance only decides lit (> lit_threshold) or shadowed
+    (physical.lit_state): a ray can stop once below the threshold, since a product of factors in [0, 1]
+    never rises again. Lit rays are traced to the end as before, shadowed ones end at their first
+    opaque surface: the same lit states at a fraction of the cost (most of a solid's surfels are
+    shadowed from any one antenna). lit_threshold 0 (soft shadows, the transmittance itself): t_stop."""
+    return max(float(t_stop), float(lit_threshold)) if lit_threshold > 0 else float(t_stop)
+
+
 def product_from_hits(hits: HitTable, opacity: torch.Tensor) -> torch.Tensor:
     """Transmittance [Q] = prod over each query's hits of (1 - min(a G, 0.99))."""
     log1m = torch.log1p(-(opacity[hits.gaussian] * hits.response).clamp(max=0.99))
