@@ -15,12 +15,14 @@ Change history
 - 1.2.0 (2026-11-25): optional residual/* fields of `rf` (the residual on top of the physical model).
 - 1.4.0 (2026-11-26): optional residual/floor_db of `rf` (the floor under the physics of a kernel residual;
   read as none when absent).
+- 1.5.0 (2026-11-26): optional root attribute edge_waves of `rf` (on / off: the model includes the edge
+  waves of its planar patches; read as off when absent).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.4.0"
+SCHEMA_VERSION = "1.5.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -216,6 +218,11 @@ _register(KindSpec(
     ),
     required_attrs=("task",),
     free_groups=("model", "training", "effects"),
+    optional_attrs=(
+        AttrSpec("edge_waves", "str", "whether the model includes the fringe field of its planar patches' outer "
+                 "edges (docs/physics.md section 8.13; chosen by validation when rf_fit.physical.edge_waves = "
+                 "auto); absent: off", choices=("on", "off")),
+    ),
     retired=("material/index", "an rf model of the retired per-Gaussian family (a free reflection coefficient "
                                "per Gaussian), which rfir no longer reads; re-run rf-fit"),
 ))

@@ -40,11 +40,12 @@ def aggregate_chunk(num_freqs: int, budget: int = BUDGET) -> int:
 
 
 def at_columns(pairs: PairGeometry, a: int, b: int) -> PairGeometry:
-    """The same pairs restricted to frequencies a..b-1 (the double bounces' coefficients too)."""
+    """The same pairs restricted to frequencies a..b-1 (the double bounces' and edge waves' coefficients too)."""
     db = pairs.double
     if db is not None:
         db = dataclasses.replace(db, coef=db.coef[:, a:b], freq_hz=db.freq_hz[a:b])
-    return dataclasses.replace(pairs, freq_hz=pairs.freq_hz[a:b], double=db)
+    return dataclasses.replace(pairs, freq_hz=pairs.freq_hz[a:b], double=db,
+                               edges=None if pairs.edges is None else pairs.edges.at_columns(a, b))
 
 
 def band_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,

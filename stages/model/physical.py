@@ -41,8 +41,9 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider
 from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0, co_polar_reflection, fresnel, permittivity
+from .edges import EdgeTerms, aggregate_edges, edge_field, edge_reflection, edge_terms, patch_edges
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
-from .surfels import footprint_cells, footprint_factor, surfel_areas
+from .surfels import covariance, footprint_cells, footprint_factor, surfel_areas
 
 EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
 LOG10_SIGMA = (-4.0, 7.0)   # conductivity at 1 GHz in [1e-4, 1e7] S/m (1e7: metal)
@@ -73,6 +74,7 @@ class PairGeometry:
     area: torch.Tensor
     freq_hz: torch.Tensor
     double: "DoubleBounce | None" = None    # second-order items (second_order.py), None: first order only
+    edges: "EdgeTerms | None" = None        # edge-wave items (edges.py), None: no edge waves
 
     @property
     def num_pairs(self) -> int:
@@ -114,7 +116,8 @@ class PairGeometry:
         return PairGeometry(int(rows.numel()), new_id[self.link][keep], pick(self.gauss), pick(self.d_i),
                             pick(self.d_o), pick(self.cos_i), pick(self.cos_o), pick(self.te_share), pick(self.gain),
                             pick(self.vis), pick(self.q_cell), pick(self.area), self.freq_hz,
-                            None if self.double is None else self.double.select_links(rows))
+                            None if self.double is None else self.double.select_links(rows),
+                            None if self.edges is None else self.edges.select_links(rows))
 
 
 @dataclass
@@ -126,7 +129,8 @@ class PairSettings:
     second_order: add double bounces between planar patches of at least min_patch_area_m2
     (second_order.py; co-located antennas only). lit_threshold: a surfel is lit from an antenna when
     the traced transmittance exceeds this (V = 1, else 0: opaque surfaces with sharp shadow edges);
-    0: V is the transmittance itself (soft shadows)."""
+    0: V is the transmittance itself (soft shadows). edge_waves: add the fringe field of the patches'
+    outer edges (edges.py; co-located antennas only)."""
 
     visibility: bool = True
     opacity: float = 0.9
@@ -138,6 +142,7 @@ class PairSettings:
     second_order: bool = True
     min_patch_area_m2: float = 2e-3
     lit_threshold: float = 0.2
+    edge_waves: bool = False
 
 
 def _te_share(w_i: torch.Tensor, n: torch.Tensor, pol: str) -> torch.Tensor:
@@ -178,8 +183,8 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
                 areas_m2: torch.Tensor | None = None, patches: "Patches | None" = None,
                 labels: torch.Tensor | None = None) -> PairGeometry:
     """Trace once and keep the geometry of every lit (link, surfel) pair (see PairGeometry), and the
-    double bounces between planar patches when settings.second_order (patches: computed from the
-    geometry, and labels when given, unless passed)."""
+    double bounces between planar patches when settings.second_order and their edge waves when
+    settings.edge_waves (patches: computed from the geometry, and labels when given, unless passed)."""
     with torch.no_grad():
         area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) \
             if areas_m2 is None else areas_m2.double()
@@ -202,15 +207,32 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         pairs = PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
                              cat["te"], cat["gain"], vis[keep], cat["q_cell"], area[cat["gauss"]],
                              links.freq_hz.double())
+        if (settings.second_order or settings.edge_waves) and patches is None:
+            patches = planar_patches(geom, area, labels, settings.min_patch_area_m2)
+        if settings.edge_waves:
+            if getattr(patches, "edges", None) is None:   # found once per set of patches (prediction reuses them)
+                patches.edges = patch_edges(geom, covariance(geom.log_scales, geom.rotations), cells, patches)
+            pairs.edges = edge_terms(patches.edges, links, tx_ant, rx_ant, _edge_lit(geom, links, provider, settings),
+                                     settings.polarisation, settings.colocated_tol_m)
         if settings.second_order:
-            if patches is None:
-                patches = planar_patches(geom, area, labels, settings.min_patch_area_m2)
             with single_thread_torch():   # many small tensor ops per patch: thread hand-offs cost more than the work
                 pairs.double = build_double_bounce(
                     geom, links, tx_ant, rx_ant, patches, area, cells,
                     lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation,
                     settings.colocated_tol_m)
         return pairs
+
+
+def _edge_lit(geom: FrozenGeometry, links: LinkSet, provider: OcclusionProvider | None, settings: PairSettings):
+    """lit(link [Q], gauss [Q]) -> V [Q] of the edge waves: the surfel's lit state traced from the link's
+    transmitter (co-located antennas: one path), whatever the surfel's orientation; 1 without visibility."""
+    def lit(link: torch.Tensor, gauss: torch.Tensor) -> torch.Tensor:
+        if not settings.visibility or provider is None or link.numel() == 0:
+            return torch.ones(link.shape, dtype=torch.float64)
+        op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
+        return lit_state(provider.segment_transmittance(links.tx_m[link], gauss, settings.margin_m, op,
+                                                        settings.t_stop), settings.lit_threshold)
+    return lit
 
 
 def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, cells, settings: PairSettings) -> dict:
@@ -365,6 +387,10 @@ def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
         if freq_hz is not None and not torch.equal(f, pairs.double.freq_hz):
             raise ValueError("the double bounces were built for other frequencies")
         field = field + _double_bounce_field(pairs.double, material_of_gaussian, mats, k0)
+    if pairs.edges is not None and pairs.edges.num:
+        if freq_hz is not None and not torch.equal(f, pairs.edges.freq_hz):
+            raise ValueError("the edge waves were built for other frequencies")
+        field = field + edge_field(pairs.edges, material_of_gaussian, mats)
     lam = C0 / f                                                   # [K] m
     s = mats.scattering[material_of_gaussian[pairs.gauss]]
     base = pairs.gain * pairs.vis * pairs.area / (4 * math.pi * pairs.d_i * pairs.d_o)   # [P]
@@ -476,10 +502,13 @@ class AggregatedPairs:
     diffuse: torch.Tensor   # [M, N, J, 3] real
     freq_hz: torch.Tensor   # [K]
     double: dict | None = None   # second order in cells: link, mat_a/b, node_a/b [C]; c_tt, c_tm, c_mt, c_mm [C, K]
+    edges: torch.Tensor | None = None   # edge waves per (link, material) [M, N, K] complex (edges.aggregate_edges)
 
     @staticmethod
     def build(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int,
-              chunk: int = 1 << 20, double_cull_rel: float = DOUBLE_CULL_REL) -> "AggregatedPairs":
+              chunk: int = 1 << 20, double_cull_rel: float = DOUBLE_CULL_REL,
+              edge_waves: bool = True) -> "AggregatedPairs":
+        """edge_waves: include the pairs' edge items (False: leave them out, as if built without)."""
         m, n, j, k = pairs.num_links, num_materials, ANGLE_NODES, int(pairs.freq_hz.numel())
         k0 = 2 * math.pi * pairs.freq_hz / C0
         a_te = torch.zeros(m * n * j, k, dtype=torch.complex128)
@@ -507,8 +536,10 @@ class AggregatedPairs:
         double = None if pairs.double is None or not pairs.double.num else \
             _aggregate_double(pairs.double, material_of_gaussian, n, DOUBLE_NODES, math.radians(90.0) / (DOUBLE_NODES - 1),
                               double_cull_rel)
+        edges = aggregate_edges(pairs.edges, material_of_gaussian, n) \
+            if edge_waves and pairs.edges is not None and pairs.edges.num else None
         return AggregatedPairs(a_te.reshape(m, n, j, k), a_tm.reshape(m, n, j, k), diff.reshape(m, n, j, 3),
-                               pairs.freq_hz, double)
+                               pairs.freq_hz, double, edges)
 
     def select_links(self, rows) -> "AggregatedPairs":
         """The aggregated sums of links `rows` (renumbered 0..len(rows)-1)."""
@@ -520,7 +551,8 @@ class AggregatedPairs:
             keep = new_id[self.double["link"]] >= 0
             double = {key: v[keep] for key, v in self.double.items()}
             double["link"] = new_id[self.double["link"]][keep]
-        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz, double)
+        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz, double,
+                               None if self.edges is None else self.edges[r])
 
     def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
         """Received power [M, K] (P_T = 1 W) for materials `mats` (N of them)."""
@@ -544,6 +576,8 @@ class AggregatedPairs:
             b_te, b_tm = te_flat.index_select(0, ub), tm_flat.index_select(0, ub)
             field = field.index_add(0, d["link"], polarised_product(d["c_tt"], d["c_tm"], d["c_mt"], d["c_mm"],
                                                                     a_te, a_tm, b_te, b_tm))
+        if self.edges is not None:
+            field = field + torch.einsum("mnk,nk->mk", self.edges, edge_reflection(mats, f))
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
         moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
         # sum over (material, node, moment) as one [M, N J 3] x [N J 3, K] product (batched tiny products are slow)

@@ -56,7 +56,8 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
     provider = make_provider(occlusion, geom) if model.settings.visibility else None
     labels = rf.get("gaussians/labels")
     patches = planar_patches(geom, model.areas_m2, None if labels is None else torch.as_tensor(np.asarray(labels)),
-                             model.settings.min_patch_area_m2) if model.settings.second_order else None
+                             model.settings.min_patch_area_m2) \
+        if model.settings.second_order or model.settings.edge_waves else None
     res = model.residual
     surfel = res.params["surfel"] if res.form == "gaussian" else None
     gain = 10 ** (model.gain_db / 10)

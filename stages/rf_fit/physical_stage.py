@@ -7,6 +7,7 @@ any subset of the training links then cost links x materials x angle nodes per s
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -23,6 +24,7 @@ from rfir_stages.model.residual import (FORMS, ResidualConfig, ResidualFit, fit_
 from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "class", "segment", "global")
+EDGES = "+edges"     # a candidate's name suffix: its model includes the edge waves (rfir_stages.model.edges)
 LOSSES = ("db_mse", "db_huber")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent", "reflection_ranges")
 RESIDUAL_LISTS = {"residual_weights": "weights", "residual_lengths_deg": "lengths_deg",
@@ -60,6 +62,23 @@ def residual_config(table: dict) -> ResidualConfig:
     return ResidualConfig(**kw)
 
 
+def edge_waves_mode(table: dict):
+    """rf_fit.physical.edge_waves: "auto" (chosen by validation), True ("on", "true") or False ("off",
+    "false"); ConfigError naming the key otherwise."""
+    mode = table.get("edge_waves", "auto")
+    words = {"auto": "auto", "on": True, "true": True, "off": False, "false": False}
+    if isinstance(mode, str) and mode.lower() in words:
+        return words[mode.lower()]
+    if isinstance(mode, bool):
+        return mode
+    raise ConfigError(f"rf_fit.physical.edge_waves = {mode!r}: expected \"auto\", \"on\" or \"off\"")
+
+
+def split_candidate(candidate: str) -> tuple[str, bool]:
+    """(material sharing, edge waves) of a candidate's name ("class", "global+edges", ...)."""
+    return (candidate[:-len(EDGES)], True) if candidate.endswith(EDGES) else (candidate, False)
+
+
 def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSettings, dict]:
     """(fit settings, pair settings, the [rf_fit.physical] table) from the [rf_fit] table."""
     table = dict(config.get("physical", {}))
@@ -79,7 +98,8 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
                          colocated_tol_m=float(render_cfg.colocated_tol_m), polarisation=pol,
                          second_order=bool(table.get("second_order", True)),
                          min_patch_area_m2=float(table.get("min_patch_area_m2", 2e-3)),
-                         lit_threshold=float(table.get("lit_threshold", 0.2)))
+                         lit_threshold=float(table.get("lit_threshold", 0.2)),
+                         edge_waves=edge_waves_mode(table) is not False)   # traced unless off; candidates choose
     residual_config(table)   # refused here, before any tracing, when wrong
     return fit_cfg, pairs, table
 
@@ -92,11 +112,14 @@ def sharing_candidates(table: dict, num_labels: int, num_classes: int | None = N
     sharing = str(table.get("sharing", "auto"))
     classes = num_labels if num_classes is None else num_classes
     if sharing == "auto":
-        return ["global"] if num_labels and classes == 1 else ["class" if num_labels else "segment", "global"]
-    if sharing in ("label", "class") and not num_labels:
+        base = ["global"] if num_labels and classes == 1 else ["class" if num_labels else "segment", "global"]
+    elif sharing in ("label", "class") and not num_labels:
         raise ConfigError(f"rf_fit.physical.sharing = '{sharing}' needs gaussians/labels in the scene; "
                           "use 'segment' (materials from clustering the Gaussians) or 'global'")
-    return [sharing]
+    else:
+        base = [sharing]
+    mode = edge_waves_mode(table)   # "auto": each sharing with and without the edge waves, chosen by validation
+    return base + [b + EDGES for b in base] if mode == "auto" else [b + EDGES for b in base] if mode else base
 
 
 @dataclass
@@ -126,12 +149,18 @@ class PhysicalSetup:
                              label_names, residual_cfg=residual_config(table))
 
     def for_sharing(self, sharing: str):
+        """(aggregated pairs, material of each Gaussian [G], material names) of a candidate (split_candidate)."""
         if sharing not in self.aggregated:
-            idx, names = material_index(sharing, self.geom.num, self.labels, self.geom.means, self.geom.normals,
+            base, edges = split_candidate(sharing)
+            idx, names = material_index(base, self.geom.num, self.labels, self.geom.means, self.geom.normals,
                                         self.num_segments, self.seed, self.label_names)
-            self.aggregated[sharing] = (AggregatedPairs.build(self.pairs, idx, len(names), chunk=self.agg_chunk),
-                                       idx, names)
+            self.aggregated[sharing] = (AggregatedPairs.build(self.pairs, idx, len(names), chunk=self.agg_chunk,
+                                                              edge_waves=edges), idx, names)
         return self.aggregated[sharing]
+
+    def pairs_for(self, sharing: str):
+        """The traced pairs as the candidate's model sees them (without the edge items unless it has them)."""
+        return self.pairs if split_candidate(sharing)[1] else dataclasses.replace(self.pairs, edges=None)
 
     def fit(self, sharing: str, rows: np.ndarray | None, target_db: np.ndarray, cfg: PhysicalFitConfig,
             progress) -> PhysicalFitResult:
@@ -159,13 +188,14 @@ class PhysicalSetup:
         with torch.no_grad():
             vals = result.params.values()
             gain = float(result.params.gain_db)
-        phys = physics_db(self.pairs, idx, vals, gain)
+        pairs = self.pairs_for(sharing)
+        phys = physics_db(pairs, idx, vals, gain)
         folds, how = residual_folds(protocol, aspect_deg, range_m, len(target_db))
         if cfg.form != "gaussian":
             centre = 0.5 * (self.geom.means.min(0).values + self.geom.means.max(0).values).numpy()
             fit = fit_smooth(link_coords(tx_m, rx_m, centre), phys, target_db, folds, cfg, how)
         else:
-            fit = fit_gaussian(self.pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)
+            fit = fit_gaussian(pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)
         best = min(fit.validation.values())
         progress.log(f"rf-fit: residual ({cfg.form}) validation MAE on {sum(len(f) for f in folds)} training links "
                      f"({how}): physics only {fit.validation['physics only']:.2f} dB, best {best:.2f} dB -> "
@@ -230,6 +260,7 @@ def physical_artifact_fields(setup: PhysicalSetup, sharing: str, result: Physica
     """(datasets, model attributes) for the rf artifact (rfir_stages.model.artifact); residual: fitted
     on the training links tx_m / rx_m [M, 3] m."""
     _, idx, names = setup.for_sharing(sharing)
+    settings = dataclasses.replace(settings, edge_waves=split_candidate(sharing)[1])   # the candidate's model
     data, attrs = physical_fields(result.params.values(), idx, setup.areas_m2, freqs_hz, settings, names,
                                   float(result.params.gain_db.detach()), residual, tx_m, rx_m)
     attrs.update(setup.extra_attrs)

@@ -34,7 +34,7 @@ from .links import check_overlap, check_positions, geometry_from_artifact, make_
 from .occlusion import make_provider
 from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_db, material_table,
                              physical_artifact_fields, physical_config, range_words, residual_training_attrs,
-                             sharing_candidates)
+                             edge_waves_mode, sharing_candidates, split_candidate)
 from .render import RenderSettings
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows, validation_folds
@@ -65,6 +65,9 @@ class RfFitResult:
 def sharing_words(sharing: str) -> str:
     """'materials per label', 'materials per object class', 'materials per segment' or 'one material for
     the scene'."""
+    base, edges = split_candidate(sharing)
+    if edges:
+        return f"{sharing_words(base)} with edge waves"
     if sharing == "global":
         return "one material for the scene"
     return "materials per object class" if sharing == "class" else f"materials per {sharing}"
@@ -157,7 +160,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         num_labels = int(torch.unique(labels).numel())
         num_classes = len(material_index("class", geom.num, labels, label_names=label_names)[1])
     sharings = sharing_candidates(phys_table, num_labels, num_classes)
-    if sharings == ["global"] and str(phys_table.get("sharing", "auto")) == "auto":
+    if {split_candidate(s)[0] for s in sharings} == {"global"} and str(phys_table.get("sharing", "auto")) == "auto":
         progress.log("rf-fit: one object class among the labels: its material is the scene's "
                      "(rf_fit.physical.sharing = auto -> global)")
     t0 = time.time()
@@ -166,7 +169,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
                  f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, physical model: polarisation "
                  f"{pair_settings.polarisation}, sigma ~ f^{fit_cfg.sigma_exponent:g}, double bounces "
-                 f"{'on' if pair_settings.second_order else 'off'}, shadows "
+                 f"{'on' if pair_settings.second_order else 'off'}, edge waves "
+                 f"{ {'auto': 'chosen by validation', True: 'on', False: 'off'}[edge_waves_mode(phys_table)]}, shadows "
                  + (f"lit/shadowed at transmittance {pair_settings.lit_threshold:g}" if pair_settings.lit_threshold > 0
                     else "soft (transmittance)")
                  + f", system gain {'fitted' if fit_cfg.fit_gain else '0 dB'}")
@@ -334,7 +338,8 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
     free = {"model": {"@attrs": model_attrs},
             "training": {"loss_curve": result.loss_curve, "train_rows": np.asarray(rows, dtype=np.int64),
                          "@attrs": training_attrs}}
-    write_artifact(out_path, "rf", data, attrs=_root_attrs(scene, meas, task), provenance=prov, free=free)
+    root = dict(_root_attrs(scene, meas, task), edge_waves="on" if split_candidate(sharing)[1] else "off")
+    write_artifact(out_path, "rf", data, attrs=root, provenance=prov, free=free)
     progress.log("rf-fit: materials " + "; ".join(
         f"{r['material']}: eps_r {r['eps_r']:.2f}, sigma {r['sigma_s_per_m']:.3g} S/m, S {r['scattering']:.2f}, "
         f"d {r['thickness_m'] * 1e3:.1f} mm, |Gamma(0)| {r['gamma_normal_abs'][0]:.2f}{range_words(r)}"

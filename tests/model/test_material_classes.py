@@ -26,8 +26,8 @@ def test_unnamed_labels_are_a_class_each():
 
 
 def test_auto_fits_classes_and_one_material_and_only_one_when_a_single_class():
-    table = {"sharing": "auto"}
+    table = {"sharing": "auto", "edge_waves": "off"}     # with edge waves: tests/rf_fit/test_edge_waves_fit.py
     assert sharing_candidates(table, num_labels=3, num_classes=3) == ["class", "global"]
     assert sharing_candidates(table, num_labels=20, num_classes=1) == ["global"]    # a lego of bricks
     assert sharing_candidates(table, num_labels=0, num_classes=0) == ["segment", "global"]
-    assert sharing_candidates({"sharing": "label"}, num_labels=20, num_classes=1) == ["label"]
+    assert sharing_candidates({"sharing": "label", "edge_waves": "off"}, num_labels=20, num_classes=1) == ["label"]

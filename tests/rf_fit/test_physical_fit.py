@@ -33,7 +33,7 @@ def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, 
 
     d = metal_box
     cfg = {"antenna": "isotropic", "freqs_hz": [2.4e9],
-           "physical": {"sharing": "global", "iterations": 120, "start_iterations": 30}}
+           "physical": {"sharing": "global", "iterations": 120, "start_iterations": 30, "edge_waves": "off"}}
     res = run(d / "scene.h5", d / "meas.h5", tmp_path / "rf.h5", cfg)
     assert res.selection["sharing_selected"] == "global"
     assert res.materials[0]["gamma_normal_abs"][0] > 0.9                 # metal recognised as metal
@@ -98,7 +98,7 @@ def test_sharing_auto_offers_per_class_and_global_and_records_the_choice(tmp_pat
     labels = (v[f].mean(1)[:, 0] > 0).astype(np.int64)
     write_scene_artifact(tmp_path / "scene.h5", gaussians_from_mesh(v, f, 0.02, labels=labels))
     cfg = {"antenna": "isotropic", "visibility": False,
-           "physical": {"iterations": 40, "start_iterations": 10, "residual": "off"}}
+           "physical": {"iterations": 40, "start_iterations": 10, "residual": "off", "edge_waves": "off"}}
     res = run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf.h5", cfg)
     keys = {k for k in res.selection if k.startswith("val_mae_")}
     assert keys == {"val_mae_class_db", "val_mae_global_db"}, res.selection

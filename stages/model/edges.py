@@ -1,0 +1,363 @@
+"""Edge waves: the fringe (PTD) field of the outer edges of planar patches (docs/physics.md section 8.13).
+
+Physical optics (the surfel sum, physical.py) integrates the currents of an infinite plane over a
+finite surface; the field of an edge is then only PO's truncation of that integral. The exact edge
+field of a perfectly conducting wedge (Keller's GTD coefficient, exterior angle n pi) differs from
+it by the fringe field of Ufimtsev's physical theory of diffraction, finite at every angle. Here it
+is added as equivalent edge currents along each edge, integrated with the monostatic phase:
+
+    S_edge = sum_(edge segments e) sqrt(G_T G_R) rho_e V_e [w_s f_s(phi, n) + w_h f_h(phi, n)]
+             L_e sinc(k L_e s.t) exp(-2 j k d_e) / (8 pi k d_e^2)
+
+- s: the unit vector from the segment's midpoint toward the radar, d_e its distance; t the edge's
+  tangent, L_e the segment's length (the sinc is the exact integral of the phase along the segment);
+- phi: the angle, in the plane across the edge, from the wedge's face 0 to the projection of s
+  (0 <= phi <= n pi outside the wedge; inside it, the radar sees the solid or a concave corner,
+  whose returns are the surfels' reflections and double bounces: no edge term);
+- f_s, f_h: the fringe coefficients (`wedge_fringe`) for E along the edge (soft) and across it
+  (hard), GTD backscatter minus the PO edge terms tan(phi) and tan(n pi - phi) of the lit faces:
+      a_s = (2 sin(pi/n) / n) (T1 - T2),   a_h = -(2 sin(pi/n) / n) (T1 + T2),
+      T1 = 1 / (cos(pi/n) - 1),   T2 = 1 / (cos(pi/n) - cos(2 phi / n));
+  a half-plane (n = 2): f_s = sec phi - tan phi - 1, f_h = sec phi - tan phi + 1;
+- w_s = (p . t_perp)^2, w_h = 1 - w_s: the share of the radar's polarisation p along the part of the
+  edge across the ray (t_perp = t - (t.s) s, normalised); the 1 / sin^2(beta) of the equivalent
+  currents cancels against their excitation and radiation (monostatic), so an oblique edge gets the
+  coefficients of the plane across it (the backscatter form of Michaeli's fringe currents);
+- rho_e = -R_TE(0) sqrt(1 - S^2) of the edge's material (mean of its two faces): 1 for a perfect
+  conductor; a dielectric edge is scaled by its normal-incidence reflection coefficient (an
+  approximation: the fringe coefficients of dielectric wedges are not those of a perfect conductor);
+- V_e: lit when a surfel of either face next to the edge is lit from the radar (physical.py's V).
+
+Edges of a surfel set (`patch_edges`): for each planar patch (second_order.planar_patches), the level
+line at half the patch's interior coverage C(x) (the sum of its Gaussians in its plane, which falls to
+half its value at the border of a tiling; surfels.py), simplified to straight pieces and cut into
+segments no longer than a surfel. An outer edge of one patch that lies on an outer edge of another
+(a fold, a box's edge, the two faces of a thin sheet) is one wedge, kept once, with the two faces'
+directions; the exterior angle follows from them (n = 2: a half-plane; n -> 1: a flat continuation,
+no fringe; a faceted curved surface gets small ones).
+
+Built for co-located antennas (monostatic radar), as the double bounce; links with separate antennas
+get no edge term.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from rfir_stages.rf_fit.antennas import AntennaPattern
+from rfir_stages.rf_fit.occlusion import FrozenGeometry
+from rfir_stages.rf_fit.render import LinkSet
+
+from .materials import C0
+
+WEDGE_T_COS = 0.9       # outer edges of two patches with tangents this parallel, on one line: one wedge
+SINGULAR_RAD = 1e-3     # near a face's normal GTD and PO are singular: the fringe is averaged at +-this
+
+
+@dataclass
+class Edges:
+    """Edge segments: mid [E, 3] m, tangent [E, 3] unit, length [E] m; face_a, face_b [E, 3]: unit vectors
+    across the edge, from it into each face (equal for a half-plane); gauss_a, gauss_b [E]: a surfel of each
+    face next to the edge (its material and visibility)."""
+
+    mid: torch.Tensor
+    tangent: torch.Tensor
+    length: torch.Tensor
+    face_a: torch.Tensor
+    face_b: torch.Tensor
+    gauss_a: torch.Tensor
+    gauss_b: torch.Tensor
+
+    @property
+    def num(self) -> int:
+        return int(self.length.numel())
+
+
+def _empty_edges() -> Edges:
+    z3 = torch.zeros((0, 3), dtype=torch.float64)
+    zi = torch.zeros(0, dtype=torch.int64)
+    return Edges(z3, z3, torch.zeros(0, dtype=torch.float64), z3, z3, zi, zi)
+
+
+def _simplify(line: np.ndarray, tol: float) -> np.ndarray:
+    """Douglas-Peucker: the vertices of polyline `line` [P, 2] that keep it within `tol` of the original."""
+    keep = np.zeros(len(line), bool)
+    keep[[0, -1]] = True
+    stack = [(0, len(line) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b <= a + 1:
+            continue
+        d = line[b] - line[a]
+        nd = np.hypot(*d)
+        rel = line[a + 1:b] - line[a]
+        dist = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0]) / nd if nd > 0 else np.hypot(rel[:, 0], rel[:, 1])
+        i = int(np.argmax(dist))
+        if dist[i] > tol:
+            keep[a + 1 + i] = True
+            stack += [(a, a + 1 + i), (a + 1 + i, b)]
+    return line[keep]
+
+
+def _coverage_2d(pts: np.ndarray, cov2: np.ndarray, x2: np.ndarray, reach: float) -> np.ndarray:
+    """C(x) [Q] = sum_m exp(-0.5 (x - mu_m)^T S_m^-1 (x - mu_m)) at points x2 [Q, 2] of a patch's plane, over
+    its members (means pts [G, 2], in-plane covariances cov2 [G, 2, 2]), each within `reach` of its mean."""
+    from scipy.spatial import cKDTree
+
+    inv = np.linalg.inv(cov2)
+    out = np.zeros(len(x2))
+    tree = cKDTree(x2)
+    for m, near in enumerate(tree.query_ball_point(pts, reach)):
+        if near:
+            d = x2[near] - pts[m]
+            out[near] += np.exp(-0.5 * np.einsum("qa,ab,qb->q", d, inv[m], d))
+    return out
+
+
+def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: np.ndarray, half: float
+                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Straight boundary pieces of one patch: (mid [3], tangent [3], inward [3]) and lengths, from the level
+    line at half the interior coverage of the members (means x [G, 3], covariances cov [G, 3, 3]); half: the
+    members' median half-side (m)."""
+    import contourpy
+
+    ref = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(normal, ref)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    basis = np.stack([e1, e2], 1)                                          # [3, 2]
+    pts = (x - point) @ basis
+    cov2 = np.einsum("ia,gij,jb->gab", basis, cov, basis) + np.eye(2) * (1e-3 * half) ** 2
+    reach = 4.0 * float(np.sqrt(np.linalg.eigvalsh(cov2)[:, -1].max()))
+    step = 0.25 * half
+    lo, hi = pts.min(0) - 2 * reach, pts.max(0) + 2 * reach
+    gx = np.arange(lo[0], hi[0] + step, step)
+    gy = np.arange(lo[1], hi[1] + step, step)
+    xx, yy = np.meshgrid(gx, gy)
+    grid = np.stack([xx.ravel(), yy.ravel()], 1)
+    c = _coverage_2d(pts, cov2, grid, reach).reshape(xx.shape)
+    inner = c[c > 0.5 * c.max()]
+    level = 0.5 * float(inner.mean())
+    lines = contourpy.contour_generator(gx, gy, c).lines(level)
+    out = []
+    for line in lines:
+        line = np.asarray(line)
+        if len(line) < 3:
+            continue
+        simple = _simplify(line, 0.25 * half)
+        for a, b in zip(simple[:-1], simple[1:]):
+            seg = b - a
+            length = float(np.hypot(*seg))
+            if length <= 1e-9:
+                continue
+            pieces = max(1, int(math.ceil(length / (2.0 * half))))
+            t2 = seg / length
+            nrm2 = np.array([-t2[1], t2[0]])
+            for i in range(pieces):
+                m2 = a + seg * (i + 0.5) / pieces
+                probe = np.stack([m2 + 0.5 * half * nrm2, m2 - 0.5 * half * nrm2])
+                cp = _coverage_2d(pts, cov2, probe, reach)
+                in2 = nrm2 if cp[0] >= cp[1] else -nrm2
+                out.append((point + basis @ m2, basis @ t2, basis @ in2, length / pieces))
+    return out
+
+
+def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, patches) -> Edges:
+    """The outer edges of the planar patches (module docstring). cov [G, 3, 3] m^2: the Gaussians'
+    covariances; cells [G, 2, 3] m: surfels.footprint_cells; patches: second_order.Patches."""
+    from scipy.spatial import cKDTree
+
+    x = geom.means.numpy()
+    cv = cov.numpy()
+    c = cells.numpy()
+    pieces, patch, near = [], [], []
+    for p, members in enumerate(patches.members):
+        half = float(np.median(np.linalg.norm(c[members], axis=2)))
+        tree = cKDTree(x[members])
+        for mid, t, inward, length in _patch_boundary(x[members], cv[members], patches.normal[p], patches.point[p],
+                                                      half):
+            pieces.append((mid, t, inward, length, half))
+            patch.append(p)
+            near.append(members[tree.query(mid + 0.5 * half * inward)[1]])
+    if not pieces:
+        return _empty_edges()
+    mid = np.array([q[0] for q in pieces])
+    tangent = np.array([q[1] for q in pieces])
+    face = np.array([q[2] for q in pieces])
+    length = np.array([q[3] for q in pieces])
+    half = np.array([q[4] for q in pieces])
+    patch, s_id = np.asarray(patch), np.asarray(near)
+    # wedges: an outer edge lying on another patch's outer edge (a fold, a box's edge, a sheet's two faces)
+    keep = np.ones(len(mid), bool)
+    face_b, gauss_b = face.copy(), s_id.copy()
+    _, cand = cKDTree(mid).query(mid, k=min(8, len(mid)), distance_upper_bound=float(length.max() + half.max()))
+    cand = cand.reshape(len(mid), -1)
+    for i in range(len(mid)):
+        best, best_d = -1, np.inf
+        for j in cand[i]:
+            if j >= len(mid) or j == i or patch[j] == patch[i]:
+                continue
+            if abs(tangent[i] @ tangent[j]) < WEDGE_T_COS:
+                continue
+            off = mid[j] - mid[i]
+            along = off @ tangent[i]
+            across = np.linalg.norm(off - along * tangent[i])
+            if across > 0.5 * max(half[i], half[j]) or abs(along) > 0.5 * (length[i] + length[j]):
+                continue
+            dist = np.linalg.norm(off)
+            if dist < best_d:
+                best, best_d = j, dist
+        if best < 0:
+            continue
+        if patch[i] > patch[best]:
+            keep[i] = False            # the wedge is kept on the other patch's edge
+        else:
+            face_b[i], gauss_b[i] = face[best], s_id[best]
+    t = lambda a: torch.as_tensor(np.ascontiguousarray(a[keep]))  # noqa: E731
+    return Edges(t(mid), t(tangent), t(length), t(face), t(face_b), t(s_id).long(), t(gauss_b).long())
+
+
+def _gtd_minus_po(phi: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    s = torch.sin(math.pi / n)
+    cn = torch.cos(math.pi / n)
+    t1 = 1.0 / (cn - 1.0)
+    t2 = 1.0 / (cn - torch.cos(2.0 * phi / n))
+    a_s = (2.0 * s / n) * (t1 - t2)
+    a_h = -(2.0 * s / n) * (t1 + t2)
+    po = torch.where(phi < math.pi, torch.tan(phi), torch.zeros_like(phi)) \
+        + torch.where(n * math.pi - phi < math.pi, torch.tan(n * math.pi - phi), torch.zeros_like(phi))
+    return a_s - po, a_h - po
+
+
+def wedge_fringe(phi: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(f_s, f_h) [...]: the monostatic fringe coefficients of a perfectly conducting wedge of exterior
+    angle n pi (1 < n <= 2) at angle phi from face 0 (0 <= phi <= n pi), in the units of the module
+    docstring (GTD backscatter minus the PO edge terms of the lit faces; finite everywhere).
+    Near a face's normal (phi = pi / 2 or n pi - pi / 2) both are singular: averaged at +-SINGULAR_RAD."""
+    phi, n = torch.broadcast_tensors(phi.double(), torch.as_tensor(n, dtype=torch.float64))
+    near = ((phi - math.pi / 2).abs() < SINGULAR_RAD) | ((n * math.pi - math.pi / 2 - phi).abs() < SINGULAR_RAD)
+    lo_s, lo_h = _gtd_minus_po(torch.where(near, phi - SINGULAR_RAD, phi), n)
+    hi_s, hi_h = _gtd_minus_po(torch.where(near, phi + SINGULAR_RAD, phi), n)
+    f_s = torch.where(near, 0.5 * (lo_s + hi_s), lo_s)
+    f_h = torch.where(near, 0.5 * (lo_h + hi_h), lo_h)
+    flat = n < 1.0 + 1e-9                       # no edge (a plane continues)
+    return torch.where(flat, 0.0, f_s), torch.where(flat, 0.0, f_h)
+
+
+@dataclass
+class EdgeTerms:
+    """Edge items (link, edge segment): link [I]; gauss_a, gauss_b [I] (the materials of the two faces);
+    coef [I, K] complex: the edge's field without rho_e (module docstring); freq_hz [K]."""
+
+    num_links: int
+    link: torch.Tensor
+    gauss_a: torch.Tensor
+    gauss_b: torch.Tensor
+    coef: torch.Tensor
+    freq_hz: torch.Tensor
+
+    @property
+    def num(self) -> int:
+        return int(self.link.numel())
+
+    def select_links(self, rows) -> "EdgeTerms":
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
+        new_id[rows] = torch.arange(rows.numel())
+        keep = new_id[self.link] >= 0
+        return EdgeTerms(int(rows.numel()), new_id[self.link][keep], self.gauss_a[keep], self.gauss_b[keep],
+                         self.coef[keep], self.freq_hz)
+
+    def at_columns(self, a: int, b: int) -> "EdgeTerms":
+        """The same items at frequencies a..b-1."""
+        return EdgeTerms(self.num_links, self.link, self.gauss_a, self.gauss_b, self.coef[:, a:b], self.freq_hz[a:b])
+
+
+def _polarisation(s: torch.Tensor, pol: str) -> torch.Tensor:
+    """Unit polarisation vectors [..., 3] across the rays s [..., 3] (V: the part of +z; H: z x s)."""
+    z = torch.zeros_like(s)
+    z[..., 2] = 1.0
+    p = z - (z * s).sum(-1, keepdim=True) * s if pol == "V" else torch.linalg.cross(z, s, dim=-1)
+    return p / p.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+
+
+def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern, lit,
+               polarisation: str = "V", colocated_tol_m: float = 0.01, link_chunk: int = 64) -> EdgeTerms:
+    """Edge items of every co-located link (module docstring). lit(link [Q], gauss [Q]) -> V [Q]: whether
+    a surfel is lit from the link's radar (1 or 0; traced whatever the surfel's orientation, so that an
+    edge seen edge-on keeps its echo)."""
+    freq = links.freq_hz.double()
+    k0 = 2 * math.pi * freq / C0                                          # [K]
+    parts = []
+    colocated = (links.tx_m - links.rx_m).norm(dim=-1) < colocated_tol_m
+    if edges.num and bool(colocated.any()):
+        e1 = edges.face_a
+        e2 = torch.linalg.cross(edges.tangent, e1, dim=-1)
+        psi_b = torch.remainder(torch.atan2((edges.face_b * e2).sum(-1), (edges.face_b * e1).sum(-1)), 2 * math.pi)
+        psi_b = torch.where(psi_b > 2 * math.pi - 1e-9, torch.zeros_like(psi_b), psi_b)
+        from_b = psi_b <= math.pi                      # face 0 is B, the exterior runs from B to A the long way
+        n_ext = torch.where(from_b, 2.0 - psi_b / math.pi, psi_b / math.pi)
+        n_ext = torch.where(n_ext < 1e-9, torch.full_like(n_ext, 2.0), n_ext)   # psi_b = 2 pi: a half-plane
+        idx = torch.nonzero(colocated).flatten()
+        for a in range(0, idx.numel(), link_chunk):
+            lk = idx[a:a + link_chunk]
+            radar = 0.5 * (links.tx_m[lk] + links.rx_m[lk])
+            vec = radar[:, None] - edges.mid[None]                        # [m, E, 3]
+            d = vec.norm(dim=-1)
+            s = vec / d[..., None]
+            st = (s * edges.tangent[None]).sum(-1)
+            sp = s - st[..., None] * edges.tangent[None]
+            sin_b = sp.norm(dim=-1)
+            psi = torch.remainder(torch.atan2((sp * e2[None]).sum(-1), (sp * e1[None]).sum(-1)), 2 * math.pi)
+            phi = torch.where(from_b[None], torch.remainder(psi - psi_b[None], 2 * math.pi), psi)
+            outside = phi <= n_ext[None] * math.pi
+            f_s, f_h = wedge_fringe(phi.clamp(max=2 * math.pi), n_ext[None].expand_as(phi))
+            p = _polarisation(s, polarisation)
+            t_perp = (edges.tangent[None] - st[..., None] * s) / sin_b.clamp(min=1e-12)[..., None]
+            w_s = ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
+            amp = w_s * f_s + (1.0 - w_s) * f_h
+            keep = outside & (sin_b > 1e-6) & (amp.abs() > 0)
+            m_i, e_i = keep.nonzero(as_tuple=True)
+            vis = torch.maximum(lit(lk[m_i], edges.gauss_a[e_i]), lit(lk[m_i], edges.gauss_b[e_i]))
+            m_i, e_i, vis = m_i[vis > 0], e_i[vis > 0], vis[vis > 0]
+            if m_i.numel() == 0:
+                continue
+            g_t = tx_ant.gain(-s[m_i, e_i], links.tx_axis[lk][m_i])
+            g_r = rx_ant.gain(-s[m_i, e_i], links.rx_axis[lk][m_i])
+            dd, ln = d[m_i, e_i], edges.length[e_i]
+            base = torch.sqrt(g_t * g_r) * vis * amp[m_i, e_i] * ln / (8 * math.pi * dd**2)   # [I]
+            along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)          # [I, K]
+            coef = (base[:, None] / k0[None]) * along * torch.exp(-2j * dd[:, None] * k0[None])
+            parts.append((lk[m_i], edges.gauss_a[e_i], edges.gauss_b[e_i], coef))
+    if not parts:
+        z = torch.zeros(0, dtype=torch.int64)
+        return EdgeTerms(links.num, z, z, z, torch.zeros((0, int(freq.numel())), dtype=torch.complex128), freq)
+    return EdgeTerms(links.num, torch.cat([q[0] for q in parts]), torch.cat([q[1] for q in parts]),
+                     torch.cat([q[2] for q in parts]), torch.cat([q[3] for q in parts]), freq)
+
+
+def edge_reflection(mats, freq_hz: torch.Tensor) -> torch.Tensor:
+    """rho [N, K] of each material: -R_TE at normal incidence times sqrt(1 - S^2) (1 for a perfect conductor)."""
+    spec = torch.sqrt(1.0 - mats.scattering**2)[:, None]
+    return -mats.normal_reflection(freq_hz) * spec
+
+
+def edge_field(terms: EdgeTerms, material_of_gaussian: torch.Tensor, mats) -> torch.Tensor:
+    """Edge field [M, K] complex of the items, for materials `mats` (physical.MaterialValues)."""
+    rho = edge_reflection(mats, terms.freq_hz)
+    r = 0.5 * (rho[material_of_gaussian[terms.gauss_a]] + rho[material_of_gaussian[terms.gauss_b]])
+    out = torch.zeros((terms.num_links, terms.freq_hz.numel()), dtype=torch.complex128)
+    return out.index_add(0, terms.link, terms.coef * r)
+
+
+def aggregate_edges(terms: EdgeTerms, material_of_gaussian: torch.Tensor, num_materials: int) -> torch.Tensor:
+    """[M, N, K] complex: the items' coefficients summed per (link, material), half to each face's material,
+    so that the edge field is sum_n agg[:, n] rho[n] (edge_reflection)."""
+    m, k = terms.num_links, int(terms.freq_hz.numel())
+    out = torch.zeros((m * num_materials, k), dtype=torch.complex128)
+    for g in (terms.gauss_a, terms.gauss_b):
+        out.index_add_(0, terms.link * num_materials + material_of_gaussian[g], 0.5 * terms.coef)
+    return out.reshape(m, num_materials, k)
