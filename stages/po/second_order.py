@@ -1,9 +1,11 @@
 """Second-order (double-bounce) term of the PO solver: GO on the first bounce, PO on the second.
 
 Approximation (shooting-and-bouncing rays, exit-aperture PO, truncated at two bounces):
-1. The incident wave is cut into square ray tubes of side `spacing_m` (default lambda_min / 4)
-   on a plane across the object (far field: parallel rays; near field: rays from the Tx point,
-   tubes widening with the path length).
+1. The incident wave is cut into square ray tubes of side `spacing_m` (default `auto_tube_spacing`:
+   lambda_min / 20, wider for objects too large for that) on a plane across the object (far field:
+   parallel rays; near field: rays from the Tx point, tubes widening with the path length). A tube
+   whose footprint on either facet it meets is longer than the side (a grazing bounce) is cut into
+   sub-tubes, each traced again.
 2. Each tube's central ray is traced (Open3D) to its first hit on facet A, where the wave is
    reflected as geometric optics: mirror direction, the field's TE/TM parts times A's Fresnel
    coefficients (or the scalar -Gamma rule), tube mirrored.
@@ -13,8 +15,8 @@ Approximation (shooting-and-bouncing rays, exit-aperture PO, truncated at two bo
    `area * sinc(k w.a/2) * sinc(k w.b/2)` (w = s_hat - reflected direction), if the Rx sees B's
    hit point (ray cast) from the lit side.
 Not included: the first-bounce PO edge effects of partly hit tubes (a tube is in or out by its
-central ray), third and higher bounces, diffraction (no edge-wave / PTD terms), creeping waves,
-the GO blockage of the B -> Rx leg by the tube's own width. The first-order PO of every facet is
+central ray; errors of order side / facet size), third and higher bounces, diffraction (no
+edge-wave / PTD terms), creeping waves, the GO blockage of the B -> Rx leg by the tube's own width. The first-order PO of every facet is
 computed separately and added; the second-order sum only adds the A -> B -> Rx paths.
 Near field: the reflected wave spreads from the image source (amplitude R_t / (t1 + t2)),
 exact for flat A.
@@ -27,6 +29,19 @@ from .geometry import normalize, polarization_vector, sinc_u
 from .solver import _dot, _sum_into, po_coefficients, reflect_field_basis
 
 _PEC_GAMMA = (-1.0, 1.0)
+REFINE_MAX = 32     # a tube side is cut into at most this many parts where its footprint is long (grazing bounces)
+TUBES_PER_WAVELENGTH = 20   # default tube side lambda_min / 20: converged within ~0.3 dB MAE on the lego (docs/po.md)
+MAX_TUBES = 1 << 17         # ... unless the object's grid of tubes would exceed this many per aspect
+
+
+def auto_tube_spacing(verts: np.ndarray, ks) -> float:
+    """The default tube side, m: lambda_min / TUBES_PER_WAVELENGTH, widened for large objects so that
+    a square grid over the object's extent (twice its bounding-sphere radius) holds at most MAX_TUBES
+    tubes. Where a tube's footprint is longer than this side (grazing bounces) it is split
+    (`_footprint_parts`), so the widened side costs accuracy at tube edges only."""
+    lam_min = 2.0 * np.pi / float(np.max(ks))
+    extent = 2.0 * float(np.linalg.norm(verts - verts.mean(0), axis=1).max()) if len(verts) else 0.0
+    return max(lam_min / TUBES_PER_WAVELENGTH, extent / np.sqrt(MAX_TUBES))
 
 
 def _basis(t_hat):
@@ -78,7 +93,7 @@ def double_bounce(verts, fcs, tab, refl, occ, tx, rx, ref, ks, pol_t, pol_r, *, 
     """Second-order PO amplitude (M, K), same normalisation as po_scattered_field."""
     M, K = len(tx), len(ks)
     out = np.zeros((M, K), dtype=complex)
-    spacing = float(spacing_m) if spacing_m else 0.25 * 2.0 * np.pi / float(np.max(ks))
+    spacing = float(spacing_m) if spacing_m else auto_tube_spacing(verts, ks)
     n_all = tab["n"]
     eps = 1e-5 * max(occ.size, 1e-3)
     R_t = np.linalg.norm(tx - ref, axis=1)
@@ -92,52 +107,116 @@ def double_bounce(verts, fcs, tab, refl, occ, tx, rx, ref, ks, pol_t, pol_r, *, 
             nb += len(rays[0])
         if batch and (nb >= max_rays or m == M - 1):
             _trace_batch(out, batch, n_all, tab["c"], fcs, refl, occ, tx, rx, ref, R_t, R_r, ks, pol_t, pol_r,
-                         near_field, two_sided, eps, chunk_elements, amplitude_weight)
+                         near_field, two_sided, eps, chunk_elements, spacing, amplitude_weight)
             batch, nb = [], 0
     return out
 
 
-def _trace_batch(out, batch, n_all, centres, fcs, refl, occ, tx, rx, ref, R_t, R_r, ks, pol_t, pol_r, near_field,
-                 two_sided, eps, chunk_elements, amplitude_weight=None):
-    mg = np.concatenate([np.full(len(r[0]), m) for m, r in batch])
-    o = np.concatenate([r[0] for _, r in batch])
-    d = np.concatenate([r[1] for _, r in batch])
-    su = np.concatenate([r[2] for _, r in batch])
-    sv = np.concatenate([r[3] for _, r in batch])
-    rho = np.concatenate([r[4] for _, r in batch])
-    # first bounce (GO). Near field: start the cast just in front of the object (float32 inside
-    # Open3D), then recompute every hit point in float64 on the hit facet's plane.
-    t0 = np.zeros(len(o))
-    if near_field:
-        t0 = np.maximum(0.0, _dot(ref - o, d) - occ.size - 1.0)
-    t1, fa = occ.first_hit(o + t0[:, None] * d, d)
-    ok = fa >= 0
+def _first_hit(occ, o, d, ref, near_field):
+    """(t [N], facet [N], -1: none) of rays o + t d. Near field: the cast starts just in front of the
+    object (float32 inside Open3D); callers recompute hit points in float64 on the facet's plane."""
+    t0 = np.maximum(0.0, _dot(ref - o, d) - occ.size - 1.0) if near_field else np.zeros(len(o))
+    t, f = occ.first_hit(o + t0[:, None] * d, d)
+    return t + t0 if near_field else t, f
+
+
+def _two_bounces(occ, rays, n_all, centres, ref, near_field, two_sided, eps) -> dict:
+    """Trace rays (a dict of [N] / [N, 3] arrays: mg, o, d, su, sv, rho) to their first facet A, reflect
+    them (GO) and trace them to B; keep those that reach B and add t1, fa, nA (facing the ray), pA,
+    d2, t2, fb, nB, pB (hit points in float64 on the facets' planes)."""
+    o, d = rays["o"], rays["d"]
+    _, fa = _first_hit(occ, o, d, ref, near_field)
     nA = n_all[np.maximum(fa, 0)]
     cosA = _dot(nA, d)
-    ok &= np.abs(cosA) > 1e-9
+    ok = (fa >= 0) & (np.abs(cosA) > 1e-9)
     if not two_sided:
         ok &= cosA < 0
     sel = np.nonzero(ok)[0]
-    mg, o, d, su, sv, rho, t1, fa = mg[sel], o[sel], d[sel], su[sel], sv[sel], rho[sel], t1[sel], fa[sel]
+    r = {k: v[sel] for k, v in rays.items()}
+    fa = fa[sel]
     nA = nA[sel] * -np.sign(cosA[sel])[:, None]  # facing the incoming ray
-    t1 = _dot(centres[fa] - o, nA) / _dot(d, nA)  # exact plane hit (float64)
-    pA = o + t1[:, None] * d
-    d2 = d - 2.0 * _dot(d, nA)[:, None] * nA
-    # second hit
+    t1 = _dot(centres[fa] - r["o"], nA) / _dot(r["d"], nA)  # exact plane hit (float64)
+    pA = r["o"] + t1[:, None] * r["d"]
+    d2 = r["d"] - 2.0 * _dot(r["d"], nA)[:, None] * nA
     t2, fb = occ.first_hit(pA + eps * nA, d2)
-    ok = fb >= 0
     nB = n_all[np.maximum(fb, 0)]
     cosB = _dot(nB, d2)
-    ok &= np.abs(cosB) > 1e-6
+    ok = (fb >= 0) & (np.abs(cosB) > 1e-6)
     if not two_sided:
         ok &= cosB < 0
     sel = np.nonzero(ok)[0]
-    if len(sel) == 0:
+    r = {k: v[sel] for k, v in r.items()}
+    r.update(t1=t1[sel], fa=fa[sel], nA=nA[sel], pA=pA[sel], d2=d2[sel], fb=fb[sel])
+    r["nB"] = nB[sel] * -np.sign(cosB[sel])[:, None]
+    r["t2"] = _dot(centres[r["fb"]] - r["pA"], r["nB"]) / _dot(r["d2"], r["nB"])
+    r["pB"] = r["pA"] + r["t2"][:, None] * r["d2"]
+    return r
+
+
+def _footprint_parts(r: dict, near_field: bool, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Parts [N] (int, >= 1) to cut each side of the tubes of `r` (see _two_bounces) into, so that no
+    sub-tube's footprint on A or on B is longer than `spacing`.
+
+    A tube is in or out by its central ray, so a tube meeting a facet at grazing incidence stands for
+    a strip spacing / cos(theta) long on it: a 1.3 cm tube seen at 2 degrees covers 37 cm, a whole
+    brick top and the side of the next brick, and returns the area of the facet it happens to hit.
+    A side x of the tube (perpendicular to the ray) lands on A's plane as
+    |x_A| = sqrt(|x|^2 + ((x . n_A) / cos theta_A)^2), and on B as the footprint the sum uses
+    (x mirrored at A, projected along the reflected ray onto B)."""
+    grow_a = (r["t1"] / r["rho"])[:, None] if near_field else 1.0          # near field: tubes widen with the path
+    grow_b = ((r["t1"] + r["t2"]) / r["rho"])[:, None] if near_field else 1.0
+    cos_a = np.abs(_dot(r["nA"], r["d"])).clip(1e-3, 1.0)
+    out = []
+    for side in (r["su"], r["sv"]):
+        x = side * grow_a
+        on_a = np.sqrt(_dot(x, x) + (_dot(x, r["nA"]) / cos_a) ** 2)
+        m = side * grow_b
+        m = m - 2.0 * _dot(m, r["nA"])[:, None] * r["nA"]
+        m = m - (_dot(m, r["nB"]) / _dot(r["d2"], r["nB"]))[:, None] * r["d2"]
+        on_b = np.sqrt(_dot(m, m))
+        out.append(np.clip(np.ceil(np.maximum(on_a, on_b) / spacing - 1e-9), 1, REFINE_MAX).astype(int))
+    return out[0], out[1]
+
+
+def _sub_tubes(r: dict, n_u: np.ndarray, n_v: np.ndarray, near_field: bool) -> dict:
+    """Rays of the n_u x n_v sub-tubes of each tube of `r` (sides su / n_u, sv / n_v)."""
+    counts = n_u * n_v
+    tube = np.repeat(np.arange(len(counts)), counts)
+    k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)   # sub-tube index in its tube
+    nu_t, nv_t = n_u[tube], n_v[tube]
+    a = ((k // nv_t) + 0.5) / nu_t - 0.5
+    b = ((k % nv_t) + 0.5) / nv_t - 0.5
+    su, sv, o, d, rho = (r[key][tube] for key in ("su", "sv", "o", "d", "rho"))
+    off = a[:, None] * su + b[:, None] * sv
+    sub = {"mg": r["mg"][tube], "su": su / nu_t[:, None], "sv": sv / nv_t[:, None]}
+    if near_field:                                              # rays from the Tx through the sub-cells' centres
+        ray = rho[:, None] * d + off
+        sub_rho = np.linalg.norm(ray, axis=1)
+        sub.update(o=o, d=ray / sub_rho[:, None], rho=sub_rho)
+    else:                                                       # parallel rays
+        sub.update(o=o + off, d=d, rho=rho)
+    return sub
+
+
+def _trace_batch(out, batch, n_all, centres, fcs, refl, occ, tx, rx, ref, R_t, R_r, ks, pol_t, pol_r, near_field,
+                 two_sided, eps, chunk_elements, spacing, amplitude_weight=None):
+    rays = {"mg": np.concatenate([np.full(len(r[0]), m) for m, r in batch])}
+    for i, key in enumerate(("o", "d", "su", "sv", "rho")):
+        rays[key] = np.concatenate([r[i] for _, r in batch])
+    r = _two_bounces(occ, rays, n_all, centres, ref, near_field, two_sided, eps)
+    # tubes whose footprint on A or B is longer than the spacing (grazing bounces) are cut into
+    # sub-tubes, each traced again (one level; it may hit other facets)
+    n_u, n_v = _footprint_parts(r, near_field, spacing)
+    split = (n_u > 1) | (n_v > 1)
+    if split.any():
+        sub = _two_bounces(occ, _sub_tubes({k: v[split] for k, v in r.items()}, n_u[split], n_v[split], near_field),
+                           n_all, centres, ref, near_field, two_sided, eps)
+        order = np.argsort(np.concatenate([r["mg"][~split], sub["mg"]]), kind="stable")  # sums need rays grouped by aspect
+        r = {k: np.concatenate([r[k][~split], sub[k]])[order] for k in r}
+    if len(r["mg"]) == 0:
         return
-    mg, d, su, sv, rho, t1, fa, nA, pA, d2, t2, fb = (x[sel] for x in (mg, d, su, sv, rho, t1, fa, nA, pA, d2, t2, fb))
-    nB = nB[sel] * -np.sign(cosB[sel])[:, None]
-    t2 = _dot(centres[fb] - pA, nB) / _dot(d2, nB)
-    pB = pA + t2[:, None] * d2
+    mg, d, su, sv, rho, t1, fa, nA, pA, d2, t2, fb, nB, pB = (
+        r[k] for k in ("mg", "d", "su", "sv", "rho", "t1", "fa", "nA", "pA", "d2", "t2", "fb", "nB", "pB"))
     # toward the receiver
     if near_field:
         vr = rx[mg] - pB
