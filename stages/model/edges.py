@@ -108,13 +108,32 @@ def _coverage_2d(pts: np.ndarray, cov2: np.ndarray, x2: np.ndarray, reach: float
     from scipy.spatial import cKDTree
 
     inv = np.linalg.inv(cov2)
-    out = np.zeros(len(x2))
-    tree = cKDTree(x2)
-    for m, near in enumerate(tree.query_ball_point(pts, reach)):
-        if near:
-            d = x2[near] - pts[m]
-            out[near] += np.exp(-0.5 * np.einsum("qa,ab,qb->q", d, inv[m], d))
-    return out
+    near = cKDTree(pts).query_ball_point(x2, reach)
+    counts = np.fromiter((len(n) for n in near), dtype=np.int64, count=len(near))
+    if not counts.sum():
+        return np.zeros(len(x2))
+    member = np.concatenate([np.asarray(n, dtype=np.int64) for n in near if n])
+    point = np.repeat(np.arange(len(x2)), counts)
+    d = x2[point] - pts[member]
+    val = np.exp(-0.5 * np.einsum("qa,qab,qb->q", d, inv[member], d))
+    return np.bincount(point, weights=val, minlength=len(x2))
+
+
+def _coverage_grid(pts: np.ndarray, cov2: np.ndarray, gx: np.ndarray, gy: np.ndarray, reach: float) -> np.ndarray:
+    """C on the regular grid gx x gy [len(gy), len(gx)] (as _coverage_2d): each member adds its Gaussian
+    to the grid points of a square window of half-width `reach` around its mean."""
+    inv = np.linalg.inv(cov2)
+    step = gx[1] - gx[0] if len(gx) > 1 else 1.0
+    w = int(math.ceil(reach / step))
+    off = np.arange(-w, w + 1)
+    ix = np.rint((pts[:, 0] - gx[0]) / step).astype(np.int64)[:, None, None] + off[None, None, :]
+    iy = np.rint((pts[:, 1] - gy[0]) / step).astype(np.int64)[:, None, None] + off[None, :, None]
+    ix, iy = np.broadcast_arrays(ix, iy)                                   # [G, 2w+1, 2w+1]
+    ok = (ix >= 0) & (ix < len(gx)) & (iy >= 0) & (iy < len(gy))
+    d = np.stack([gx[ix.clip(0, len(gx) - 1)], gy[iy.clip(0, len(gy) - 1)]], -1) - pts[:, None, None, :]
+    val = np.exp(-0.5 * np.einsum("gija,gab,gijb->gij", d, inv, d)) * ok
+    flat = (iy.clip(0, len(gy) - 1) * len(gx) + ix.clip(0, len(gx) - 1)).ravel()
+    return np.bincount(flat, weights=val.ravel(), minlength=len(gx) * len(gy)).reshape(len(gy), len(gx))
 
 
 def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: np.ndarray, half: float
@@ -131,18 +150,16 @@ def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: n
     basis = np.stack([e1, e2], 1)                                          # [3, 2]
     pts = (x - point) @ basis
     cov2 = np.einsum("ia,gij,jb->gab", basis, cov, basis) + np.eye(2) * (1e-3 * half) ** 2
-    reach = 4.0 * float(np.sqrt(np.linalg.eigvalsh(cov2)[:, -1].max()))
-    step = 0.25 * half
+    reach = 3.0 * float(np.sqrt(np.linalg.eigvalsh(cov2)[:, -1].max()))
+    step = 0.4 * half
     lo, hi = pts.min(0) - 2 * reach, pts.max(0) + 2 * reach
     gx = np.arange(lo[0], hi[0] + step, step)
     gy = np.arange(lo[1], hi[1] + step, step)
-    xx, yy = np.meshgrid(gx, gy)
-    grid = np.stack([xx.ravel(), yy.ravel()], 1)
-    c = _coverage_2d(pts, cov2, grid, reach).reshape(xx.shape)
+    c = _coverage_grid(pts, cov2, gx, gy, reach)
     inner = c[c > 0.5 * c.max()]
     level = 0.5 * float(inner.mean())
     lines = contourpy.contour_generator(gx, gy, c).lines(level)
-    out = []
+    mids, tans, lens = [], [], []
     for line in lines:
         line = np.asarray(line)
         if len(line) < 3:
@@ -154,15 +171,16 @@ def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: n
             if length <= 1e-9:
                 continue
             pieces = max(1, int(math.ceil(length / (2.0 * half))))
-            t2 = seg / length
-            nrm2 = np.array([-t2[1], t2[0]])
-            for i in range(pieces):
-                m2 = a + seg * (i + 0.5) / pieces
-                probe = np.stack([m2 + 0.5 * half * nrm2, m2 - 0.5 * half * nrm2])
-                cp = _coverage_2d(pts, cov2, probe, reach)
-                in2 = nrm2 if cp[0] >= cp[1] else -nrm2
-                out.append((point + basis @ m2, basis @ t2, basis @ in2, length / pieces))
-    return out
+            mids += [a + seg * (i + 0.5) / pieces for i in range(pieces)]
+            tans += [seg / length] * pieces
+            lens += [length / pieces] * pieces
+    if not mids:
+        return []
+    m2, t2 = np.array(mids), np.array(tans)
+    n2 = np.stack([-t2[:, 1], t2[:, 0]], 1)
+    probe = _coverage_2d(pts, cov2, np.concatenate([m2 + 0.5 * half * n2, m2 - 0.5 * half * n2]), reach)
+    inward = np.where((probe[:len(m2)] >= probe[len(m2):])[:, None], n2, -n2)    # toward the covered side
+    return [(point + basis @ m, basis @ t, basis @ i, ln) for m, t, i, ln in zip(m2, t2, inward, lens)]
 
 
 def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, patches) -> Edges:
@@ -191,31 +209,23 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     half = np.array([q[4] for q in pieces])
     patch, s_id = np.asarray(patch), np.asarray(near)
     # wedges: an outer edge lying on another patch's outer edge (a fold, a box's edge, a sheet's two faces)
-    keep = np.ones(len(mid), bool)
     face_b, gauss_b = face.copy(), s_id.copy()
     _, cand = cKDTree(mid).query(mid, k=min(8, len(mid)), distance_upper_bound=float(length.max() + half.max()))
     cand = cand.reshape(len(mid), -1)
-    for i in range(len(mid)):
-        best, best_d = -1, np.inf
-        for j in cand[i]:
-            if j >= len(mid) or j == i or patch[j] == patch[i]:
-                continue
-            if abs(tangent[i] @ tangent[j]) < WEDGE_T_COS:
-                continue
-            off = mid[j] - mid[i]
-            along = off @ tangent[i]
-            across = np.linalg.norm(off - along * tangent[i])
-            if across > 0.5 * max(half[i], half[j]) or abs(along) > 0.5 * (length[i] + length[j]):
-                continue
-            dist = np.linalg.norm(off)
-            if dist < best_d:
-                best, best_d = j, dist
-        if best < 0:
-            continue
-        if patch[i] > patch[best]:
-            keep[i] = False            # the wedge is kept on the other patch's edge
-        else:
-            face_b[i], gauss_b[i] = face[best], s_id[best]
+    valid = cand < len(mid)
+    j = np.where(valid, cand, 0)
+    off = mid[j] - mid[:, None]                                            # [E, C, 3]
+    along = np.einsum("ecj,ej->ec", off, tangent)
+    across = np.linalg.norm(off - along[..., None] * tangent[:, None], axis=-1)
+    ok = valid & (patch[j] != patch[:, None]) & (np.abs(np.einsum("ej,ecj->ec", tangent, tangent[j])) >= WEDGE_T_COS)
+    ok &= across <= 0.5 * np.maximum(half[:, None], half[j])
+    ok &= np.abs(along) <= 0.5 * (length[:, None] + length[j])
+    dist = np.where(ok, np.linalg.norm(off, axis=-1), np.inf)
+    has = ok.any(1)
+    best = j[np.arange(len(mid)), dist.argmin(1)]
+    keep = ~(has & (patch > patch[best]))          # a wedge is kept on the lower-numbered patch's edge
+    pair = has & (patch < patch[best])
+    face_b[pair], gauss_b[pair] = face[best[pair]], s_id[best[pair]]
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a[keep]))  # noqa: E731
     return Edges(t(mid), t(tangent), t(length), t(face), t(face_b), t(s_id).long(), t(gauss_b).long())
 
@@ -313,22 +323,25 @@ def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: Ant
             sin_b = sp.norm(dim=-1)
             psi = torch.remainder(torch.atan2((sp * e2[None]).sum(-1), (sp * e1[None]).sum(-1)), 2 * math.pi)
             phi = torch.where(from_b[None], torch.remainder(psi - psi_b[None], 2 * math.pi), psi)
-            outside = phi <= n_ext[None] * math.pi
-            f_s, f_h = wedge_fringe(phi.clamp(max=2 * math.pi), n_ext[None].expand_as(phi))
-            p = _polarisation(s, polarisation)
-            t_perp = (edges.tangent[None] - st[..., None] * s) / sin_b.clamp(min=1e-12)[..., None]
-            w_s = ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
-            amp = w_s * f_s + (1.0 - w_s) * f_h
-            keep = outside & (sin_b > 1e-6) & (amp.abs() > 0)
-            m_i, e_i = keep.nonzero(as_tuple=True)
-            vis = torch.maximum(lit(lk[m_i], edges.gauss_a[e_i]), lit(lk[m_i], edges.gauss_b[e_i]))
+            m_i, e_i = ((phi <= n_ext[None] * math.pi) & (sin_b > 1e-6)).nonzero(as_tuple=True)   # outside the wedge
+            ga, gb = edges.gauss_a[e_i], edges.gauss_b[e_i]
+            vis = lit(lk[m_i], ga)
+            other = (gb != ga) & (vis <= 0)            # a wedge: lit when either face is
+            if bool(other.any()):
+                vis[other] = lit(lk[m_i[other]], gb[other])
             m_i, e_i, vis = m_i[vis > 0], e_i[vis > 0], vis[vis > 0]
             if m_i.numel() == 0:
                 continue
-            g_t = tx_ant.gain(-s[m_i, e_i], links.tx_axis[lk][m_i])
-            g_r = rx_ant.gain(-s[m_i, e_i], links.rx_axis[lk][m_i])
+            f_s, f_h = wedge_fringe(phi[m_i, e_i].clamp(max=2 * math.pi), n_ext[e_i])
+            sv = s[m_i, e_i]
+            p = _polarisation(sv, polarisation)
+            t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sin_b[m_i, e_i].clamp(min=1e-12)[:, None]
+            w_s = ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
+            amp = w_s * f_s + (1.0 - w_s) * f_h                                # [I]
+            g_t = tx_ant.gain(-sv, links.tx_axis[lk][m_i])
+            g_r = rx_ant.gain(-sv, links.rx_axis[lk][m_i])
             dd, ln = d[m_i, e_i], edges.length[e_i]
-            base = torch.sqrt(g_t * g_r) * vis * amp[m_i, e_i] * ln / (8 * math.pi * dd**2)   # [I]
+            base = torch.sqrt(g_t * g_r) * vis * amp * ln / (8 * math.pi * dd**2)   # [I]
             along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)          # [I, K]
             coef = (base[:, None] / k0[None]) * along * torch.exp(-2j * dd[:, None] * k0[None])
             parts.append((lk[m_i], edges.gauss_a[e_i], edges.gauss_b[e_i], coef))
