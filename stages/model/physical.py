@@ -20,7 +20,9 @@ Received complex amplitude and power for a batch of links (P_T = 1 W, path gain 
   `lit_threshold`, as physical optics lights a facet (surfaces are opaque; docs/physics.md section
   8.6); one factor when the antennas are co-located, which is the monostatic radar (the two legs
   share one path);
-- g: a system gain (1 unless fitted: the level is physical).
+- g: a system gain (1 unless fitted: the level is physical);
+- with settings.edge_waves, the fringe field of the planar patches' outer edges is added to S_spec
+  (edges.py, docs/physics.md section 8.13), as the double bounces are (second_order.py).
 The phase of each term is fixed by geometry and the material: no free phase per Gaussian.
 
 Everything that depends on geometry alone is computed once (`build_pairs`); `PhysicalModel.power`
