@@ -58,6 +58,9 @@ def predict_physical_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto"
     patches = planar_patches(geom, model.areas_m2, None if labels is None else torch.as_tensor(np.asarray(labels)),
                              model.settings.min_patch_area_m2) \
         if model.settings.second_order or model.settings.edge_waves else None
+    if model.settings.edge_waves:
+        progress.log("predict: with the edge waves of the planar patches' outer edges (chosen at rf-fit; "
+                     "docs/physics.md section 8.13)")
     res = model.residual
     surfel = res.params["surfel"] if res.form == "gaussian" else None
     gain = 10 ** (model.gain_db / 10)
