@@ -34,7 +34,7 @@ half its value at the border of a tiling; surfels.py), simplified to straight pi
 segments no longer than a surfel. An outer edge of one patch that lies on an outer edge of another
 (a fold, a box's edge, the two faces of a thin sheet) is one wedge, kept once, with the two faces'
 directions; the exterior angle follows from them (n = 2: a half-plane; n -> 1: a flat continuation,
-no fringe; a faceted curved surface gets small ones).
+no fringe).
 
 Built for co-located antennas (monostatic radar), as the double bounce; links with separate antennas
 get no edge term.
@@ -137,8 +137,8 @@ def _coverage_grid(pts: np.ndarray, cov2: np.ndarray, gx: np.ndarray, gy: np.nda
 
 
 def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: np.ndarray, half: float
-                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Straight boundary pieces of one patch: (mid [3], tangent [3], inward [3]) and lengths, from the level
+                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+    """Straight boundary pieces of one patch: (mid [3] m, tangent [3], inward [3], length m), from the level
     line at half the interior coverage of the members (means x [G, 3], covariances cov [G, 3, 3]); half: the
     members' median half-side (m)."""
     import contourpy
@@ -231,6 +231,7 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
 
 
 def _gtd_minus_po(phi: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(f_s, f_h) of wedge_fringe without its treatment of the singular angles."""
     s = torch.sin(math.pi / n)
     cn = torch.cos(math.pi / n)
     t1 = 1.0 / (cn - 1.0)
