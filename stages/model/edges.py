@@ -28,6 +28,14 @@ is added as equivalent edge currents along each edge, integrated with the monost
   approximation: the fringe coefficients of dielectric wedges are not those of a perfect conductor);
 - V_e: lit when a surfel of either face next to the edge is lit from the radar (physical.py's V).
 
+Doubly diffracted waves (`strip_double_diffraction`, `_double_terms`): for E across a sheet's edges (the
+hard case) the field diffracted at one edge runs across the face, grazing, and is diffracted again at the
+facing parallel edge (`Edges.opposite`, width w); in backscatter both paths (B -> A, A -> B) have the same
+phase. Each is added as an item of segment A with the coefficient of the strip's second-order GTD in the
+plane across the edges (wavenumber k sin beta), the hard share w_h of the polarisation, the phase of the
+path radar-B-A-radar and A's sinc; a soft field vanishes on the face (no such term). This is what sets a
+plate's level in H polarisation at wide angles.
+
 Edges of a surfel set (`patch_edges`): for each planar patch (second_order.planar_patches), the level
 line at half the patch's interior coverage C(x) (the sum of its Gaussians in its plane, which falls to
 half its value at the border of a tiling; surfels.py), simplified to straight pieces and cut into
@@ -61,7 +69,9 @@ SINGULAR_RAD = 1e-3     # near a face's normal GTD and PO are singular: the frin
 class Edges:
     """Edge segments: mid [E, 3] m, tangent [E, 3] unit, length [E] m; face_a, face_b [E, 3]: unit vectors
     across the edge, from it into each face (equal for a half-plane); gauss_a, gauss_b [E]: a surfel of each
-    face next to the edge (its material and visibility)."""
+    face next to the edge (its material and visibility); opposite [E]: for a half-plane edge, the segment of
+    the facing parallel half-plane edge of the same patch straight across it (-1: none), width [E] m the
+    distance across (the doubly diffracted wave, `_double_terms`)."""
 
     mid: torch.Tensor
     tangent: torch.Tensor
@@ -70,6 +80,8 @@ class Edges:
     face_b: torch.Tensor
     gauss_a: torch.Tensor
     gauss_b: torch.Tensor
+    opposite: torch.Tensor
+    width: torch.Tensor
 
     @property
     def num(self) -> int:
@@ -79,7 +91,8 @@ class Edges:
 def _empty_edges() -> Edges:
     z3 = torch.zeros((0, 3), dtype=torch.float64)
     zi = torch.zeros(0, dtype=torch.int64)
-    return Edges(z3, z3, torch.zeros(0, dtype=torch.float64), z3, z3, zi, zi)
+    z = torch.zeros(0, dtype=torch.float64)
+    return Edges(z3, z3, z, z3, z3, zi, zi, zi, z)
 
 
 def _simplify(line: np.ndarray, tol: float) -> np.ndarray:
@@ -227,7 +240,35 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     pair = has & (patch < patch[best])
     face_b[pair], gauss_b[pair] = face[best[pair]], s_id[best[pair]]
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a[keep]))  # noqa: E731
-    return Edges(t(mid), t(tangent), t(length), t(face), t(face_b), t(s_id).long(), t(gauss_b).long())
+    opposite, width = _opposite_edges(mid[keep], tangent[keep], face[keep], face_b[keep], length[keep], half[keep],
+                                      patch[keep])
+    return Edges(t(mid), t(tangent), t(length), t(face), t(face_b), t(s_id).long(), t(gauss_b).long(),
+                 torch.as_tensor(opposite), torch.as_tensor(width))
+
+
+def _opposite_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face_b: np.ndarray, length: np.ndarray,
+                    half: np.ndarray, patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each half-plane edge segment (a sheet's edge: both faces' directions equal), the segment of the same
+    patch straight across it on a parallel half-plane edge facing it (inward directions opposite), the nearest
+    such: (opposite [E] int64, -1 for none; width [E] m, the distance across along the inward direction)."""
+    num = len(mid)
+    opposite, width = np.full(num, -1, dtype=np.int64), np.zeros(num)
+    sheet = np.einsum("ej,ej->e", face, face_b) >= WEDGE_T_COS
+    for p in np.unique(patch):
+        idx = np.nonzero((patch == p) & sheet)[0]
+        if len(idx) < 2:
+            continue
+        off = mid[idx][None] - mid[idx][:, None]                               # [A, B, 3]: from A to B
+        across = np.einsum("abj,aj->ab", off, face[idx])
+        along = np.abs(np.einsum("abj,aj->ab", off, tangent[idx]))
+        ok = (np.abs(tangent[idx] @ tangent[idx].T) >= WEDGE_T_COS) & (face[idx] @ face[idx].T <= -WEDGE_T_COS)
+        ok &= (across > 2.0 * half[idx][:, None]) & (along <= 0.5 * (length[idx][:, None] + length[idx][None]))
+        dist = np.where(ok, across, np.inf)
+        has = ok.any(1)
+        best = dist.argmin(1)
+        opposite[idx[has]] = idx[best[has]]
+        width[idx[has]] = across[has, best[has]]
+    return opposite, width
 
 
 def _gtd_minus_po(phi: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -325,11 +366,11 @@ def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: Ant
             psi = torch.remainder(torch.atan2((sp * e2[None]).sum(-1), (sp * e1[None]).sum(-1)), 2 * math.pi)
             phi = torch.where(from_b[None], torch.remainder(psi - psi_b[None], 2 * math.pi), psi)
             m_i, e_i = ((phi <= n_ext[None] * math.pi) & (sin_b > 1e-6)).nonzero(as_tuple=True)   # outside the wedge
-            ga, gb = edges.gauss_a[e_i], edges.gauss_b[e_i]
-            vis = lit(lk[m_i], ga)
-            other = (gb != ga) & (vis <= 0)            # a wedge: lit when either face is
-            if bool(other.any()):
-                vis[other] = lit(lk[m_i[other]], gb[other])
+            vis = _edge_lit(lit, edges, lk[m_i], e_i)
+            if bool((edges.opposite >= 0).any()):
+                parts.append(_double_terms(edges, lk, radar, m_i[vis > 0], e_i[vis > 0], phi, s, d, st, sin_b, k0,
+                                           lambda q, e: _edge_lit(lit, edges, q, e), tx_ant, rx_ant, links,
+                                           polarisation))
             m_i, e_i, vis = m_i[vis > 0], e_i[vis > 0], vis[vis > 0]
             if m_i.numel() == 0:
                 continue
@@ -351,6 +392,84 @@ def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: Ant
         return EdgeTerms(links.num, z, z, z, torch.zeros((0, int(freq.numel())), dtype=torch.complex128), freq)
     return EdgeTerms(links.num, torch.cat([q[0] for q in parts]), torch.cat([q[1] for q in parts]),
                      torch.cat([q[2] for q in parts]), torch.cat([q[3] for q in parts]), freq)
+
+
+def _edge_lit(lit, edges: Edges, link: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
+    """V [Q] of edge segments e [Q] from links [Q]: lit when a surfel of either face next to it is."""
+    ga, gb = edges.gauss_a[e], edges.gauss_b[e]
+    vis = lit(link, ga)
+    other = (gb != ga) & (vis <= 0)
+    if bool(other.any()):
+        vis[other] = lit(link[other], gb[other])
+    return vis
+
+
+def utd_transition(x: np.ndarray) -> np.ndarray:
+    """The Kouyoumjian-Pathak transition function F(X) = 2 j sqrt(X) exp(j X) int_sqrt(X)^inf exp(-j t^2) dt
+    [...] complex (X >= 0; F -> 1 for X >> 1, F ~ sqrt(pi X) exp(j pi / 4) for X -> 0; exp(+j omega t))."""
+    from scipy.special import fresnel
+
+    x = np.asarray(x, dtype=np.float64)
+    s_f, c_f = fresnel(np.sqrt(2.0 * x / math.pi))
+    tail = math.sqrt(math.pi / 2) * ((0.5 - c_f) - 1j * (0.5 - s_f))
+    return 2j * np.sqrt(x) * np.exp(1j * x) * tail
+
+
+def strip_double_diffraction(phi_a: np.ndarray, phi_b: np.ndarray, kw: np.ndarray) -> np.ndarray:
+    """Backscatter coefficient [...] complex of the wave diffracted at edge B of a perfectly conducting strip
+    (E across the edges: hard), carried across its face to edge A (width w, kw = k w) and diffracted there
+    back to the radar, in the units of `wedge_fringe` and relative to the phase of the path radar-B-A-radar
+    without the crossing: K g(phi_a) g(phi_b), K = -2 exp(-j (kw + pi / 4)) / sqrt(2 pi kw) (Keller's
+    coefficient twice, the wave on the face odd across the sheet: both faces' grazing waves diffract), and
+    g(phi) = F(2 kw cos^2(phi / 2)) / cos(phi / 2), the half-plane's hard coefficient for grazing incidence
+    sec(phi / 2) made finite at the shadow boundary phi = pi by the UTD transition function (the radar in
+    the plate's plane beyond the edge). phi_a, phi_b: the radar's angle from each edge's face, 0..pi (the
+    side of the sheet the radar is on). A soft (E along the edges) field vanishes on the face: no such term."""
+    kw = np.asarray(kw, dtype=np.float64)
+
+    def g(phi):
+        c = np.maximum(np.cos(0.5 * np.asarray(phi, dtype=np.float64)), 1e-12)
+        return utd_transition(2.0 * kw * c**2) / c
+
+    return -2.0 * np.exp(-1j * (kw + math.pi / 4)) / np.sqrt(2 * math.pi * kw) * g(phi_a) * g(phi_b)
+
+
+def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, vis_of, tx_ant, rx_ant, links,
+                  polarisation):
+    """Items (link, segment A) of the doubly diffracted wave B -> A (strip_double_diffraction) for the lit items
+    (m_i, e_i) of one link chunk whose segment has an opposite B: the radar's field diffracted at B, carried
+    across the patch (width w) and diffracted at A back to the radar, radiated along A as its first-order
+    current (the sinc) with the hard share w_h of the polarisation, phase exp(-j k (d_A + d_B' + w sin beta)),
+    B' the point across from A's midpoint. In the plane across the edges (sin beta = |s x t|) the wavenumber
+    is k sin beta (Keller's cone). Returns (link [I], gauss_a [I], gauss_b [I], coef [I, K])."""
+    opp = edges.opposite[e_i]
+    sel = opp >= 0
+    m_i, e_i, opp = m_i[sel], e_i[sel], opp[sel]
+    if m_i.numel():
+        vis = vis_of(lk[m_i], opp)
+        m_i, e_i, opp = m_i[vis > 0], e_i[vis > 0], opp[vis > 0]
+    if m_i.numel() == 0:
+        z = torch.zeros(0, dtype=torch.int64)
+        return z, z, z, torch.zeros((0, int(k0.numel())), dtype=torch.complex128)
+    fold = lambda x: torch.where(x > math.pi, 2 * math.pi - x, x)  # noqa: E731  the radar's side of the sheet
+    w = edges.width[e_i]
+    sb = sin_b[m_i, e_i]
+    kw = (k0[None] * (w * sb)[:, None]).numpy()                                  # [I, K]
+    pa = fold(phi[m_i, e_i]).numpy()[:, None]
+    pb = fold(phi[m_i, opp]).numpy()[:, None]
+    amp = torch.as_tensor(strip_double_diffraction(pa, pb, kw))               # [I, K]
+    sv = s[m_i, e_i]
+    p = _polarisation(sv, polarisation)
+    t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sb.clamp(min=1e-12)[:, None]
+    w_h = 1.0 - ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
+    g_t = tx_ant.gain(-sv, links.tx_axis[lk][m_i])
+    g_r = rx_ant.gain(-sv, links.rx_axis[lk][m_i])
+    dd, ln = d[m_i, e_i], edges.length[e_i]
+    d_b = (radar[m_i] - (edges.mid[e_i] + w[:, None] * edges.face_a[e_i])).norm(dim=-1)
+    base = torch.sqrt(g_t * g_r) * w_h * ln / (8 * math.pi * dd**2)
+    along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)
+    coef = (base[:, None] / k0[None]) * along * amp * torch.exp(-1j * (dd + d_b)[:, None] * k0[None])
+    return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[opp], coef
 
 
 def edge_reflection(mats, freq_hz: torch.Tensor) -> torch.Tensor:
