@@ -71,7 +71,8 @@ class Edges:
     across the edge, from it into each face (equal for a half-plane); gauss_a, gauss_b [E]: a surfel of each
     face next to the edge (its material and visibility); opposite [E]: for a half-plane edge, the segment of
     the facing parallel half-plane edge of the same patch straight across it (-1: none), width [E] m the
-    distance across (the doubly diffracted wave, `_double_terms`)."""
+    distance across (the doubly diffracted wave, `_double_terms`); span [E, 2] m: the extent of the straight
+    run of the boundary the segment belongs to, along its tangent from its midpoint (lo <= 0 <= hi)."""
 
     mid: torch.Tensor
     tangent: torch.Tensor
@@ -82,6 +83,7 @@ class Edges:
     gauss_b: torch.Tensor
     opposite: torch.Tensor
     width: torch.Tensor
+    span: torch.Tensor
 
     @property
     def num(self) -> int:
@@ -92,7 +94,7 @@ def _empty_edges() -> Edges:
     z3 = torch.zeros((0, 3), dtype=torch.float64)
     zi = torch.zeros(0, dtype=torch.int64)
     z = torch.zeros(0, dtype=torch.float64)
-    return Edges(z3, z3, z, z3, z3, zi, zi, zi, z)
+    return Edges(z3, z3, z, z3, z3, zi, zi, zi, z, torch.zeros((0, 2), dtype=torch.float64))
 
 
 def _simplify(line: np.ndarray, tol: float) -> np.ndarray:
@@ -149,9 +151,34 @@ def _coverage_grid(pts: np.ndarray, cov2: np.ndarray, gx: np.ndarray, gy: np.nda
     return np.bincount(flat, weights=val.ravel(), minlength=len(gx) * len(gy)).reshape(len(gy), len(gx))
 
 
+def _straight_runs(simple: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The pieces (a, b) of polyline `simple` [P, 2] with the ends (run_a, run_b) of the straight run each
+    belongs to: consecutive pieces within WEDGE_T_COS of the run's first direction (a closed line starts at a
+    corner, so that no run is cut by where the contour began)."""
+    pts = simple
+    d = np.diff(pts, axis=0)
+    ok = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+    if not ok.any():
+        return []
+    closed = len(pts) > 3 and np.allclose(pts[0], pts[-1])
+    pieces = [(pts[i], pts[i + 1]) for i in np.nonzero(ok)[0]]
+    unit = lambda a, b: (b - a) / np.hypot(*(b - a))  # noqa: E731
+    if closed:
+        turn = [i for i in range(len(pieces)) if unit(*pieces[i]) @ unit(*pieces[i - 1]) < WEDGE_T_COS]
+        if turn:
+            pieces = pieces[turn[0]:] + pieces[:turn[0]]
+    out, start = [], 0
+    for i in range(1, len(pieces) + 1):
+        if i == len(pieces) or unit(*pieces[i]) @ unit(*pieces[start]) < WEDGE_T_COS:
+            out += [(a, b, pieces[start][0], pieces[i - 1][1]) for a, b in pieces[start:i]]
+            start = i
+    return out
+
+
 def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: np.ndarray, half: float
                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
-    """Straight boundary pieces of one patch: (mid [3] m, tangent [3], inward [3], length m), from the level
+    """Straight boundary pieces of one patch: (mid [3] m, tangent [3], inward [3], length m, (lo, hi) m: the
+    straight line's extent along the tangent from the segment's midpoint), from the level
     line at half the interior coverage of the members (means x [G, 3], covariances cov [G, 3, 3]); half: the
     members' median half-side (m)."""
     import contourpy
@@ -172,28 +199,29 @@ def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: n
     inner = c[c > 0.5 * c.max()]
     level = 0.5 * float(inner.mean())
     lines = contourpy.contour_generator(gx, gy, c).lines(level)
-    mids, tans, lens = [], [], []
+    mids, tans, lens, spans = [], [], [], []
     for line in lines:
         line = np.asarray(line)
         if len(line) < 3:
             continue
         simple = _simplify(line, 0.25 * half)
-        for a, b in zip(simple[:-1], simple[1:]):
+        for a, b, run_a, run_b in _straight_runs(simple):
             seg = b - a
             length = float(np.hypot(*seg))
-            if length <= 1e-9:
-                continue
             pieces = max(1, int(math.ceil(length / (2.0 * half))))
-            mids += [a + seg * (i + 0.5) / pieces for i in range(pieces)]
-            tans += [seg / length] * pieces
-            lens += [length / pieces] * pieces
+            for i in range(pieces):
+                m = a + seg * (i + 0.5) / pieces
+                mids.append(m)
+                tans.append(seg / length)
+                lens.append(length / pieces)
+                spans.append(tuple(sorted(((run_a - m) @ (seg / length), (run_b - m) @ (seg / length)))))
     if not mids:
         return []
     m2, t2 = np.array(mids), np.array(tans)
     n2 = np.stack([-t2[:, 1], t2[:, 0]], 1)
     probe = _coverage_2d(pts, cov2, np.concatenate([m2 + 0.5 * half * n2, m2 - 0.5 * half * n2]), reach)
     inward = np.where((probe[:len(m2)] >= probe[len(m2):])[:, None], n2, -n2)    # toward the covered side
-    return [(point + basis @ m, basis @ t, basis @ i, ln) for m, t, i, ln in zip(m2, t2, inward, lens)]
+    return [(point + basis @ m, basis @ t, basis @ i, ln, sp) for m, t, i, ln, sp in zip(m2, t2, inward, lens, spans)]
 
 
 def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, patches) -> Edges:
@@ -208,9 +236,9 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     for p, members in enumerate(patches.members):
         half = float(np.median(np.linalg.norm(c[members], axis=2)))
         tree = cKDTree(x[members])
-        for mid, t, inward, length in _patch_boundary(x[members], cv[members], patches.normal[p], patches.point[p],
-                                                      half):
-            pieces.append((mid, t, inward, length, half))
+        for mid, t, inward, length, span in _patch_boundary(x[members], cv[members], patches.normal[p],
+                                                            patches.point[p], half):
+            pieces.append((mid, t, inward, length, half, span))
             patch.append(p)
             near.append(members[tree.query(mid + 0.5 * half * inward)[1]])
     if not pieces:
@@ -220,6 +248,7 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     face = np.array([q[2] for q in pieces])
     length = np.array([q[3] for q in pieces])
     half = np.array([q[4] for q in pieces])
+    span = np.array([q[5] for q in pieces])
     patch, s_id = np.asarray(patch), np.asarray(near)
     # wedges: an outer edge lying on another patch's outer edge (a fold, a box's edge, a sheet's two faces)
     face_b, gauss_b = face.copy(), s_id.copy()
@@ -243,7 +272,7 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     opposite, width = _opposite_edges(mid[keep], tangent[keep], face[keep], face_b[keep], length[keep], half[keep],
                                       patch[keep])
     return Edges(t(mid), t(tangent), t(length), t(face), t(face_b), t(s_id).long(), t(gauss_b).long(),
-                 torch.as_tensor(opposite), torch.as_tensor(width))
+                 torch.as_tensor(opposite), torch.as_tensor(width), t(span))
 
 
 def _opposite_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face_b: np.ndarray, length: np.ndarray,
@@ -441,7 +470,10 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     across the patch (width w) and diffracted at A back to the radar, radiated along A as its first-order
     current (the sinc) with the hard share w_h of the polarisation, phase exp(-j k (d_A + d_B' + w sin beta)),
     B' the point across from A's midpoint. In the plane across the edges (sin beta = |s x t|) the wavenumber
-    is k sin beta (Keller's cone). Returns (link [I], gauss_a [I], gauss_b [I], coef [I, K])."""
+    is k sin beta (Keller's cone); the ray that reaches A left B's line w (s.t) / sin(beta) along the edge
+    from B', and an item exists only where that point lies on B's straight run (`Edges.span`): an oblique
+    wave leaves a finite plate before it reaches the other edge. Returns (link [I], gauss_a [I], gauss_b [I],
+    coef [I, K])."""
     opp = edges.opposite[e_i]
     sel = opp >= 0
     m_i, e_i, opp = m_i[sel], e_i[sel], opp[sel]
@@ -451,9 +483,19 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     if m_i.numel() == 0:
         z = torch.zeros(0, dtype=torch.int64)
         return z, z, z, torch.zeros((0, int(k0.numel())), dtype=torch.complex128)
-    fold = lambda x: torch.where(x > math.pi, 2 * math.pi - x, x)  # noqa: E731  the radar's side of the sheet
+    # Keller's cone: the ray reaching A's midpoint left B's line w (s.t) / sin(beta) along the edge from the point
+    # across; it exists only if that point lies on B's straight line (an oblique wave leaves a finite plate)
     w = edges.width[e_i]
     sb = sin_b[m_i, e_i]
+    origin = edges.mid[e_i] + w[:, None] * edges.face_a[e_i] \
+        + (w * st[m_i, e_i] / sb.clamp(min=1e-12))[:, None] * edges.tangent[e_i]
+    u = ((origin - edges.mid[opp]) * edges.tangent[opp]).sum(-1)
+    on = (u >= edges.span[opp, 0]) & (u <= edges.span[opp, 1])
+    m_i, e_i, opp, w, sb = m_i[on], e_i[on], opp[on], w[on], sb[on]
+    if m_i.numel() == 0:
+        z = torch.zeros(0, dtype=torch.int64)
+        return z, z, z, torch.zeros((0, int(k0.numel())), dtype=torch.complex128)
+    fold = lambda x: torch.where(x > math.pi, 2 * math.pi - x, x)  # noqa: E731  the radar's side of the sheet
     kw = (k0[None] * (w * sb)[:, None]).numpy()                                  # [I, K]
     pa = fold(phi[m_i, e_i]).numpy()[:, None]
     pb = fold(phi[m_i, opp]).numpy()[:, None]

@@ -106,3 +106,22 @@ def test_plate_h_against_the_full_wave_curve():
     lobe = (phi >= 50) & (phi <= 80)
     assert np.abs(model - bem)[lobe].mean() < 2.0
     assert abs(model[phi == 0][0] - bem[phi == 0][0]) < 0.3
+
+
+def test_a_rectangles_edges_face_each_other_across_its_width():
+    """0.3 (y) x 0.2 (z) m plate: nearly every edge segment has an opposite on the facing side, the distance
+    across is the plate's other dimension, and each segment's straight run spans its side."""
+    from .test_edges import _edges
+
+    geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), 0.3, 0.2), 0.02)
+    e = _edges(geom)
+    has = e.opposite >= 0
+    assert float(e.length[has].sum()) > 0.9 * float(e.length.sum())
+    vertical = has & (e.tangent[:, 2].abs() > 0.99)
+    horizontal = has & (e.tangent[:, 1].abs() > 0.99)
+    assert torch.allclose(e.width[vertical], torch.full_like(e.width[vertical], 0.3), atol=0.02)
+    assert torch.allclose(e.width[horizontal], torch.full_like(e.width[horizontal], 0.2), atol=0.02)
+    run = e.span[:, 1] - e.span[:, 0]
+    assert float(run[vertical].min()) > 0.15 and float(run[horizontal].min()) > 0.25
+    opp = e.opposite[has]
+    assert bool((e.opposite[opp] >= 0).all())          # pairs are mutual (both paths)
