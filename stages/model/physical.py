@@ -39,7 +39,7 @@ from torch import nn
 
 from rfir_stages.po.geometry import single_thread_torch
 from rfir_stages.rf_fit.antennas import AntennaPattern
-from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider
+from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider, lit_stop
 from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0, co_polar_reflection, fresnel, permittivity
@@ -191,19 +191,19 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) \
             if areas_m2 is None else areas_m2.double()
         cells = footprint_cells(geom.log_scales, geom.rotations, geom.normals, area)
-        parts = []
-        for a in range(0, links.num, settings.link_chunk):
-            b = min(links.num, a + settings.link_chunk)
-            parts.append(_pairs_block(geom, links, a, b, tx_ant, rx_ant, cells, settings))
+        with single_thread_torch():   # ~100 small tensor ops per block: a second thread on a busy CPU costs more
+            parts = [_pairs_block(geom, links, a, min(links.num, a + settings.link_chunk), tx_ant, rx_ant, cells,
+                                  settings) for a in range(0, links.num, settings.link_chunk)]
         cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
         vis = torch.ones_like(cat["d_i"])
         if settings.visibility and provider is not None and cat["link"].numel():
             op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
+            stop = lit_stop(settings.t_stop, settings.lit_threshold)   # only the lit state is kept: same states
             v_tx = lit_state(provider.segment_transmittance(links.tx_m[cat["link"]], cat["gauss"], settings.margin_m,
-                                                            op, settings.t_stop), settings.lit_threshold)
+                                                            op, stop), settings.lit_threshold)
             colocated = bool(((links.tx_m - links.rx_m).norm(dim=-1) < settings.colocated_tol_m).all())
             vis = v_tx if colocated else v_tx * lit_state(provider.segment_transmittance(
-                links.rx_m[cat["link"]], cat["gauss"], settings.margin_m, op, settings.t_stop), settings.lit_threshold)
+                links.rx_m[cat["link"]], cat["gauss"], settings.margin_m, op, stop), settings.lit_threshold)
         keep = vis > 1e-6
         cat = {k: v[keep] for k, v in cat.items()}
         pairs = PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
@@ -233,7 +233,8 @@ def _edge_lit(geom: FrozenGeometry, links: LinkSet, provider: OcclusionProvider 
             return torch.ones(link.shape, dtype=torch.float64)
         op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
         return lit_state(provider.segment_transmittance(links.tx_m[link], gauss, settings.margin_m, op,
-                                                        settings.t_stop), settings.lit_threshold)
+                                                        lit_stop(settings.t_stop, settings.lit_threshold)),
+                         settings.lit_threshold)
     return lit
 
 
