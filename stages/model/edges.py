@@ -59,6 +59,7 @@ from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 
+from .link_rows import renumber_links
 from .materials import C0
 
 WEDGE_T_COS = 0.9       # outer edges of two patches with tangents this parallel, on one line: one wedge
@@ -345,11 +346,8 @@ class EdgeTerms:
         return int(self.link.numel())
 
     def select_links(self, rows) -> "EdgeTerms":
-        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
-        new_id[rows] = torch.arange(rows.numel())
-        keep = new_id[self.link] >= 0
-        return EdgeTerms(int(rows.numel()), new_id[self.link][keep], self.gauss_a[keep], self.gauss_b[keep],
+        rows, keep, new_link = renumber_links(self.link, self.num_links, rows)
+        return EdgeTerms(int(rows.numel()), new_link, self.gauss_a[keep], self.gauss_b[keep],
                          self.coef[keep], self.freq_hz)
 
     def at_columns(self, a: int, b: int) -> "EdgeTerms":

@@ -43,6 +43,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider, lit_
 from rfir_stages.rf_fit.render import LinkSet
 
 from .materials import C0, co_polar_reflection, fresnel, permittivity
+from .link_rows import renumber_links
 from .edges import EdgeTerms, aggregate_edges, edge_field, edge_reflection, edge_terms, patch_edges
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
 from .surfels import covariance, footprint_cells, footprint_factor, surfel_areas
@@ -110,12 +111,9 @@ class PairGeometry:
 
     def select_links(self, rows) -> "PairGeometry":
         """The pairs of links `rows` (renumbered 0..len(rows)-1 in that order)."""
-        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
-        new_id[rows] = torch.arange(rows.numel())
-        keep = new_id[self.link] >= 0
+        rows, keep, new_link = renumber_links(self.link, self.num_links, rows)
         pick = lambda t: t[keep]  # noqa: E731
-        return PairGeometry(int(rows.numel()), new_id[self.link][keep], pick(self.gauss), pick(self.d_i),
+        return PairGeometry(int(rows.numel()), new_link, pick(self.gauss), pick(self.d_i),
                             pick(self.d_o), pick(self.cos_i), pick(self.cos_o), pick(self.te_share), pick(self.gain),
                             pick(self.vis), pick(self.q_cell), pick(self.area), self.freq_hz,
                             None if self.double is None else self.double.select_links(rows),
@@ -549,11 +547,9 @@ class AggregatedPairs:
         r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
         double = None
         if self.double is not None:
-            new_id = torch.full((self.a_te.shape[0],), -1, dtype=torch.int64)
-            new_id[r] = torch.arange(r.numel())
-            keep = new_id[self.double["link"]] >= 0
+            _, keep, new_link = renumber_links(self.double["link"], self.a_te.shape[0], r)
             double = {key: v[keep] for key, v in self.double.items()}
-            double["link"] = new_id[self.double["link"]][keep]
+            double["link"] = new_link
         return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz, double,
                                None if self.edges is None else self.edges[r])
 

@@ -35,6 +35,7 @@ import torch
 
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 
+from .link_rows import renumber_links
 from .materials import C0, fresnel, slab_transmission
 from .second_order import Patches, planar_patches
 
@@ -251,11 +252,8 @@ class RoomPaths:
 
     def select_links(self, rows) -> "RoomPaths":
         """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
-        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
-        new_id[rows] = torch.arange(rows.numel())
-        keep = new_id[self.link] >= 0
-        return RoomPaths(int(rows.numel()), new_id[self.link][keep], *(t[keep] for t in (
+        rows, keep, new_link = renumber_links(self.link, self.num_links, rows)
+        return RoomPaths(int(rows.numel()), new_link, *(t[keep] for t in (
             self.length_m, self.gain, self.order, self.e_tx, self.e_rx, self.kind, self.patch, self.cos, self.s,
             self.p_in, self.p_out)), self.freq_hz[rows])
 

@@ -36,6 +36,7 @@ from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 
+from .link_rows import renumber_links
 from .materials import C0
 from .surfels import COPLANAR_M, footprint_factor
 
@@ -125,11 +126,8 @@ class DoubleBounce:
         return int(self.link.numel())
 
     def select_links(self, rows) -> "DoubleBounce":
-        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        new_id = torch.full((self.num_links,), -1, dtype=torch.int64)
-        new_id[rows] = torch.arange(rows.numel())
-        keep = new_id[self.link] >= 0
-        return DoubleBounce(int(rows.numel()), new_id[self.link][keep], self.gauss_a[keep], self.gauss_b[keep],
+        rows, keep, new_link = renumber_links(self.link, self.num_links, rows)
+        return DoubleBounce(int(rows.numel()), new_link, self.gauss_a[keep], self.gauss_b[keep],
                             self.cos_a[keep], self.cos_b[keep], self.pol[keep], self.coef[keep], self.freq_hz)
 
 
