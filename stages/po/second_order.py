@@ -16,8 +16,9 @@ Approximation (shooting-and-bouncing rays, exit-aperture PO, truncated at two bo
    hit point (ray cast) from the lit side.
 Not included: the first-bounce PO edge effects of partly hit tubes (a tube is in or out by its
 central ray; errors of order side / facet size), third and higher bounces, diffraction (no
-edge-wave / PTD terms), creeping waves, the GO blockage of the B -> Rx leg by the tube's own width. The first-order PO of every facet is
-computed separately and added; the second-order sum only adds the A -> B -> Rx paths.
+edge-wave / PTD terms), creeping waves, the GO blockage of the B -> Rx leg by the tube's own width.
+The first-order PO of every facet is computed separately and added; the second-order sum only adds
+the A -> B -> Rx paths.
 Near field: the reflected wave spreads from the image source (amplitude R_t / (t1 + t2)),
 exact for flat A.
 """
@@ -112,12 +113,11 @@ def double_bounce(verts, fcs, tab, refl, occ, tx, rx, ref, ks, pol_t, pol_r, *, 
     return out
 
 
-def _first_hit(occ, o, d, ref, near_field):
-    """(t [N], facet [N], -1: none) of rays o + t d. Near field: the cast starts just in front of the
-    object (float32 inside Open3D); callers recompute hit points in float64 on the facet's plane."""
+def _first_facet(occ, o, d, ref, near_field):
+    """The first facet [N] (-1: none) hit by rays o + t d. Near field: the cast starts just in front of the
+    object (float32 inside Open3D); the caller computes the hit point in float64 on the facet's plane."""
     t0 = np.maximum(0.0, _dot(ref - o, d) - occ.size - 1.0) if near_field else np.zeros(len(o))
-    t, f = occ.first_hit(o + t0[:, None] * d, d)
-    return t + t0 if near_field else t, f
+    return occ.first_hit(o + t0[:, None] * d, d)[1]
 
 
 def _two_bounces(occ, rays, n_all, centres, ref, near_field, two_sided, eps) -> dict:
@@ -125,7 +125,7 @@ def _two_bounces(occ, rays, n_all, centres, ref, near_field, two_sided, eps) -> 
     them (GO) and trace them to B; keep those that reach B and add t1, fa, nA (facing the ray), pA,
     d2, t2, fb, nB, pB (hit points in float64 on the facets' planes)."""
     o, d = rays["o"], rays["d"]
-    _, fa = _first_hit(occ, o, d, ref, near_field)
+    fa = _first_facet(occ, o, d, ref, near_field)
     nA = n_all[np.maximum(fa, 0)]
     cosA = _dot(nA, d)
     ok = (fa >= 0) & (np.abs(cosA) > 1e-9)
