@@ -212,7 +212,7 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         if settings.edge_waves:
             if getattr(patches, "edges", None) is None:   # found once per set of patches (prediction reuses them)
                 patches.edges = patch_edges(geom, covariance(geom.log_scales, geom.rotations), cells, patches)
-            pairs.edges = edge_terms(patches.edges, links, tx_ant, rx_ant, _edge_lit(geom, links, provider, settings),
+            pairs.edges = edge_terms(patches.edges, links, tx_ant, rx_ant, _edge_lit(geom, links, provider, settings, pairs),
                                      settings.polarisation, settings.colocated_tol_m)
         if settings.second_order:
             with single_thread_torch():   # many small tensor ops per patch: thread hand-offs cost more than the work
@@ -223,16 +223,39 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         return pairs
 
 
-def _edge_lit(geom: FrozenGeometry, links: LinkSet, provider: OcclusionProvider | None, settings: PairSettings):
-    """lit(link [Q], gauss [Q]) -> V [Q] of the edge waves: the surfel's lit state traced from the link's
-    transmitter (co-located antennas: one path), whatever the surfel's orientation; 1 without visibility."""
-    def lit(link: torch.Tensor, gauss: torch.Tensor) -> torch.Tensor:
-        if not settings.visibility or provider is None or link.numel() == 0:
-            return torch.ones(link.shape, dtype=torch.float64)
+def _edge_lit(geom: FrozenGeometry, links: LinkSet, provider: OcclusionProvider | None, settings: PairSettings,
+              pairs: PairGeometry):
+    """lit(link [Q], gauss [Q]) -> V [Q] of the edge waves: the surfel's lit state from the link's
+    transmitter (co-located antennas: one path), whatever the surfel's orientation; 1 without visibility.
+
+    With every link co-located the pairs' table already holds that state (V_tx) for each surfel facing
+    the radar (a pair; 0 when it was shadowed and dropped): only surfels seen edge-on, which make no
+    pair, are traced."""
+    colocated = bool(((links.tx_m - links.rx_m).norm(dim=-1) < settings.colocated_tol_m).all())
+
+    def trace(link: torch.Tensor, gauss: torch.Tensor) -> torch.Tensor:
         op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
         return lit_state(provider.segment_transmittance(links.tx_m[link], gauss, settings.margin_m, op,
                                                         lit_stop(settings.t_stop, settings.lit_threshold)),
                          settings.lit_threshold)
+
+    def lit(link: torch.Tensor, gauss: torch.Tensor) -> torch.Tensor:
+        if not settings.visibility or provider is None or link.numel() == 0:
+            return torch.ones(link.shape, dtype=torch.float64)
+        if not colocated:
+            return trace(link, gauss)
+        # a pair exists where _pairs_block's orientation test passes (the same expressions, per query)
+        to_tx = links.tx_m[link] - geom.means[gauss]
+        w_i = to_tx / to_tx.norm(dim=-1)[..., None]
+        to_rx = links.rx_m[link] - geom.means[gauss]
+        w_o = to_rx / to_rx.norm(dim=-1)[..., None]
+        n0 = geom.normals[gauss]
+        n = n0 * torch.where((w_i * n0).sum(-1) >= 0, 1.0, -1.0)[..., None]
+        paired = ((w_i * n).sum(-1) > 1e-6) & ((w_o * n).sum(-1) > 1e-6)
+        out = pairs.visibility_of(link, gauss, geom.num).clone()
+        if bool((~paired).any()):
+            out[~paired] = trace(link[~paired], gauss[~paired])
+        return out
     return lit
 
 
