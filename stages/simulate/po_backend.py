@@ -31,6 +31,11 @@ def simulate_monostatic_po(spec, grid: RadarGrid, freqs_hz, hpbw_deg: float, po:
     ants = [Antenna("horn", tuple(b / np.linalg.norm(b)), hpbw_deg) for b in bore]
     freqs = np.atleast_1d(np.asarray(freqs_hz, float))
     kwargs = dict(po.solver_kwargs(), ref_point=tuple(float(x) for x in centre))
+    if kwargs.get("second_order") and kwargs.get("sbr_spacing_m") is None:   # say what "auto" resolved to
+        from rfir_stages.po.second_order import auto_tube_spacing
+        side = auto_tube_spacing(v, 2 * np.pi * freqs / 299792458.0)
+        progress.log(f"simulate: PO double-bounce ray tubes of {side * 1e3:.1f} mm (simulate.po.sbr_spacing_m = "
+                     "auto: lambda_min / 20, wider for large objects; tubes split at grazing bounces; docs/po.md)")
     n = len(pos)
     with progress.task(label, total=n) as bar:
         last = [0]
