@@ -28,13 +28,17 @@ is added as equivalent edge currents along each edge, integrated with the monost
   approximation: the fringe coefficients of dielectric wedges are not those of a perfect conductor);
 - V_e: lit when a surfel of either face next to the edge is lit from the radar (physical.py's V).
 
-Doubly diffracted waves (`strip_double_diffraction`, `_double_terms`): for E across a sheet's edges (the
-hard case) the field diffracted at one edge runs across the face, grazing, and is diffracted again at the
-facing parallel edge (`Edges.opposite`, width w); in backscatter both paths (B -> A, A -> B) have the same
-phase. Each is added as an item of segment A with the coefficient of the strip's second-order GTD in the
-plane across the edges (wavenumber k sin beta), the hard share w_h of the polarisation, the phase of the
+Waves across a sheet (`strip_double_diffraction`, `strip_return_diffraction`, `_double_terms`): for E across
+a sheet's edges (the hard case) the field diffracted at one edge runs across the face, grazing, and is
+diffracted again at the facing parallel edge (`Edges.opposite`, width w); in backscatter both paths (B -> A,
+A -> B) have the same phase. Each is added as an item of segment A with the coefficient of the strip's GTD in
+the plane across the edges (wavenumber k sin beta), the hard share w_h of the polarisation, the phase of the
 path radar-B-A-radar and A's sinc; a soft field vanishes on the face (no such term). This is what sets a
-plate's level in H polarisation at wide angles.
+plate's level in H polarisation at wide angles. The same item carries the return path radar-A-B-A-radar
+(B sends the wave back along the face), and both carry the further round trips between the edges (a
+geometric series). Near grazing beyond A these are as large as the first-order waves and cancel them: the
+total field at the far edge (the plane wave and A's diffracted wave) vanishes as the radar reaches the
+sheet's plane, and the hard sheet's echo falls as (cos theta)^4 as the exact one does.
 
 Edges of a surfel set (`patch_edges`): for each planar patch (second_order.planar_patches), the level
 line at half the patch's interior coverage C(x) (the sum of its Gaussians in its plane, which falls to
@@ -442,23 +446,60 @@ def utd_transition(x: np.ndarray) -> np.ndarray:
     return 2j * np.sqrt(x) * np.exp(1j * x) * tail
 
 
+def _crossing_vertex(phi: np.ndarray, kw: np.ndarray) -> np.ndarray:
+    """g(phi) [...]: the hard half-plane's coefficient between the radar (angle phi from the face, 0..pi) and the
+    wave grazing along the face, sec(phi / 2) (Keller's, relative to its value at phi = 0). Where the radar
+    is beyond the face's normal (phi > pi / 2) it approaches the shadow boundary phi = pi of the grazing wave
+    (the radar in the sheet's plane beyond this edge) and the UTD transition function with the distance across
+    (F(2 kw cos^2(phi / 2)) / cos(phi / 2)) keeps it finite; this is the exact half-plane field at the facing
+    edge. On the other side (phi <= pi / 2) the wave arriving along the face is, near grazing, minus the part
+    of the radar's own plane wave that the near edge's shadow removes, and must be diffracted with the same
+    plane-wave coefficient as that plane wave (Keller's, F = 1) for the two to cancel as the exact sheet's do
+    (the transition function's 1 / kw remainder there, F(X) ~ 1 + j / (2 X), is below the theory's accuracy
+    but would leave the hard sheet an echo at grazing)."""
+    phi = np.asarray(phi, dtype=np.float64)
+    c = np.maximum(np.cos(0.5 * phi), 1e-12)
+    near = phi > 0.5 * math.pi
+    return np.where(near, utd_transition(np.where(near, 2.0 * kw * c**2, 1.0)), 1.0) / c
+
+
+def _crossing(kw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 1 / (1 - K^2 / 4)) [...] complex of a sheet of width w crossed in the hard case (kw = k w):
+    K = -2 exp(-j (kw + pi / 4)) / sqrt(2 pi kw), one crossing from edge to edge between Keller's coefficients
+    (the factor 2: the wave on a zero-thickness sheet is odd across it, both faces' grazing waves diffract), and
+    the sum of the further round trips, each an edge's backscatter along its face (grazing in and out:
+    coefficient 2 g(0) = 2) and two crossings, the geometric series 1 + K^2 / 4 + (K^2 / 4)^2 + ..."""
+    kw = np.asarray(kw, dtype=np.float64)
+    k_cross = -2.0 * np.exp(-1j * (kw + math.pi / 4)) / np.sqrt(2 * math.pi * kw)
+    return k_cross, 1.0 / (1.0 - 0.25 * k_cross**2)
+
+
 def strip_double_diffraction(phi_a: np.ndarray, phi_b: np.ndarray, kw: np.ndarray) -> np.ndarray:
     """Backscatter coefficient [...] complex of the wave diffracted at edge B of a perfectly conducting strip
     (E across the edges: hard), carried across its face to edge A (width w, kw = k w) and diffracted there
     back to the radar, in the units of `wedge_fringe` and relative to the phase of the path radar-B-A-radar
-    without the crossing: K g(phi_a) g(phi_b), K = -2 exp(-j (kw + pi / 4)) / sqrt(2 pi kw) (Keller's
-    coefficient twice, the wave on the face odd across the sheet: both faces' grazing waves diffract), and
-    g(phi) = F(2 kw cos^2(phi / 2)) / cos(phi / 2), the half-plane's hard coefficient for grazing incidence
-    sec(phi / 2) made finite at the shadow boundary phi = pi by the UTD transition function (the radar in
-    the plate's plane beyond the edge). phi_a, phi_b: the radar's angle from each edge's face, 0..pi (the
-    side of the sheet the radar is on). A soft (E along the edges) field vanishes on the face: no such term."""
+    without the crossing: K g(phi_a) g(phi_b) / (1 - K^2 / 4) (`_crossing`: Keller's coefficient twice, the
+    wave on the face odd across the sheet, and the further round trips between the edges; `_crossing_vertex`:
+    g = sec(phi / 2), with the UTD transition function at the edge beyond which the radar lies). phi_a, phi_b:
+    the radar's angle from each edge's face, 0..pi (the side of the sheet the radar is on). A soft (E along the
+    edges) field vanishes on the face: no such term."""
     kw = np.asarray(kw, dtype=np.float64)
+    k_cross, series = _crossing(kw)
+    return k_cross * _crossing_vertex(phi_a, kw) * _crossing_vertex(phi_b, kw) * series
 
-    def g(phi):
-        c = np.maximum(np.cos(0.5 * np.asarray(phi, dtype=np.float64)), 1e-12)
-        return utd_transition(2.0 * kw * c**2) / c
 
-    return -2.0 * np.exp(-1j * (kw + math.pi / 4)) / np.sqrt(2 * math.pi * kw) * g(phi_a) * g(phi_b)
+def strip_return_diffraction(phi_a: np.ndarray, kw: np.ndarray) -> np.ndarray:
+    """Backscatter coefficient [...] complex of the wave diffracted at edge A of the strip, carried across to
+    the facing edge B, diffracted back along the face (grazing in and out: coefficient 2) and diffracted at A
+    to the radar, with the further round trips (units and phase reference as `strip_double_diffraction`, the
+    path radar-A-B-A-radar without its two crossings): (K^2 / 2) g(phi_a)^2 / (1 - K^2 / 4). Near grazing
+    beyond A (phi_a -> pi) it is as large as the first-order and doubly diffracted waves: with them, B's
+    diffraction of the total field at B (the plane wave and A's diffracted wave, which cancel there as
+    the radar reaches the sheet's plane) radiated both directly and by way of A, so that the hard sheet's echo
+    vanishes at grazing as (cos theta)^4 (theta from the normal), as the exact one does."""
+    kw = np.asarray(kw, dtype=np.float64)
+    k_cross, series = _crossing(kw)
+    return 0.5 * k_cross**2 * _crossing_vertex(phi_a, kw) ** 2 * series
 
 
 def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, vis_of, tx_ant, rx_ant, links,
@@ -470,8 +511,10 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     B' the point across from A's midpoint. In the plane across the edges (sin beta = |s x t|) the wavenumber
     is k sin beta (Keller's cone); the ray that reaches A left B's line w (s.t) / sin(beta) along the edge
     from B', and an item exists only where that point lies on B's straight run (`Edges.span`): an oblique
-    wave leaves a finite plate before it reaches the other edge. Returns (link [I], gauss_a [I], gauss_b [I],
-    coef [I, K])."""
+    wave leaves a finite plate before it reaches the other edge. The item also carries the return path
+    radar-A-B-A-radar (`strip_return_diffraction`, phase exp(-j k (2 d_A + 2 w sin beta))) when the point where
+    that ray left A, 2 w (s.t) / sin(beta) along A's line from its midpoint, lies on A's straight run.
+    Returns (link [I], gauss_a [I], gauss_b [I], coef [I, K])."""
     opp = edges.opposite[e_i]
     sel = opp >= 0
     m_i, e_i, opp = m_i[sel], e_i[sel], opp[sel]
@@ -493,11 +536,15 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     if m_i.numel() == 0:
         z = torch.zeros(0, dtype=torch.int64)
         return z, z, z, torch.zeros((0, int(k0.numel())), dtype=torch.complex128)
+    # the return path A -> B -> A: its ray leaves A's line 2 w (s.t) / sin(beta) from A's midpoint, on A's run
+    back = 2.0 * w * st[m_i, e_i] / sb.clamp(min=1e-12)
+    ret = ((back >= edges.span[e_i, 0]) & (back <= edges.span[e_i, 1])).numpy()
     fold = lambda x: torch.where(x > math.pi, 2 * math.pi - x, x)  # noqa: E731  the radar's side of the sheet
     kw = (k0[None] * (w * sb)[:, None]).numpy()                                  # [I, K]
     pa = fold(phi[m_i, e_i]).numpy()[:, None]
     pb = fold(phi[m_i, opp]).numpy()[:, None]
     amp = torch.as_tensor(strip_double_diffraction(pa, pb, kw))               # [I, K]
+    amp_ret = torch.as_tensor(strip_return_diffraction(pa, kw) * ret[:, None])  # [I, K]
     sv = s[m_i, e_i]
     p = _polarisation(sv, polarisation)
     t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sb.clamp(min=1e-12)[:, None]
@@ -508,7 +555,9 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     d_b = (radar[m_i] - (edges.mid[e_i] + w[:, None] * edges.face_a[e_i])).norm(dim=-1)
     base = torch.sqrt(g_t * g_r) * w_h * ln / (8 * math.pi * dd**2)
     along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)
-    coef = (base[:, None] / k0[None]) * along * amp * torch.exp(-1j * (dd + d_b)[:, None] * k0[None])
+    # radar-B-A-radar and radar-A-B-A-radar (its crossings' phase is in amp_ret): one item of A
+    coef = (base[:, None] / k0[None]) * along * (amp * torch.exp(-1j * (dd + d_b)[:, None] * k0[None])
+                                                 + amp_ret * torch.exp(-2j * dd[:, None] * k0[None]))
     return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[opp], coef
 
 
