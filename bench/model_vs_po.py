@@ -1,7 +1,7 @@
 """Fidelity of the physical model to physical-optics data: the model with the TRUE materials, no fitting.
 
     .venv/bin/python bench/model_vs_po.py D/scene.h5 D/ [--range 3] [--step 2] [--lit-threshold 0.2]
-                                          [--first-order] [--mesh-visibility] [--plot out.png]
+                                          [--first-order] [--mesh-visibility] [--aspects 45:65] [--plot out.png]
 
 D/ is an `rfir simulate OBJ D --rcs-backend po` folder (measurements.h5, meshes/labels.json with each
 object's ITU material and slab thickness); scene.h5 holds surfels with the same labels (`rfir
@@ -13,7 +13,8 @@ the data is printed per frequency and range, with the mean error (model - data).
 --first-order: no double bounces in the model; the data then hold both orders, so compare with
 data made with `--set simulate.po.second_order=false`. --mesh-visibility: the lit/shadowed state of
 each surfel by ray casting the scene's true mesh (an oracle: what the model would give with exact
-shadows) instead of tracing the Gaussians.
+shadows) instead of tracing the Gaussians. --aspects LO:HI: print the data, the model and their
+difference (dB) of every row picked whose aspect lies in [LO, HI] degrees, per frequency.
 """
 from __future__ import annotations
 
@@ -59,8 +60,10 @@ def main() -> None:
     ap.add_argument("--lit-threshold", type=float, default=PairSettings.lit_threshold)
     ap.add_argument("--first-order", action="store_true")
     ap.add_argument("--mesh-visibility", action="store_true")
+    ap.add_argument("--aspects", default=None, help="LO:HI degrees: print these rows, data and model")
     ap.add_argument("--plot", default=None)
     a = ap.parse_args()
+    shown = _aspect_range(a.aspects) if a.aspects else None   # bad input stops here, before the model runs
 
     data = Path(a.data)
     scene = read_artifact(a.scene, ("scene", "rf"))
@@ -105,6 +108,13 @@ def main() -> None:
     for r in np.unique(rng):
         m = rng == r
         print(f"  range {r:g} m: MAE {np.round(np.abs(err[m]).mean(0), 2)} dB, mean {np.round(err[m].mean(0), 2)} dB")
+    if shown:
+        lo, hi = shown
+        asp = np.degrees(np.asarray(meas["aspect_rad"])[rows])
+        print("  aspect  range  " + "  ".join(f"{f / 1e9:g} GHz: data  model  diff" for f in freqs))
+        for i in np.flatnonzero((asp >= lo - 1e-9) & (asp <= hi + 1e-9)):
+            print(f"  {asp[i]:6.1f} {rng[i]:6g}  " + "  ".join(
+                f"{target[i, k]:15.1f} {pred[i, k]:6.1f} {err[i, k]:5.1f}" for k in range(len(freqs))))
     if a.plot:
         import matplotlib
 
@@ -124,6 +134,14 @@ def main() -> None:
             ax.legend()
         fig.tight_layout()
         fig.savefig(a.plot, dpi=80)
+
+
+def _aspect_range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise SystemExit(f"model_vs_po.py: --aspects {text!r}: expected LO:HI in degrees, e.g. 45:65") from None
+    return lo, hi
 
 
 if __name__ == "__main__":

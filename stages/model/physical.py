@@ -428,8 +428,9 @@ def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
 
 def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, mats: MaterialValues,
                          k0: torch.Tensor) -> torch.Tensor:
-    """Second-order field [M, K]: sum of coef sum_XY c_XY R_X(A) R_Y(B) sqrt(1 - S_A^2) sqrt(1 - S_B^2)
-    per link (c_XY = db.pol, second_order.polarisation_chain)."""
+    """Second-order field [M, K]: sum of coef sum_X R_X(A) sqrt(1 - S_A^2) (sum_Y b_XY R_Y(B) sqrt(1 - S_B^2)
+    + b_X0) per link (b = db.pol, second_order.second_bounce_factors; b_X0 is the PO radiation of the wave
+    that reaches B, which B's roughness does not scale)."""
     eta = mats.eta(db.freq_hz)
     out = torch.zeros((db.num_links, db.freq_hz.numel()), dtype=torch.complex128)
     coefs = []
@@ -441,14 +442,14 @@ def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, m
         coefs.append((r_te * spec, r_tm * spec))
     (a_te, a_tm), (b_te, b_tm) = coefs
     c = db.pol[:, :, None]
-    return out.index_add(0, db.link, db.coef * polarised_product(c[:, 0], c[:, 1], c[:, 2], c[:, 3],
+    return out.index_add(0, db.link, db.coef * polarised_product(c[:, 0], c[:, 1], c[:, 2], c[:, 3], c[:, 4], c[:, 5],
                                                                  a_te, a_tm, b_te, b_tm))
 
 
-def polarised_product(c_tt, c_tm, c_mt, c_mm, a_te, a_tm, b_te, b_tm):
-    """sum_XY c_XY R_X(A) R_Y(B): a double bounce's two reflections with its polarisation factors
-    (second_order.polarisation_chain); one definition for the exact and the aggregated sums."""
-    return c_tt * a_te * b_te + c_tm * a_te * b_tm + c_mt * a_tm * b_te + c_mm * a_tm * b_tm
+def polarised_product(c_tt, c_tm, c_mt, c_mm, c_t0, c_m0, a_te, a_tm, b_te, b_tm):
+    """sum_X R_X(A) (sum_Y c_XY R_Y(B) + c_X0): a double bounce's two reflections with its physical-optics
+    factors (second_order.second_bounce_factors); one definition for the exact and the aggregated sums."""
+    return a_te * (c_tt * b_te + c_tm * b_tm + c_t0) + a_tm * (c_mt * b_te + c_mm * b_tm + c_m0)
 
 
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
@@ -460,7 +461,7 @@ def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: i
                       cull_rel: float) -> dict:
     """Double-bounce items summed per cell (link, material A, angle node A, material B, angle node B),
     each item split bilinearly between the four node pairs around its two incidence angles, and into
-    the four products R_X(A) R_Y(B) with its polarisation factors c_XY (db.pol).
+    the four products R_X(A) R_Y(B) and the two R_X(A) with its factors c_XY, c_X0 (db.pol).
     Per link the weakest cells carrying `cull_rel` of its sum of magnitudes are dropped (cost)."""
     ends = []
     for g, cos in ((db.gauss_a, db.cos_a), (db.gauss_b, db.cos_b)):
@@ -468,7 +469,7 @@ def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: i
         lo = pos.floor().long().clamp(0, j - 2)
         ends.append((material_of_gaussian[g], lo, (pos - lo).clamp(0.0, 1.0)))
     (ma, lo_a, wa), (mb, lo_b, wb) = ends
-    moments = db.pol                                                                   # [I, 4]
+    moments = db.pol                                                                   # [I, 6]
     keys, weights = [], []
     for da, w_a in ((0, 1 - wa), (1, wa)):
         for dbb, w_b in ((0, 1 - wb), (1, wb)):
@@ -477,7 +478,7 @@ def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: i
     key = torch.cat(keys)
     uniq, inv = torch.unique(key, return_inverse=True)
     k = db.coef.shape[1]
-    sums = torch.zeros((uniq.numel(), 4, k), dtype=torch.complex128)
+    sums = torch.zeros((uniq.numel(), moments.shape[1], k), dtype=torch.complex128)
     for q, w in enumerate(weights):
         part = inv[q * db.num:(q + 1) * db.num]
         sums.index_add_(0, part, (w[:, None] * moments)[:, :, None] * db.coef[:, None, :])
@@ -488,7 +489,8 @@ def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: i
     keep = _strong_cells(link, sums.abs().sum(1).max(1).values, cull_rel)
     sums = sums[keep]
     return {"link": link[keep], "mat_a": mat_a[keep], "node_a": node_a[keep], "mat_b": mat_b[keep],
-            "node_b": node_b[keep], "c_tt": sums[:, 0], "c_tm": sums[:, 1], "c_mt": sums[:, 2], "c_mm": sums[:, 3]}
+            "node_b": node_b[keep], "c_tt": sums[:, 0], "c_tm": sums[:, 1], "c_mt": sums[:, 2], "c_mm": sums[:, 3],
+            "c_t0": sums[:, 4], "c_m0": sums[:, 5]}
 
 
 def _strong_cells(link: torch.Tensor, mag: torch.Tensor, rel: float) -> torch.Tensor:
@@ -525,7 +527,7 @@ class AggregatedPairs:
     a_tm: torch.Tensor      # [M, N, J, K] complex
     diffuse: torch.Tensor   # [M, N, J, 3] real
     freq_hz: torch.Tensor   # [K]
-    double: dict | None = None   # second order in cells: link, mat_a/b, node_a/b [C]; c_tt, c_tm, c_mt, c_mm [C, K]
+    double: dict | None = None   # second order in cells: link, mat_a/b, node_a/b [C]; c_tt, c_tm, c_mt, c_mm, c_t0, c_m0 [C, K]
     edges: torch.Tensor | None = None   # edge waves per (link, material) [M, N, K] complex (edges.aggregate_edges)
 
     @staticmethod
@@ -586,7 +588,7 @@ class AggregatedPairs:
         spec = torch.sqrt(1.0 - mats.scattering**2).to(torch.complex128)[:, None, None]
         field = torch.einsum("mnjk,njk->mk", self.a_te, r_te * spec) - torch.einsum("mnjk,njk->mk", self.a_tm, r_tm * spec)
         if self.double is not None:
-            # cells (link, material A, node A, material B, node B): sum over the four TE/TM products
+            # cells (link, material A, node A, material B, node B): the four TE/TM products and A's two terms
             d = self.double
             nodes2 = torch.cos(torch.linspace(0.0, math.pi / 2, DOUBLE_NODES, dtype=torch.float64))
             d_te, d_tm = fresnel(mats.eta(f)[:, None, :], nodes2[None, :, None], k0[None, None], th)   # [N, J2, K]
@@ -597,7 +599,7 @@ class AggregatedPairs:
             a_te, a_tm = te_flat.index_select(0, ua), tm_flat.index_select(0, ua)   # index_select: cheap backward
             b_te, b_tm = te_flat.index_select(0, ub), tm_flat.index_select(0, ub)
             field = field.index_add(0, d["link"], polarised_product(d["c_tt"], d["c_tm"], d["c_mt"], d["c_mm"],
-                                                                    a_te, a_tm, b_te, b_tm))
+                                                                    d["c_t0"], d["c_m0"], a_te, a_tm, b_te, b_tm))
         if self.edges is not None:
             field = field + torch.einsum("mnk,nk->mk", self.edges, edge_reflection(mats, f))
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
