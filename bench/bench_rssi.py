@@ -8,7 +8,9 @@ Needs no simulator: the classroom's meshes are built by code (rfir_stages.simula
 `rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12` tiles them; a 5-step fit of the
 room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
 - map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: every receiver's visibility
-  of the diffuse cells traced (what every map cost before receivers were kept);
+  of the diffuse cells traced (what every map cost before receivers were kept; the cells each link needs,
+  with the room's walls, floor and ceiling in a BVH of their own: room_diffuse.CellVisibility), and
+  map_cold_cpu_s its CPU time;
 - map_new_tx_s: a map of the same receivers for a transmitter not seen before, the receivers kept from
   an earlier map of the same model (RoomGeometry.cell_visibility);
 - default_map_s: `predict rssi --tx ... --grid` 's default map ([predict.rssi] grid) from a freshly
@@ -99,7 +101,7 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
     def tx_of(i):
         return np.broadcast_to(NEW_TX[i % len(NEW_TX)], rx.shape)
 
-    load, cold, new_tx, first_order, default = [], [], [], [], []
+    load, cold, cold_cpu, new_tx, first_order, default = [], [], [], [], [], []
     pred = load_predictor(read_artifact(rf_path, "rf"))
     means = pred.geom.means.numpy()
     grid = floor_grid((means.min(0), means.max(0)), *rssi_defaults()["grid"])
@@ -108,7 +110,9 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
         load.append(t)
         default.append(timed(pred.path_gain_db, np.broadcast_to(NEW_TX[0], grid.shape), grid)[0])
         pred.room.cell_visibility.clear()                       # nothing kept: every receiver traced
+        c0 = time.process_time()
         cold.append(timed(pred.path_gain_db, tx_of(i), rx)[0])
+        cold_cpu.append(time.process_time() - c0)
         t, pg = timed(pred.path_gain_db, tx_of(i + 1), rx)           # the receivers kept from the map above
         new_tx.append(t)
         finite = bool(np.isfinite(pg).all())
@@ -117,11 +121,12 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
         first_order.append(timed(pred.path_gain_db, tx_of(i + 2), rx)[0])
     med = statistics.median
     return {"num_points": len(rx), "default_map_points": len(grid), "load_time_s": med(load),
-            "map_cold_s": med(cold), "map_new_tx_s": med(new_tx), "map_new_tx_first_order_s": med(first_order),
+            "map_cold_s": med(cold), "map_cold_cpu_s": med(cold_cpu), "map_new_tx_s": med(new_tx), "map_new_tx_first_order_s": med(first_order),
             "second_order_share_s": med(new_tx) - med(first_order), "default_map_s": med(default),
             "finite": finite, "budget_s": 2.0, "repeats": repeats, "load_average_1min": os.getloadavg()[0],
             "note": "medians; map times: RoomPredictor.path_gain_db alone; load_time_s: read rf.h5, patches, "
-                    "cells and the BVH; python and torch start-up not included"}
+                    "cells and the BVH; python and torch start-up not included; map_cold_cpu_s: the process's CPU "
+                    "time of the cold map (both threads; less sensitive than the wall time to other jobs on the CPU)"}
 
 
 def _report(out: dict, results: Path | None) -> None:

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from rfir_stages.po.geometry import single_thread_torch
+from rfir_stages.rf_fit.occlusion import ShellSplitOcclusion, TracerOcclusion
 
 from .materials import C0, fresnel
 from .room_paths import PatchSet
@@ -90,8 +91,17 @@ class CellVisibility:
 
     It depends on the point and the geometry only, not on the other end of a link: a radio map's
     receivers are traced once per model and every later transmitter reuses them (the largest part of
-    a map's cost on furniture-resolving surfels). Rows are kept up to max_bytes, the oldest
-    dropped first; points are keyed rounded to 1 nm."""
+    a map's cost on furniture-resolving surfels). Only the entries a call needs are traced (a cell
+    with the link's ends on opposite sides of its plane scatters nothing between them, whatever its
+    visibility); the others are traced when a later call needs them. Rows are kept up to max_bytes,
+    the oldest dropped first; points are keyed rounded to 1 nm.
+
+    Large batches are traced with the provider's shell split (rf_fit.occlusion.ShellSplitOcclusion:
+    the same transmittances to rounding, the room's walls, floor and ceiling traced only where a
+    segment comes near them), segment after segment to one cell from every point (rays with nearby
+    ends in turn walk the same part of the BVH)."""
+
+    SPLIT_MIN_SEGMENTS = 20_000   # below this the shell split's set-up (two more BVHs) costs more than it saves
 
     def __init__(self, cells: DiffuseCells, provider, opacity: float, margin_m: float, t_stop: float,
                  max_bytes: float = 256e6):
@@ -99,29 +109,58 @@ class CellVisibility:
         self.margin_m, self.t_stop = float(margin_m), float(t_stop)
         self.op = torch.full((provider.geom.num,), float(opacity), dtype=torch.float64)
         self.max_rows = max(1, int(max_bytes // max(1, 8 * len(cells.area))))
-        self._rows: dict[bytes, np.ndarray] = {}
+        self._rows: dict[bytes, np.ndarray] = {}     # NaN: not traced yet
+        self._split = None
 
-    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(V [U, C] of the distinct points, index [N] of each point's row)."""
+    def _segments(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """V [Q] from points [Q, 3] to the anchors of cells [Q]."""
+        provider = self.provider
+        # the split is measured on the CPU tracer (bench/bench_rssi.py); a GPU's tracer is left as it is
+        if (len(cells) >= self.SPLIT_MIN_SEGMENTS and isinstance(provider, TracerOcclusion)
+                and provider.device.type == "cpu"):
+            if self._split is None:
+                with single_thread_torch():   # small tensor ops: thread hand-offs cost more than the work
+                    self._split = ShellSplitOcclusion(provider)
+            provider = self._split
+        v = provider.segment_transmittance(torch.as_tensor(points), torch.as_tensor(self.cells.anchor[cells]),
+                                           self.margin_m, self.op, self.t_stop)
+        return v.numpy()
+
+    def __call__(self, points: np.ndarray, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(V [U, C] of the distinct points, index [N] of each point's row).
+
+        need [N, C] bool: the entries each point needs (None: all); entries no point needs and not traced
+        before are 0 in V."""
         c = len(self.cells.area)
         uniq, inv = np.unique(np.round(points, 9), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
         keys = [u.tobytes() for u in uniq]
-        new = [i for i, k in enumerate(keys) if k not in self._rows]
-        out = np.empty((len(keys), c))
-        if new:
-            origins = torch.as_tensor(np.repeat(uniq[new], c, axis=0))
-            targets = torch.as_tensor(np.tile(self.cells.anchor, len(new)), dtype=torch.int64)
-            v = self.provider.segment_transmittance(origins, targets, self.margin_m, self.op, self.t_stop)
-            out[new] = v.numpy().reshape(len(new), c)
-        old = np.setdiff1d(np.arange(len(keys)), new)
-        for i in old:
-            out[i] = self._rows[keys[i]]
+        out = np.full((len(keys), c), np.nan)
+        new = []
+        for i, k in enumerate(keys):
+            row = self._rows.get(k)
+            if row is None:
+                new.append(i)
+            else:
+                out[i] = row
+        if need is None:
+            missing = np.isnan(out)
+        else:
+            wanted = np.zeros((len(keys), c), dtype=bool)
+            np.logical_or.at(wanted, inv, np.asarray(need, dtype=bool))
+            missing = wanted & np.isnan(out)
+        cell, row = np.nonzero(missing.T)                 # cell after cell, each from every point
+        if len(cell):
+            out[row, cell] = self._segments(uniq[row], cell)
+        old = [i for i in np.unique(row) if keys[i] in self._rows]        # kept rows traced further
+        self._rows.update((keys[i], out[i].copy()) for i in old)
         if new and len(new) <= self.max_rows:
             if len(self._rows) + len(new) > self.max_rows:
-                for k in list(self._rows)[:len(self._rows) // 2 + len(new)]:
+                mine = set(keys)
+                for k in [k for k in self._rows if k not in mine][:len(self._rows) // 2 + len(new)]:
                     del self._rows[k]
             self._rows.update((keys[i], out[i].copy()) for i in new)
-        return out, inv.reshape(-1)
+        return np.nan_to_num(out, nan=0.0), inv
 
     def __len__(self) -> int:
         """Points kept."""
@@ -149,8 +188,14 @@ def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells
     m, c = len(tx), len(cells.area)
     if visibility is None:
         visibility = CellVisibility(cells, provider, opacity, margin_m, t_stop)
-    v_tx, i_tx = visibility(tx)
-    v_rx, i_rx = visibility(rx)
+    # each end's visibility is needed only where the cell is lit (both ends on one side of its plane, the loop's
+    # test below): here from the ends' heights over the planes, with those within 1 nm of a plane kept (rounding
+    # differs from the loop's), so every lit entry is traced
+    offset = (cells.centre * cells.normal).sum(1)
+    h_tx, h_rx = tx @ cells.normal.T - offset, rx @ cells.normal.T - offset                 # [M, C] m
+    need = (h_tx * h_rx > 0) | (np.abs(h_tx) < 1e-9) | (np.abs(h_rx) < 1e-9)
+    v_tx, i_tx = visibility(tx, need)
+    v_rx, i_rx = visibility(rx, need)
     weight = torch.zeros(m, num_materials, NODES, dtype=torch.float64)
     lam2 = (C0 / np.asarray(freq_hz, dtype=np.float64)) ** 2
     step = math.radians(90.0 / (NODES - 1))
