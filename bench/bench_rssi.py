@@ -121,7 +121,8 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
         first_order.append(timed(pred.path_gain_db, tx_of(i + 2), rx)[0])
     med = statistics.median
     return {"num_points": len(rx), "default_map_points": len(grid), "load_time_s": med(load),
-            "map_cold_s": med(cold), "map_cold_cpu_s": med(cold_cpu), "map_new_tx_s": med(new_tx), "map_new_tx_first_order_s": med(first_order),
+            "map_cold_s": med(cold), "map_cold_cpu_s": med(cold_cpu), "map_new_tx_s": med(new_tx),
+            "map_new_tx_first_order_s": med(first_order),
             "second_order_share_s": med(new_tx) - med(first_order), "default_map_s": med(default),
             "finite": finite, "budget_s": 2.0, "repeats": repeats, "load_average_1min": os.getloadavg()[0],
             "note": "medians; map times: RoomPredictor.path_gain_db alone; load_time_s: read rf.h5, patches, "

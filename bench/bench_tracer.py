@@ -239,7 +239,8 @@ def print_table(rows):
             ("forward_backward_cpu_s", "f+b cpu ms", "{:>10.1f}"),
             ("rays_per_s", "Mray/s", "{:>6.2f}"),
             ("gaussian_evals_per_s", "Meval/s", "{:>7.1f}"), ("hits_per_ray", "hit/ray", "{:>7.1f}"),
-            ("peak_extra_rss_mb", "peak MB", "{:>7.0f}"), ("peak_cuda_mb", "GPU MB", "{:>6.0f}"), ("speedup_forward", "ref x fwd", "{:>9.0f}"),
+            ("peak_extra_rss_mb", "peak MB", "{:>7.0f}"), ("peak_cuda_mb", "GPU MB", "{:>6.0f}"),
+            ("speedup_forward", "ref x fwd", "{:>9.0f}"),
             ("speedup_forward_backward", "ref x f+b", "{:>9.0f}"),
             ("open3d_closest_s", "o3d-1st ms", "{:>10.1f}"), ("open3d_all_hits_s", "o3d-all ms", "{:>10.1f}"),
             ("ratio_forward_vs_open3d_all_hits", "fwd/o3d-all", "{:>11.2f}")]

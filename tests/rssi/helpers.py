@@ -43,6 +43,22 @@ def scene_fields(spacing_m: float = 0.6) -> tuple[dict, list]:
     return gaussians_from_mesh(v, f, spacing_m, labels=lab), names
 
 
+def room_geometry(spacing_m: float = 0.3, occlusion: str = "auto"):
+    """(RoomGeometry of the reduced room's surfels at spacing_m with default RoomSettings, labels [G] int64,
+    label names)."""
+    import torch
+
+    from rfir_stages.model.room import RoomGeometry, RoomSettings
+    from rfir_stages.rf_fit.occlusion import FrozenGeometry
+
+    fields, names = scene_fields(spacing_m)
+    t = lambda k: torch.as_tensor(np.asarray(fields[k], np.float64))  # noqa: E731
+    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
+                          t("gaussians/normals"))
+    labels = np.asarray(fields["gaussians/labels"], np.int64)
+    return RoomGeometry(geom, torch.as_tensor(labels), labels, RoomSettings(), occlusion=occlusion), labels, names
+
+
 def write_scene(path, spacing_m: float = 0.6):
     fields, names = scene_fields(spacing_m)
     return write_scene_artifact(path, fields, label_names=names, spacing_m=spacing_m)

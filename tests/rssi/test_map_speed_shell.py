@@ -13,23 +13,17 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_stages.model.room import RoomGeometry, RoomSettings
 from rfir_stages.model.room_diffuse import CellVisibility
-from rfir_stages.rf_fit.occlusion import BruteForceOcclusion, FrozenGeometry, ShellSplitOcclusion, TracerOcclusion, segment_rays
+from rfir_stages.rf_fit.occlusion import BruteForceOcclusion, ShellSplitOcclusion, TracerOcclusion, segment_rays
 
-from .helpers import ROOM, scene_fields
+from .helpers import ROOM, room_geometry
 
 T_STOP = 1e-4
 
 
 @pytest.fixture(scope="module")
 def room():
-    fields, names = scene_fields(0.3)
-    t = lambda k: torch.as_tensor(np.asarray(fields[k], np.float64))  # noqa: E731
-    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
-                          t("gaussians/normals"))
-    labels = np.asarray(fields["gaussians/labels"], np.int64)
-    return RoomGeometry(geom, torch.as_tensor(labels), labels, RoomSettings(), occlusion="tracer"), labels, names
+    return room_geometry(0.3, occlusion="tracer")
 
 
 def _points(rng, n):

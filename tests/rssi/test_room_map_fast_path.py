@@ -15,24 +15,18 @@ import pytest
 import torch
 
 from rfir_stages.model.physical import MaterialValues
-from rfir_stages.model.room import RoomGeometry, RoomLinks, RoomSettings
+from rfir_stages.model.room import RoomLinks
 from rfir_stages.model.room_diffuse import CellVisibility, diffuse_terms
 from rfir_stages.model.room_paths import reflection_paths, trace_room_paths
-from rfir_stages.rf_fit.occlusion import FrozenGeometry
 
-from .helpers import ROOM, scene_fields
+from .helpers import ROOM, room_geometry
 
 F = 2.4e9
 
 
 @pytest.fixture(scope="module")
 def room():
-    fields, _ = scene_fields(0.3)
-    t = lambda k: torch.as_tensor(np.asarray(fields[k], np.float64))  # noqa: E731
-    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
-                          t("gaussians/normals"))
-    labels = torch.as_tensor(np.asarray(fields["gaussians/labels"], np.int64))
-    return RoomGeometry(geom, labels, labels.numpy(), RoomSettings(), occlusion="auto")
+    return room_geometry(0.3)[0]
 
 
 def _grid(z=1.0, n=(7, 5)):
