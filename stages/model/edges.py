@@ -156,6 +156,49 @@ def _coverage_grid(pts: np.ndarray, cov2: np.ndarray, gx: np.ndarray, gy: np.nda
     return np.bincount(flat, weights=val.ravel(), minlength=len(gx) * len(gy)).reshape(len(gy), len(gx))
 
 
+@dataclass
+class PatchCoverage:
+    """A planar patch's coverage C(x) in its plane (the sum of its members' Gaussians, `_coverage_2d`): the
+    basis [3, 2] at point [3] m, the members' in-plane means pts [G, 2] m and covariances cov2 [G, 2, 2] m^2,
+    the window reach m, C on the grid gx x gy (grid [len(gy), len(gx)]) and the level at half its interior
+    value, whose level line is the patch's boundary (on a tiling's border, surfels.py)."""
+
+    basis: np.ndarray
+    point: np.ndarray
+    pts: np.ndarray
+    cov2: np.ndarray
+    reach: float
+    gx: np.ndarray
+    gy: np.ndarray
+    grid: np.ndarray
+    level: float
+
+    def inside(self, c: np.ndarray) -> np.ndarray:
+        """[N] bool: points c [N, 3] m on the patch's plane lie within its boundary (C >= level)."""
+        if len(c) == 0:
+            return np.zeros(0, bool)
+        return _coverage_2d(self.pts, self.cov2, (c - self.point) @ self.basis, self.reach) >= self.level
+
+
+def patch_coverage(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: np.ndarray, half: float) -> PatchCoverage:
+    """The coverage of one patch (members' means x [G, 3] m, covariances cov [G, 3, 3] m^2; normal [3], point [3] m
+    its plane; half m the members' median half-side), sampled every 0.4 half-sides."""
+    ref = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(normal, ref)
+    e1 /= np.linalg.norm(e1)
+    basis = np.stack([e1, np.cross(normal, e1)], 1)                        # [3, 2]
+    pts = (x - point) @ basis
+    cov2 = np.einsum("ia,gij,jb->gab", basis, cov, basis) + np.eye(2) * (1e-3 * half) ** 2
+    reach = 3.0 * float(np.sqrt(np.linalg.eigvalsh(cov2)[:, -1].max()))
+    step = 0.4 * half
+    lo, hi = pts.min(0) - 2 * reach, pts.max(0) + 2 * reach
+    gx = np.arange(lo[0], hi[0] + step, step)
+    gy = np.arange(lo[1], hi[1] + step, step)
+    c = _coverage_grid(pts, cov2, gx, gy, reach)
+    return PatchCoverage(basis, np.asarray(point, np.float64), pts, cov2, reach, gx, gy, c,
+                         0.5 * float(c[c > 0.5 * c.max()].mean()))
+
+
 def _straight_runs(simple: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """The pieces (a, b) of polyline `simple` [P, 2] with the ends (run_a, run_b) of the straight run each
     belongs to: consecutive pieces within WEDGE_T_COS of the run's first direction (a closed line starts at a
@@ -188,22 +231,9 @@ def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: n
     members' median half-side (m)."""
     import contourpy
 
-    ref = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(normal, ref)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
-    basis = np.stack([e1, e2], 1)                                          # [3, 2]
-    pts = (x - point) @ basis
-    cov2 = np.einsum("ia,gij,jb->gab", basis, cov, basis) + np.eye(2) * (1e-3 * half) ** 2
-    reach = 3.0 * float(np.sqrt(np.linalg.eigvalsh(cov2)[:, -1].max()))
-    step = 0.4 * half
-    lo, hi = pts.min(0) - 2 * reach, pts.max(0) + 2 * reach
-    gx = np.arange(lo[0], hi[0] + step, step)
-    gy = np.arange(lo[1], hi[1] + step, step)
-    c = _coverage_grid(pts, cov2, gx, gy, reach)
-    inner = c[c > 0.5 * c.max()]
-    level = 0.5 * float(inner.mean())
-    lines = contourpy.contour_generator(gx, gy, c).lines(level)
+    cover = patch_coverage(x, cov, normal, point, half)
+    basis, pts, cov2, reach = cover.basis, cover.pts, cover.cov2, cover.reach
+    lines = contourpy.contour_generator(cover.gx, cover.gy, cover.grid).lines(cover.level)
     mids, tans, lens, spans = [], [], [], []
     for line in lines:
         line = np.asarray(line)

@@ -16,8 +16,13 @@ specularly towards Rx (a corner reflector's flash), b_XY = c_XY cos_i' (the pola
 currents radiate too (b_X0, independent of B's material: (cos_o - cos_i') / 2 for a wave in B's plane
 of incidence), and the symmetric obliquity (cos_i' + cos_o) / 2 of the single bounce would leave
 them out (a metal plate lit at 25 degrees and seen at 85: 5 dB low). A term exists only when c
-lies on one of A's surfel cells (within CELL_MARGIN of its sides: a hard aperture, A's edge
-diffraction is left out; a crossing past A's edge, as at a convex edge, makes none), Tx and m are
+lies inside A's boundary, the level line at half A's interior coverage (`edges.patch_coverage`, the
+boundary the edge waves use): a hard aperture at A's true edge, as the geometric-optics
+first bounce of the PO solver's ray tubes; A's edge diffraction is left out, and a crossing past A's
+edge, as at a convex edge, makes none. Its material and lit state are those of the lit surfel of A
+whose cell holds c (within CELL_MARGIN of its sides: the cells of a triangle tiling leave gaps, which
+the margin closes; as an aperture the widened cells would reach up to half a half-side past A's edge,
+and light a strip of B beyond the reflected beam's shadow boundary). Tx and m are
 on the same side of A, Tx_A and Rx on the same side of B, and both legs are lit: V = V(Tx -> that
 surfel of A) V(Rx -> m), looked up in the first-order pairs. That lookup makes the term exact for
 co-located antennas (monostatic radar); links with separated antennas get no second order here
@@ -42,14 +47,16 @@ from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 
+from .edges import patch_coverage
 from .link_rows import renumber_links
 from .materials import C0
-from .surfels import COPLANAR_M, footprint_factor
+from .surfels import COPLANAR_M, covariance, footprint_factor
 
 PARALLEL_COS = 0.98     # normals this close, offsets along them below COPLANAR_M: one plane (such patches form no dihedral)
 DIHEDRAL_COS = 0.5      # patches whose normals are 60-120 degrees apart can form a corner reflector
 NORMAL_TOL = 1e-6       # patch normals are surfel averages: a wedge of exactly 60 degrees must not depend on rounding
-CELL_MARGIN = 0.5       # a crossing within half a half-side past a cell is on it (the cells of a triangle tiling leave gaps)
+CELL_MARGIN = 0.5       # a crossing within half a half-side past a cell is on it (the cells of a triangle tiling leave gaps;
+                        # the aperture's edge is the patch's boundary, edges.patch_coverage, not the cells')
 
 
 @dataclass
@@ -164,6 +171,8 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
     trees = [cKDTree(x[m]) for m in patches.members]
     reach = [float(np.sqrt(areas_m2.numpy()[m].max())) for m in patches.members]
     radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
+    cov = covariance(geom.log_scales, geom.rotations).numpy()
+    half = cells.numpy()                                                  # [G, 2, 3] half-side axes
     parts = []
     for pa, partners in enumerate(dihedral_partners(patches, radius)):
         if not partners:
@@ -172,9 +181,10 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
         mb = np.concatenate([patches.members[pb] for pb in partners])
         xb = x[mb]                                                        # [B, 3]
         side_b = (xb - pa_pt) @ na                                        # B's surfels relative to plane A
-        item = _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, trees[pa], patches.members[pa],
-                           reach[pa], vis_lookup, tx_ant, rx_ant, cells, areas_m2, k0, polarisation,
-                           patches.point[pa], radius[pa])
+        ma = patches.members[pa]
+        aperture = patch_coverage(x[ma], cov[ma], na, pa_pt, float(np.median(np.linalg.norm(half[ma], axis=2))))
+        item = _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, trees[pa], ma, reach[pa], vis_lookup,
+                           tx_ant, rx_ant, cells, areas_m2, k0, polarisation, patches.point[pa], radius[pa], aperture)
         if item is not None:
             parts.append(item)
     if not parts:
@@ -201,9 +211,9 @@ def dihedral_partners(patches: Patches, radius: np.ndarray) -> list[list[int]]:
 
 
 def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, members_a, reach_a, vis_lookup,
-                tx_ant, rx_ant, cells, areas_m2, k0, polarisation, centre_a, radius_a):
+                tx_ant, rx_ant, cells, areas_m2, k0, polarisation, centre_a, radius_a, aperture):
     """Items of the double bounces off patch A, then one of the surfels mb of its partners, for every
-    co-located link."""
+    co-located link; aperture: A's `edges.patch_coverage` (its boundary)."""
     tx = links.tx_m.numpy()
     rx = links.rx_m.numpy()
     side_tx = (tx - pa_pt) @ na                                           # [M]
@@ -237,7 +247,7 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     k_near = min(4, len(members_a))
     dist, near = tree_a.query(c, k=k_near)
     dist, near = dist.reshape(len(c), k_near), near.reshape(len(c), k_near)
-    valid = dist[:, 0] < reach_a
+    valid = (dist[:, 0] < reach_a) & aperture.inside(c)                 # inside A's boundary: its true edge
     li, bi, c, near, dist, v_b = li[valid], bi[valid], c[valid], near[valid], dist[valid], v_b[torch.as_tensor(valid)]
     if li.size == 0:
         return None
