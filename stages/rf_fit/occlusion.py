@@ -21,7 +21,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from rfir_cli.physics.gaussian_rf import quaternion_to_matrix
+from rfir_cli.physics.gaussian_rf import covariance, quaternion_to_matrix
 from rfir_stages.po.geometry import single_thread_torch
 
 
@@ -259,8 +259,7 @@ class ShellSplitOcclusion:
         dirs = np.concatenate([dirs, -dirs])                                               # [U, 3]
         proj = means @ dirs.T                                                              # [G, U]
         support = proj.max(0)                                                              # the plane bounding all means
-        scaled = quaternion_to_matrix(g.rotations.double()) * torch.exp(g.log_scales.double())[..., None, :]
-        cov = (scaled @ scaled.transpose(-1, -2)).numpy()                                  # [G, 3, 3] m^2
+        cov = covariance(g.log_scales.double(), g.rotations.double()).numpy()             # [G, 3, 3] m^2
         reach = kappa * np.sqrt(np.maximum(np.einsum("ui,gij,uj->gu", dirs, cov, dirs), 0.0))
         inner = support[None] - proj + reach                          # [G, U] depth of each ellipsoid's deepest point
         on_plane = inner <= shell_m
