@@ -40,6 +40,14 @@ geometric series). Near grazing beyond A these are as large as the first-order w
 total field at the far edge (the plane wave and A's diffracted wave) vanishes as the radar reaches the
 sheet's plane, and the hard sheet's echo falls as (cos theta)^4 as the exact one does.
 
+Waves between an outer edge and a fold (`_fold_terms`, `wedge_grazing_vertex`): in the hard case the wave
+diffracted at a half-plane edge O also runs along its face's outer side to a fold F straight across the face
+(`Edges.fold`; a dihedral's fold seen from outside, n = 1.5) and is diffracted there back to the radar, and the
+reverse; one item of O with one crossing (`_crossing`) and Keller's coefficients of the two wedges for a wave
+grazing along their faces, the UTD transition function at the grazing wave's shadow boundary. A radar in the
+fold's concave corner gets none; the return from the concave side (O -> corner -> O) is left out
+(docs/physics.md section 8.13 says why).
+
 Edges of a surfel set (`patch_edges`): for each planar patch (second_order.planar_patches), the level
 line at half the patch's interior coverage C(x) (the sum of its Gaussians in its plane, which falls to
 half its value at the border of a tiling; surfels.py), simplified to straight pieces and cut into
@@ -77,7 +85,10 @@ class Edges:
     face next to the edge (its material and visibility); opposite [E]: for a half-plane edge, the segment of
     the facing parallel half-plane edge of the same patch straight across it (-1: none), width [E] m the
     distance across (the doubly diffracted wave, `_double_terms`); span [E, 2] m: the extent of the straight
-    run of the boundary the segment belongs to, along its tangent from its midpoint (lo <= 0 <= hi)."""
+    run of the boundary the segment belongs to, along its tangent from its midpoint (lo <= 0 <= hi); fold [E]:
+    for a half-plane edge, the segment of a fold (a wedge of two patches, 1 < n < 2) straight across its face,
+    parallel, one of whose faces points back to it (-1: none), fold_width [E] m the distance across (the wave
+    between an outer edge and a fold along the fold's outer face, `_fold_terms`)."""
 
     mid: torch.Tensor
     tangent: torch.Tensor
@@ -89,6 +100,8 @@ class Edges:
     opposite: torch.Tensor
     width: torch.Tensor
     span: torch.Tensor
+    fold: torch.Tensor
+    fold_width: torch.Tensor
 
     @property
     def num(self) -> int:
@@ -99,7 +112,7 @@ def _empty_edges() -> Edges:
     z3 = torch.zeros((0, 3), dtype=torch.float64)
     zi = torch.zeros(0, dtype=torch.int64)
     z = torch.zeros(0, dtype=torch.float64)
-    return Edges(z3, z3, z, z3, z3, zi, zi, zi, z, torch.zeros((0, 2), dtype=torch.float64))
+    return Edges(z3, z3, z, z3, z3, zi, zi, zi, z, torch.zeros((0, 2), dtype=torch.float64), zi, z)
 
 
 def _simplify(line: np.ndarray, tol: float) -> np.ndarray:
@@ -306,8 +319,10 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a[keep]))  # noqa: E731
     opposite, width = _opposite_edges(mid[keep], tangent[keep], face[keep], face_b[keep], length[keep], half[keep],
                                       patch[keep])
+    fold, fold_width = _fold_edges(mid[keep], tangent[keep], face[keep], face_b[keep], length[keep], half[keep])
     return Edges(t(mid), t(tangent), t(length), t(face), t(face_b), t(s_id).long(), t(gauss_b).long(),
-                 torch.as_tensor(opposite), torch.as_tensor(width), t(span))
+                 torch.as_tensor(opposite), torch.as_tensor(width), t(span), torch.as_tensor(fold),
+                 torch.as_tensor(fold_width))
 
 
 def _opposite_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face_b: np.ndarray, length: np.ndarray,
@@ -333,6 +348,40 @@ def _opposite_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face
         opposite[idx[has]] = idx[best[has]]
         width[idx[has]] = across[has, best[has]]
     return opposite, width
+
+
+def _fold_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face_b: np.ndarray, length: np.ndarray,
+                half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each half-plane edge segment O (both faces' directions equal; mid, tangent, face, face_b [E, 3],
+    length, half [E] m as in `patch_edges`), the nearest segment of a fold (a wedge of two faces, neither a
+    half-plane nor a flat continuation) straight across O in O's plane, parallel, one of whose faces points back
+    to O (the wave along that face joins the two): (fold [E] int64, -1 for none; fold_width [E] m, the distance
+    across along O's inward direction)."""
+    num = len(mid)
+    fold, width = np.full(num, -1, dtype=np.int64), np.zeros(num)
+    cos_ab = np.einsum("ej,ej->e", face, face_b)
+    si = np.nonzero(cos_ab >= WEDGE_T_COS)[0]                                 # half-planes
+    wi = np.nonzero((cos_ab < WEDGE_T_COS) & (cos_ab > -WEDGE_T_COS))[0]       # folds
+    if not len(si) or not len(wi):
+        return fold, width
+    chunk = max(1, 1_000_000 // len(wi))                # half-plane rows per pass: [S, W, 3] arrays stay small
+    for a in range(0, len(si), chunk):
+        sc = si[a:a + chunk]
+        off = mid[wi][None] - mid[sc][:, None]                             # [S, W, 3]: from the edge to the fold
+        across = np.einsum("swj,sj->sw", off, face[sc])
+        along = np.einsum("swj,sj->sw", off, tangent[sc])
+        aside = np.linalg.norm(off - across[..., None] * face[sc][:, None] - along[..., None] * tangent[sc][:, None],
+                               axis=-1)                                   # off the half-plane's plane
+        back = np.minimum(face[sc] @ face[wi].T, face[sc] @ face_b[wi].T)
+        ok = (np.abs(tangent[sc] @ tangent[wi].T) >= WEDGE_T_COS) & (back <= -WEDGE_T_COS)
+        ok &= (across > 2.0 * half[sc][:, None]) & (np.abs(along) <= 0.5 * (length[sc][:, None] + length[wi][None]))
+        ok &= aside <= 0.5 * np.maximum(half[sc][:, None], half[wi][None])
+        dist = np.where(ok, across, np.inf)
+        has = ok.any(1)
+        best = dist.argmin(1)
+        fold[sc[has]] = wi[best[has]]
+        width[sc[has]] = across[has, best[has]]
+    return fold, width
 
 
 def _gtd_minus_po(phi: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -432,6 +481,10 @@ def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: Ant
                 parts.append(_double_terms(edges, lk, radar, m_i[vis > 0], e_i[vis > 0], phi, s, d, st, sin_b, k0,
                                            lambda q, e: _edge_lit(lit, edges, q, e), tx_ant, rx_ant, links,
                                            polarisation))
+            if bool((edges.fold >= 0).any()):
+                parts.append(_fold_terms(edges, lk, radar, m_i[vis > 0], e_i[vis > 0], phi, n_ext, from_b, s, d, st,
+                                         sin_b, k0, lambda q, e: _edge_lit(lit, edges, q, e), tx_ant, rx_ant, links,
+                                         polarisation))
             m_i, e_i, vis = m_i[vis > 0], e_i[vis > 0], vis[vis > 0]
             if m_i.numel() == 0:
                 continue
@@ -589,6 +642,94 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     coef = (base[:, None] / k0[None]) * along * (amp * torch.exp(-1j * (dd + d_b)[:, None] * k0[None])
                                                  + amp_ret * torch.exp(-2j * dd[:, None] * k0[None]))
     return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[opp], coef
+
+
+def wedge_grazing_vertex(phi: np.ndarray, n: np.ndarray, kw: np.ndarray) -> np.ndarray:
+    """h(phi, n) [...] complex: Keller's hard coefficient of a perfectly conducting wedge (exterior angle n pi)
+    between the radar at angle phi from face 0 (0..n pi) and a wave grazing along face 0 (arriving or leaving),
+    with the factor 1/2 of grazing incidence, in the units of `_crossing_vertex` (n = 2, F = 1: sec(phi / 2)):
+        h = (1 / n) [cot((pi + phi) / (2 n)) + cot((pi - phi) / (2 n)) F(2 kw cos^2(phi / 2))]
+          = -(2 sin(pi / n) / n) / (cos(pi / n) - cos(phi / n))   (F = 1);
+    the UTD transition function F (`utd_transition`; kw = k w, w the distance to the other end of the grazing
+    path) multiplies the one term that is singular at the shadow boundary of the grazing wave (phi = pi: the
+    radar in face 0's plane beyond the edge), where the radar is beyond the face's normal (phi > pi / 2); Keller's
+    F = 1 elsewhere, as `_crossing_vertex`. There the term tends to +-sqrt(2 pi kw) (sign of pi - phi, the
+    diffracted wave's jump that makes the total field continuous). n = 1.5 (a 90-degree fold seen from outside):
+    h(0) = 4 / (3 sqrt(3)) = 0.770."""
+    phi, n, kw = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (phi, n, kw)))
+    x = (math.pi - phi) / (2.0 * n)
+    x = np.where(np.abs(x) < 1e-9, 1e-9, x)          # F -> 0 there: the product stays finite
+    near = phi > 0.5 * math.pi
+    f = np.where(near, utd_transition(np.where(near, 2.0 * kw * np.cos(0.5 * phi) ** 2, 1.0)), 1.0)
+    return (1.0 / np.tan((math.pi + phi) / (2.0 * n)) + f / np.tan(x)) / n
+
+
+def _fold_terms(edges: Edges, lk, radar, m_i, e_i, phi, n_ext, from_b, s, d, st, sin_b, k0, vis_of, tx_ant, rx_ant,
+                links, polarisation):
+    """Items (link, outer edge O) of the waves between a half-plane edge O and the fold F across its face (width
+    w, `Edges.fold`) along the fold's outer face, for the lit items (m_i, e_i) of one link chunk, in the hard case
+    (E across the edges), in the units of `wedge_fringe`: the radar's field diffracted at O, carried along the
+    face's outer side, grazing, and diffracted at F back to the radar, and the reverse (F -> O; in backscatter the
+    same phase):
+        K(w) h(phi_O, 2) h(phi_F, n_F),
+    relative to the phase exp(-j k (d_O + d_F')) of the path without the crossing (F' the fold's point across
+    from O's midpoint); K = `_crossing` (a crossing of w sin beta at wavenumber k between Keller's coefficients;
+    its factor 2 is here the two directions, the wave running along one face only), h = `wedge_grazing_vertex`;
+    phi_O from O's face through its outer side (away from the fold's other face; 0..2 pi: the wave leaves O along
+    that side whichever side the radar is on), phi_F from the fold's face toward O through the exterior (0..n_F pi;
+    outside that, in the concave corner, the fold's exterior does not see the radar; F must be lit). A soft field
+    vanishes on the face: no such term. The wave along the face's inner side into a concave fold is not here
+    (docs/physics.md section 8.13: its return near the plate's plane is PO's specular flash of the other plate).
+    Radiated along O as its first-order current (the sinc) with the hard share w_h; an item exists where the ray
+    reaching O's midpoint left the fold on its straight run (Keller's cone, as `_double_terms`). Returns
+    (link [I], gauss_a [I], gauss_b [I], coef [I, K])."""
+    fold = edges.fold[e_i]
+    sel = fold >= 0
+    m_i, e_i, fold = m_i[sel], e_i[sel], fold[sel]
+    none = (torch.zeros(0, dtype=torch.int64),) * 3 + (torch.zeros((0, int(k0.numel())), dtype=torch.complex128),)
+    if m_i.numel() == 0:
+        return none
+    w = edges.fold_width[e_i]
+    sb = sin_b[m_i, e_i].clamp(min=1e-12)
+    cone = w * st[m_i, e_i] / sb                       # along O's tangent, where the ray meets the fold's line
+    origin = edges.mid[e_i] + w[:, None] * edges.face_a[e_i] + cone[:, None] * edges.tangent[e_i]
+    u = ((origin - edges.mid[fold]) * edges.tangent[fold]).sum(-1)
+    on = (u >= edges.span[fold, 0]) & (u <= edges.span[fold, 1])
+    m_i, e_i, fold, w, sb = (x[on] for x in (m_i, e_i, fold, w, sb))
+    if m_i.numel() == 0:
+        return none
+    # which of the fold's faces runs back to O; phi_F from it; the radar outside the wedge and the fold lit
+    path = -edges.face_a[e_i]
+    path_is_a = (edges.face_a[fold] * path).sum(-1) >= (edges.face_b[fold] * path).sum(-1)
+    n_f = n_ext[fold]
+    phi_f = torch.where(path_is_a ^ from_b[fold], phi[m_i, fold], n_f * math.pi - phi[m_i, fold])
+    outside = (phi[m_i, fold] <= n_f * math.pi) & (sin_b[m_i, fold] > 1e-6)
+    if bool(outside.any()):
+        outside[outside.clone()] = vis_of(lk[m_i[outside]], fold[outside]) > 0
+    m_i, e_i, fold, w, sb, phi_f, n_f, path_is_a = (
+        x[outside] for x in (m_i, e_i, fold, w, sb, phi_f, n_f, path_is_a))
+    if m_i.numel() == 0:
+        return none
+    # phi_O through the outer side of O's face: the side away from the fold's other face
+    other = torch.where(path_is_a[:, None], edges.face_b[fold], edges.face_a[fold])
+    e2 = torch.linalg.cross(edges.tangent[e_i], edges.face_a[e_i], dim=-1)
+    phi_o = torch.where((other * e2).sum(-1) < 0, phi[m_i, e_i], 2 * math.pi - phi[m_i, e_i]).numpy()[:, None]
+    kw = (k0[None] * (w * sb)[:, None]).numpy()                                  # [I, K]
+    k_cross, _ = _crossing(kw)
+    amp = torch.as_tensor(k_cross * wedge_grazing_vertex(phi_o, 2.0, kw)
+                          * wedge_grazing_vertex(phi_f.numpy()[:, None], n_f.numpy()[:, None], kw))   # [I, K]
+    sv = s[m_i, e_i]
+    p = _polarisation(sv, polarisation)
+    t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sb[:, None]
+    w_h = 1.0 - ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
+    g_t = tx_ant.gain(-sv, links.tx_axis[lk][m_i])
+    g_r = rx_ant.gain(-sv, links.rx_axis[lk][m_i])
+    dd, ln = d[m_i, e_i], edges.length[e_i]
+    d_f = (radar[m_i] - (edges.mid[e_i] + w[:, None] * edges.face_a[e_i])).norm(dim=-1)
+    base = torch.sqrt(g_t * g_r) * w_h * ln / (8 * math.pi * dd**2)
+    along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)
+    coef = (base[:, None] / k0[None]) * along * amp * torch.exp(-1j * (dd + d_f)[:, None] * k0[None])
+    return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[fold], coef
 
 
 def edge_reflection(mats, freq_hz: torch.Tensor) -> torch.Tensor:

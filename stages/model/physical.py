@@ -15,11 +15,11 @@ Received complex amplitude and power for a batch of links (P_T = 1 W, path gain 
   footprint factor of the surfel's cell (surfels.footprint_cells);
 - Gamma_m(theta, pol): the co-polarised Fresnel (slab) coefficient of the material at the local
   incidence angle (materials.co_polar_reflection; the TE share from the antennas' polarisation);
-- V_l = V_tx V_rx: the lit/shadowed state (1 or 0) of the surfel's mean from each antenna: lit when
-  the transmittance traced through the Gaussians (one RF opacity for every Gaussian, frozen) exceeds
-  `lit_threshold`, as physical optics lights a facet (surfaces are opaque; docs/physics.md section
-  8.6); one factor when the antennas are co-located, which is the monostatic radar (the two legs
-  share one path);
+- V_l = V_tx V_rx: the lit/shadowed state (1 or 0) of the surfel from each antenna: lit when the
+  transmittance traced through the Gaussians (one RF opacity for every Gaussian, frozen) to a point
+  just off the surfel's own surface (traced_lit) exceeds `lit_threshold`, as physical optics lights a
+  facet (surfaces are opaque; docs/physics.md section 8.6); one factor when the antennas are
+  co-located, which is the monostatic radar (the two legs share one path);
 - g: a system gain (1 unless fitted: the level is physical);
 - with settings.edge_waves, the fringe field of the planar patches' outer edges is added to S_spec
   (edges.py, docs/physics.md section 8.13), as the double bounces are (second_order.py).
@@ -124,7 +124,10 @@ class PairGeometry:
 class PairSettings:
     """visibility: trace V (False: every lit surfel sees both antennas). opacity: the RF opacity of
     every Gaussian for the traced V. margin_m: occluders closer than this in front of a surfel are
-    ignored (a surface does not shadow itself). colocated_tol_m: Tx and Rx closer than this are one
+    ignored (a surface does not shadow itself). lift: the traced segment ends off the surfel's mean,
+    along its normal on the antenna's side, by the reach of the surfel's own Gaussian along its normal
+    (occlusion.segment_rays), so that near grazing the other Gaussians of its own flat surface do not
+    shadow it. colocated_tol_m: Tx and Rx closer than this are one
     radar (one visibility factor). polarisation: "V" or "H". link_chunk: links per geometry block.
     second_order: add double bounces between planar patches of at least min_patch_area_m2
     (second_order.py; co-located antennas only). lit_threshold: a surfel is lit from an antenna when
@@ -135,6 +138,7 @@ class PairSettings:
     visibility: bool = True
     opacity: float = 0.9
     margin_m: float = 0.0025
+    lift: bool = True
     t_stop: float = 1e-4
     colocated_tol_m: float = 0.01
     polarisation: str = "V"
@@ -178,6 +182,18 @@ def lit_state(transmittance: torch.Tensor, threshold: float) -> torch.Tensor:
     return (transmittance > threshold).to(transmittance.dtype)
 
 
+def traced_lit(provider: OcclusionProvider, origins: torch.Tensor, gauss: torch.Tensor, settings: PairSettings,
+               num_gaussians: int) -> torch.Tensor:
+    """V [Q] of one leg: the lit state (lit_state) of surfel gauss [Q] from the antenna at origins [Q, 3] m,
+    traced through the Gaussians with settings' opacity, margin and lift (docs/physics.md section 8.6).
+    The one definition of a surfel's lit state: the first order, the edge waves and (through the pairs'
+    table) the double bounce use it."""
+    op = torch.full((num_gaussians,), settings.opacity, dtype=torch.float64)
+    return lit_state(provider.segment_transmittance(origins, gauss, settings.margin_m, op,
+                                                    lit_stop(settings.t_stop, settings.lit_threshold),
+                                                    lift=settings.lift), settings.lit_threshold)
+
+
 def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,
                 provider: OcclusionProvider | None, settings: PairSettings = PairSettings(),
                 areas_m2: torch.Tensor | None = None, patches: "Patches | None" = None,
@@ -195,13 +211,10 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
         cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
         vis = torch.ones_like(cat["d_i"])
         if settings.visibility and provider is not None and cat["link"].numel():
-            op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
-            stop = lit_stop(settings.t_stop, settings.lit_threshold)   # only the lit state is kept: same states
-            v_tx = lit_state(provider.segment_transmittance(links.tx_m[cat["link"]], cat["gauss"], settings.margin_m,
-                                                            op, stop), settings.lit_threshold)
+            v_tx = traced_lit(provider, links.tx_m[cat["link"]], cat["gauss"], settings, geom.num)
             colocated = bool(((links.tx_m - links.rx_m).norm(dim=-1) < settings.colocated_tol_m).all())
-            vis = v_tx if colocated else v_tx * lit_state(provider.segment_transmittance(
-                links.rx_m[cat["link"]], cat["gauss"], settings.margin_m, op, stop), settings.lit_threshold)
+            vis = v_tx if colocated else v_tx * traced_lit(provider, links.rx_m[cat["link"]], cat["gauss"], settings,
+                                                           geom.num)
         keep = vis > 1e-6
         cat = {k: v[keep] for k, v in cat.items()}
         pairs = PairGeometry(links.num, cat["link"], cat["gauss"], cat["d_i"], cat["d_o"], cat["cos_i"], cat["cos_o"],
@@ -234,10 +247,7 @@ def _edge_lit(geom: FrozenGeometry, links: LinkSet, provider: OcclusionProvider 
     colocated = bool(((links.tx_m - links.rx_m).norm(dim=-1) < settings.colocated_tol_m).all())
 
     def trace(link: torch.Tensor, gauss: torch.Tensor) -> torch.Tensor:
-        op = torch.full((geom.num,), settings.opacity, dtype=torch.float64)
-        return lit_state(provider.segment_transmittance(links.tx_m[link], gauss, settings.margin_m, op,
-                                                        lit_stop(settings.t_stop, settings.lit_threshold)),
-                         settings.lit_threshold)
+        return traced_lit(provider, links.tx_m[link], gauss, settings, geom.num)
 
     def lit(link: torch.Tensor, gauss: torch.Tensor) -> torch.Tensor:
         if not settings.visibility or provider is None or link.numel() == 0:
