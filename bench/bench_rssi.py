@@ -10,7 +10,7 @@ room model on free-space data for two transmitters gives an `rf` artifact. Then,
 - map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: every receiver's visibility
   of the diffuse cells traced (what every map cost before receivers were kept; the cells each link needs,
   with the room's walls, floor and ceiling in a BVH of their own: room_diffuse.CellVisibility), and
-  map_cold_cpu_s its CPU time;
+  map_cold_cpu_s its CPU time; the paths are traced on a second thread meanwhile (RoomGeometry.links);
 - map_new_tx_s: a map of the same receivers for a transmitter not seen before, the receivers kept from
   an earlier map of the same model (RoomGeometry.cell_visibility);
 - default_map_s: `predict rssi --tx ... --grid` 's default map ([predict.rssi] grid) from a freshly

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,15 +103,26 @@ class RoomGeometry:
     def links(self, tx_m, rx_m, freq_hz, progress=None) -> "RoomLinks":
         """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]."""
         s = self.settings
-        paths = trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
-                                 max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
-                                 third_order_min_area_m2=s.third_order_min_area_m2)
-        diffuse = None
-        if s.diffuse:
+
+        def paths() -> RoomPaths:
+            return trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
+                                    max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
+                                    third_order_min_area_m2=s.third_order_min_area_m2)
+
+        def specular(p: RoomPaths, diffuse: DiffuseTerms | None = None) -> RoomLinks:
+            with single_thread_torch():   # small tensor ops: on a shared CPU thread hand-offs cost more than the work
+                return RoomLinks(p, diffuse, torch.as_tensor(self.material_of_patch), self.num_materials)
+
+        if not s.diffuse:
+            return specular(paths())
+        # the paths are traced on a second thread while this one traces the diffuse cells' visibility: they share
+        # only the read-only geometry, and most of each runs in numpy or the tracer, outside the GIL (torch's thread
+        # count is changed on this thread alone)
+        with ThreadPoolExecutor(1) as pool:
+            pending = pool.submit(paths)
             diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.num_materials, self.provider, s.opacity,
                                     s.diffuse_margin_m, s.t_stop, visibility=self.cell_visibility)
-        with single_thread_torch():   # small tensor ops: on a shared CPU thread hand-offs cost more than the work
-            return RoomLinks(paths, diffuse, torch.as_tensor(self.material_of_patch), self.num_materials)
+            return specular(pending.result(), diffuse)
 
 
 def geometry_key(geom: FrozenGeometry) -> str:

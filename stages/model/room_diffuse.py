@@ -23,7 +23,7 @@ from rfir_stages.po.geometry import single_thread_torch
 from rfir_stages.rf_fit.occlusion import ShellSplitOcclusion, TracerOcclusion
 
 from .materials import C0, fresnel
-from .room_paths import PatchSet
+from .room_paths import PatchSet, _dot
 
 NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees; |Gamma|^2 is linear between them
 
@@ -72,18 +72,27 @@ class DiffuseTerms:
     def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
               scattering: torch.Tensor) -> torch.Tensor:
         """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (one frequency) or [N, M], thickness [N], S [N]."""
-        cos = torch.cos(torch.deg2rad(torch.linspace(0.0, 90.0, NODES, dtype=torch.float64)))
+        g2 = diffuse_reflectance(eta_of_material, thickness_m, scattering, self.freq_hz)
         if eta_of_material.shape[1] == 1:
-            k0 = 2 * math.pi * self.freq_hz[:1] / C0
-            th = None if thickness_m is None else thickness_m[:, None]
-            r_te, r_tm = fresnel(eta_of_material, cos[None], k0[None], th)                    # [N, NODES]
-            g2 = 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None]
             return (self.weight * g2[None]).sum((1, 2))
-        k0 = 2 * math.pi * self.freq_hz / C0                                                     # [M]
-        th = None if thickness_m is None else thickness_m[:, None, None]
-        r_te, r_tm = fresnel(eta_of_material[:, :, None], cos[None, None], k0[None, :, None], th)  # [N, M, NODES]
-        g2 = 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None, None]
         return (self.weight * g2.permute(1, 0, 2)).sum((1, 2))
+
+
+def diffuse_reflectance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None, scattering: torch.Tensor,
+                        freq_hz: torch.Tensor) -> torch.Tensor:
+    """|Gamma|^2 S^2 on the NODES incidence angles: [N, NODES] for eta [N, 1] (one frequency, freq_hz[0]) or
+    [N, M, NODES] for eta [N, M] at the links' freq_hz [M]; |Gamma|^2 = (|R_TE|^2 + |R_TM|^2) / 2, S [N],
+    thickness [N] m (None: half-spaces)."""
+    cos = torch.cos(torch.deg2rad(torch.linspace(0.0, 90.0, NODES, dtype=torch.float64)))
+    if eta_of_material.shape[1] == 1:
+        k0 = 2 * math.pi * freq_hz[:1] / C0
+        th = None if thickness_m is None else thickness_m[:, None]
+        r_te, r_tm = fresnel(eta_of_material, cos[None], k0[None], th)                    # [N, NODES]
+        return 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None]
+    k0 = 2 * math.pi * freq_hz / C0                                                          # [M]
+    th = None if thickness_m is None else thickness_m[:, None, None]
+    r_te, r_tm = fresnel(eta_of_material[:, :, None], cos[None, None], k0[None, :, None], th)  # [N, M, NODES]
+    return 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None, None]
 
 
 class CellVisibility:
@@ -112,18 +121,22 @@ class CellVisibility:
         self._rows: dict[bytes, np.ndarray] = {}     # NaN: not traced yet
         self._split = None
 
-    def _segments(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        """V [Q] from points [Q, 3] to the anchors of cells [Q]."""
+    def _provider_for(self, num_segments: int):
+        """The provider to trace num_segments segments with (the shell split built on first use)."""
         provider = self.provider
         # the split is measured on the CPU tracer (bench/bench_rssi.py); a GPU's tracer is left as it is
-        if (len(cells) >= self.SPLIT_MIN_SEGMENTS and isinstance(provider, TracerOcclusion)
+        if (num_segments >= self.SPLIT_MIN_SEGMENTS and isinstance(provider, TracerOcclusion)
                 and provider.device.type == "cpu"):
             if self._split is None:
                 with single_thread_torch():   # small tensor ops: thread hand-offs cost more than the work
                     self._split = ShellSplitOcclusion(provider)
             provider = self._split
-        v = provider.segment_transmittance(torch.as_tensor(points), torch.as_tensor(self.cells.anchor[cells]),
-                                           self.margin_m, self.op, self.t_stop)
+        return provider
+
+    def _segments(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """V [Q] from points [Q, 3] to the anchors of cells [Q]."""
+        v = self._provider_for(len(cells)).segment_transmittance(
+            torch.as_tensor(points), torch.as_tensor(self.cells.anchor[cells]), self.margin_m, self.op, self.t_stop)
         return v.numpy()
 
     def __call__(self, points: np.ndarray, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -146,13 +159,11 @@ class CellVisibility:
         if need is None:
             missing = np.isnan(out)
         else:
-            wanted = np.zeros((len(keys), c), dtype=bool)
-            np.logical_or.at(wanted, inv, np.asarray(need, dtype=bool))
-            missing = wanted & np.isnan(out)
-        cell, row = np.nonzero(missing.T)                 # cell after cell, each from every point
+            missing = _rows_any(np.asarray(need, dtype=bool), inv, len(keys)) & np.isnan(out)
+        cell, row = np.nonzero(np.ascontiguousarray(missing.T))    # cell after cell, each from every point
         if len(cell):
             out[row, cell] = self._segments(uniq[row], cell)
-        old = [i for i in np.unique(row) if keys[i] in self._rows]        # kept rows traced further
+        old = [i for i in np.flatnonzero(missing.any(1)) if keys[i] in self._rows]    # kept rows traced further
         self._rows.update((keys[i], out[i].copy()) for i in old)
         if new and len(new) <= self.max_rows:
             if len(self._rows) + len(new) > self.max_rows:
@@ -177,6 +188,37 @@ class CellVisibility:
                 self._rows[p.tobytes()] = r
 
 
+def _rows_any(need: np.ndarray, inv: np.ndarray, num: int) -> np.ndarray:
+    """[num, C] bool: row u is the OR of the rows of need [N, C] with inv [N] == u (every u in 0..num-1 occurs)."""
+    if num == len(inv):                                  # distinct points (a map's receivers): a permutation
+        out = np.empty_like(need)
+        out[inv] = need
+        return out
+    order = np.argsort(inv, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(inv[order]) != 0])
+    return np.logical_or.reduceat(need[order], starts, axis=0)
+
+
+def _cell_factors(tx: np.ndarray, rx: np.ndarray, lam2: np.ndarray, cells: DiffuseCells):
+    """Per (link, cell) of links tx, rx [B, 3] m at wavelengths^2 lam2 [B] m^2: (g [B, C] the Lambertian factor
+    A cos(theta_i) cos(theta_o) lambda^2 / (16 pi^3 d_i^2 d_o^2) of section 8.8 without V, 0 where the ends lie
+    on opposite sides of the cell; node [B, C] int64 and frac [B, C]: theta_i between angle nodes node and
+    node + 1)."""
+    wi = tx[:, None, :] - cells.centre[None]                        # [B, C, 3]
+    wo = rx[:, None, :] - cells.centre[None]
+    n = cells.normal[None]
+    di2, do2 = _dot(wi, wi), _dot(wo, wo)
+    di, do = np.sqrt(di2), np.sqrt(do2)
+    ci = _dot(wi, n) / di
+    co = _dot(wo, n) / do
+    lit = ci * co > 0                                                  # both ends on one side
+    ci, co = np.abs(ci), np.abs(co)
+    g = (cells.area[None] * ci * co * lam2[:, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)) * lit
+    theta = np.arccos(np.clip(ci, 0.0, 1.0)) / math.radians(90.0 / (NODES - 1))
+    node = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
+    return g, node, np.clip(theta - node, 0.0, 1.0)
+
+
 def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells, num_materials: int,
                   provider, opacity: float, margin_m: float, t_stop: float, link_chunk: int = 256,
                   progress_task=None, visibility: CellVisibility | None = None) -> DiffuseTerms:
@@ -185,7 +227,7 @@ def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells
     visibility: a CellVisibility of these cells, provider and settings to reuse (None: a fresh one)."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
-    m, c = len(tx), len(cells.area)
+    m = len(tx)
     if visibility is None:
         visibility = CellVisibility(cells, provider, opacity, margin_m, t_stop)
     # each end's visibility is needed only where the cell is lit (both ends on one side of its plane, the loop's
@@ -195,34 +237,19 @@ def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells
     h_tx, h_rx = tx @ cells.normal.T - offset, rx @ cells.normal.T - offset                 # [M, C] m
     need = (h_tx * h_rx > 0) | (np.abs(h_tx) < 1e-9) | (np.abs(h_rx) < 1e-9)
     v_tx, i_tx = visibility(tx, need)
-    v_rx, i_rx = visibility(rx, need)
-    weight = torch.zeros(m, num_materials, NODES, dtype=torch.float64)
     lam2 = (C0 / np.asarray(freq_hz, dtype=np.float64)) ** 2
-    step = math.radians(90.0 / (NODES - 1))
-    # many small tensor ops per chunk: on a shared CPU, thread hand-offs cost more than the work
-    with single_thread_torch():
-        for lo in range(0, m, link_chunk):
-            hi = min(m, lo + link_chunk)
-            wi = tx[lo:hi, None, :] - cells.centre[None]                        # [B, C, 3]
-            wo = rx[lo:hi, None, :] - cells.centre[None]
-            di = np.linalg.norm(wi, axis=2)
-            do = np.linalg.norm(wo, axis=2)
-            ci = (wi * cells.normal[None]).sum(2) / di
-            co = (wo * cells.normal[None]).sum(2) / do
-            lit = ci * co > 0                                                      # both ends on one side
-            ci, co = np.abs(ci), np.abs(co)
-            g = (cells.area[None] * ci * co * lam2[lo:hi, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)
-                 * v_tx[i_tx[lo:hi]] * v_rx[i_rx[lo:hi]] * lit)
-            theta = np.arccos(np.clip(ci, 0.0, 1.0)) / step
-            j = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
-            frac = np.clip(theta - j, 0.0, 1.0)
-            b = hi - lo
-            row = np.repeat(np.arange(b), c)
-            mat = np.tile(cells.material, b)
-            flat = weight[lo:hi].view(-1)
-            base = (row * num_materials + mat) * NODES
-            flat.index_add_(0, torch.as_tensor(base + j.ravel()), torch.as_tensor((g * (1 - frac)).ravel()))
-            flat.index_add_(0, torch.as_tensor(base + j.ravel() + 1), torch.as_tensor((g * frac).ravel()))
-            if progress_task is not None:
-                progress_task.advance(hi - lo)
-    return DiffuseTerms(weight, torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))
+    v_rx, i_rx = visibility(rx, need)
+    weight = np.zeros((m, num_materials, NODES))
+    size = num_materials * NODES
+    for lo in range(0, m, link_chunk):
+        hi = min(m, lo + link_chunk)
+        g, node, frac = _cell_factors(tx[lo:hi], rx[lo:hi], lam2[lo:hi], cells)
+        g = g * v_tx[i_tx[lo:hi]] * v_rx[i_rx[lo:hi]]
+        b = hi - lo
+        at = ((np.arange(b)[:, None] * num_materials + cells.material[None]) * NODES + node).ravel()
+        # one pass in this order: the lower node's shares, then the upper node's (the sums of two index_add_)
+        weight[lo:hi] = np.bincount(np.concatenate([at, at + 1]), np.concatenate([(g * (1 - frac)).ravel(),
+                                    (g * frac).ravel()]), minlength=b * size).reshape(b, num_materials, NODES)
+        if progress_task is not None:
+            progress_task.advance(hi - lo)
+    return DiffuseTerms(torch.from_numpy(weight), torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))

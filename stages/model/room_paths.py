@@ -325,26 +325,31 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
     row, nor a patch and one coplanar with it).
 
     Returns (link [N], patch sequence [N, order], reflection points [N, order, 3]), ordered by patch
-    sequence, then link. Images of the transmitter are built forward, for every link and sequence at
-    once (rows (link, sequence)); the reflection points are found backward from the receiver, and each
-    must lie on its patch with the previous vertex on the same side as the image's pre-image."""
+    sequence, then link. Images of the transmitter are built forward, for every distinct transmitter and
+    sequence at once (rows (transmitter, sequence)), then spread over the transmitter's links; the
+    reflection points are found backward from the receiver, and each must lie on its patch with the
+    previous vertex on the same side as the image's pre-image."""
     nrm, pnt = patches.normal, patches.point
-    coplanar = (np.abs(nrm[cand] @ nrm[cand].T) > 0.999) & (
-        np.abs(((pnt[cand][None, :, :] - pnt[cand][:, None, :]) * nrm[cand][:, None, :]).sum(2)) < 1e-3)
-    links = np.arange(len(tx))
-    seq = np.zeros((len(tx), 0), np.int64)              # indices into cand
-    images = [np.asarray(tx, dtype=np.float64)]
     cn, cp = nrm[cand], pnt[cand]
     offset = (cp * cn).sum(1)
+    if order > 1:
+        coplanar = (np.abs(cn @ cn.T) > 0.999) & (
+            np.abs(((cp[None, :, :] - cp[:, None, :]) * cn[:, None, :]).sum(2)) < 1e-3)
+    tx = np.asarray(tx, dtype=np.float64)
     rx = np.asarray(rx, dtype=np.float64)
+    # the images depend on the transmitter and the sequence only: built once per distinct transmitter (a radio
+    # map's links share one), rows (transmitter, sequence), then spread over each transmitter's links
+    sources, link_source = np.unique(tx, axis=0, return_inverse=True)
+    link_source = link_source.reshape(-1)
+    source = np.arange(len(sources))
+    seq = np.zeros((len(sources), 0), np.int64)          # indices into cand
+    images = [sources]
+    side_last = np.zeros(0)
     for level in range(order):
-        # the image must not lie on the plane, and the receiver must lie on the image's side of the last
-        # plane: screened for every (row, candidate) with matrix products and half the margins, then
-        # decided exactly on the rows kept (the receiver's side again in the backward pass)
+        # the image must not lie on the plane: screened for every (row, candidate) with a matrix product and half
+        # the margin, then decided exactly on the rows kept
         side = images[-1] @ cn.T - offset                                      # [R, K]
         ok = np.abs(side) > 0.5 * min_m
-        if level == order - 1:
-            ok &= side * (rx[links] @ cn.T - offset) > 0.5 * min_m ** 2
         if level:
             last = seq[:, -1]
             ok &= ~coplanar[last]
@@ -352,11 +357,26 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
         r, j = np.nonzero(ok)
         exact = np.abs(_dot(images[-1][r] - cp[j], cn[j])) > min_m
         r, j = r[exact], j[exact]
-        links, seq = links[r], np.concatenate([seq[r], j[:, None]], 1)
+        side_last = side[r, j]
+        source, seq = source[r], np.concatenate([seq[r], j[:, None]], 1)
         images = [im[r] for im in images]
         images.append(_mirror(images[-1], cp[j], cn[j]))
-        if links.size == 0:
+        if source.size == 0:
             break
+    # every link of each row's transmitter with its receiver on the image's side of the last plane (screened with
+    # half the margin, decided exactly below)
+    by_source = np.argsort(link_source, kind="stable")                   # the links of each transmitter in turn
+    count = np.bincount(link_source, minlength=len(sources))
+    rep = count[source]
+    row = np.repeat(np.arange(len(source)), rep)
+    within = np.arange(len(row)) - np.repeat(np.cumsum(rep) - rep, rep)
+    links = by_source[(np.cumsum(count) - count)[source][row] + within]
+    if len(row):
+        j = seq[row, -1]
+        keep = side_last[row] * (_dot(rx[links], cn[j]) - offset[j]) > 0.5 * min_m ** 2
+        row, links = row[keep], links[keep]
+    seq = seq[row]
+    images = [im[row] for im in images]
     pts = []
     x = rx[links]
     for k in range(order - 1, -1, -1):

@@ -70,11 +70,15 @@ def _per_link_image_method(tx, rx, patches, cand, order, min_m=1e-4):
     return out
 
 
+@pytest.mark.parametrize("shared", [False, True])
 @pytest.mark.parametrize("order", [1, 2])
-def test_reflection_paths_equal_the_per_link_image_method(room, order):
+def test_reflection_paths_equal_the_per_link_image_method(room, order, shared):
+    """shared: 3 transmitters for 12 links, interleaved (maps: the images are built once per transmitter)."""
     rng = np.random.default_rng(order)
     lx, ly, lz = ROOM
     tx = rng.uniform([0.2, 0.2, 1.2], [lx - 0.2, ly - 0.2, lz - 0.2], (12, 3))
+    if shared:
+        tx = tx[np.arange(12) % 3]
     rx = rng.uniform([0.2, 0.2, 0.3], [lx - 0.2, ly - 0.2, 1.6], (12, 3))
     patches = room.patches
     cand = np.flatnonzero(patches.area >= (0.0 if order == 1 else 1.0))
