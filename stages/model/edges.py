@@ -628,20 +628,31 @@ def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, v
     pb = fold(phi[m_i, opp]).numpy()[:, None]
     amp = torch.as_tensor(strip_double_diffraction(pa, pb, kw))               # [I, K]
     amp_ret = torch.as_tensor(strip_return_diffraction(pa, kw) * ret[:, None])  # [I, K]
+    scale, dd, d_b = _hard_item_radiation(edges, lk, radar, m_i, e_i, w, s, d, st, sb, k0, tx_ant, rx_ant, links,
+                                          polarisation)
+    # radar-B-A-radar and radar-A-B-A-radar (its crossings' phase is in amp_ret): one item of A
+    coef = scale * (amp * torch.exp(-1j * (dd + d_b)[:, None] * k0[None])
+                    + amp_ret * torch.exp(-2j * dd[:, None] * k0[None]))
+    return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[opp], coef
+
+
+def _hard_item_radiation(edges: Edges, lk, radar, m_i, e_i, w, s, d, st, sb, k0, tx_ant, rx_ant, links, polarisation):
+    """(scale [I, K], d_a [I] m, d_b [I] m) of items (link lk[m_i], edge e_i) whose wave crosses a width w [I] m from
+    edge A (e_i) along its face: scale radiates the item along A as A's first-order current (the sinc along its
+    length, the antennas' gains in the radar direction s, the hard share w_h of the polarisation, in the units of
+    `wedge_fringe`, divided by k); d_a is the radar's distance to A's midpoint and d_b to the point across from it
+    (their sum is the phase path of a wave that leaves or ends at the far side)."""
     sv = s[m_i, e_i]
     p = _polarisation(sv, polarisation)
     t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sb.clamp(min=1e-12)[:, None]
     w_h = 1.0 - ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
     g_t = tx_ant.gain(-sv, links.tx_axis[lk][m_i])
     g_r = rx_ant.gain(-sv, links.rx_axis[lk][m_i])
-    dd, ln = d[m_i, e_i], edges.length[e_i]
+    d_a, ln = d[m_i, e_i], edges.length[e_i]
     d_b = (radar[m_i] - (edges.mid[e_i] + w[:, None] * edges.face_a[e_i])).norm(dim=-1)
-    base = torch.sqrt(g_t * g_r) * w_h * ln / (8 * math.pi * dd**2)
+    base = torch.sqrt(g_t * g_r) * w_h * ln / (8 * math.pi * d_a**2)
     along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)
-    # radar-B-A-radar and radar-A-B-A-radar (its crossings' phase is in amp_ret): one item of A
-    coef = (base[:, None] / k0[None]) * along * (amp * torch.exp(-1j * (dd + d_b)[:, None] * k0[None])
-                                                 + amp_ret * torch.exp(-2j * dd[:, None] * k0[None]))
-    return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[opp], coef
+    return (base[:, None] / k0[None]) * along, d_a, d_b
 
 
 def wedge_grazing_vertex(phi: np.ndarray, n: np.ndarray, kw: np.ndarray) -> np.ndarray:
@@ -718,17 +729,9 @@ def _fold_terms(edges: Edges, lk, radar, m_i, e_i, phi, n_ext, from_b, s, d, st,
     k_cross, _ = _crossing(kw)
     amp = torch.as_tensor(k_cross * wedge_grazing_vertex(phi_o, 2.0, kw)
                           * wedge_grazing_vertex(phi_f.numpy()[:, None], n_f.numpy()[:, None], kw))   # [I, K]
-    sv = s[m_i, e_i]
-    p = _polarisation(sv, polarisation)
-    t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sb[:, None]
-    w_h = 1.0 - ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
-    g_t = tx_ant.gain(-sv, links.tx_axis[lk][m_i])
-    g_r = rx_ant.gain(-sv, links.rx_axis[lk][m_i])
-    dd, ln = d[m_i, e_i], edges.length[e_i]
-    d_f = (radar[m_i] - (edges.mid[e_i] + w[:, None] * edges.face_a[e_i])).norm(dim=-1)
-    base = torch.sqrt(g_t * g_r) * w_h * ln / (8 * math.pi * dd**2)
-    along = torch.sinc(ln[:, None] * st[m_i, e_i][:, None] * k0[None] / math.pi)
-    coef = (base[:, None] / k0[None]) * along * amp * torch.exp(-1j * (dd + d_f)[:, None] * k0[None])
+    scale, dd, d_f = _hard_item_radiation(edges, lk, radar, m_i, e_i, w, s, d, st, sb, k0, tx_ant, rx_ant, links,
+                                          polarisation)
+    coef = scale * amp * torch.exp(-1j * (dd + d_f)[:, None] * k0[None])
     return lk[m_i], edges.gauss_a[e_i], edges.gauss_a[fold], coef
 
 
