@@ -342,12 +342,18 @@ def _opposite_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face
         along = np.abs(np.einsum("abj,aj->ab", off, tangent[idx]))
         ok = (np.abs(tangent[idx] @ tangent[idx].T) >= WEDGE_T_COS) & (face[idx] @ face[idx].T <= -WEDGE_T_COS)
         ok &= (across > 2.0 * half[idx][:, None]) & (along <= 0.5 * (length[idx][:, None] + length[idx][None]))
-        dist = np.where(ok, across, np.inf)
-        has = ok.any(1)
-        best = dist.argmin(1)
-        opposite[idx[has]] = idx[best[has]]
-        width[idx[has]] = across[has, best[has]]
+        _keep_nearest(ok, across, idx, idx, opposite, width)
     return opposite, width
+
+
+def _keep_nearest(ok: np.ndarray, across: np.ndarray, rows: np.ndarray, cols: np.ndarray, index_out: np.ndarray,
+                  width_out: np.ndarray) -> None:
+    """For each row r with an acceptable column (ok [R, C] bool), the nearest one (smallest across [R, C] m):
+    index_out[rows[r]] = cols[c], width_out[rows[r]] = across[r, c] (rows [R], cols [C] edge indices)."""
+    has = ok.any(1)
+    best = np.where(ok, across, np.inf).argmin(1)
+    index_out[rows[has]] = cols[best[has]]
+    width_out[rows[has]] = across[has, best[has]]
 
 
 def _fold_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face_b: np.ndarray, length: np.ndarray,
@@ -376,11 +382,7 @@ def _fold_edges(mid: np.ndarray, tangent: np.ndarray, face: np.ndarray, face_b: 
         ok = (np.abs(tangent[sc] @ tangent[wi].T) >= WEDGE_T_COS) & (back <= -WEDGE_T_COS)
         ok &= (across > 2.0 * half[sc][:, None]) & (np.abs(along) <= 0.5 * (length[sc][:, None] + length[wi][None]))
         ok &= aside <= 0.5 * np.maximum(half[sc][:, None], half[wi][None])
-        dist = np.where(ok, across, np.inf)
-        has = ok.any(1)
-        best = dist.argmin(1)
-        fold[sc[has]] = wi[best[has]]
-        width[sc[has]] = across[has, best[has]]
+        _keep_nearest(ok, across, sc, wi, fold, width)
     return fold, width
 
 
