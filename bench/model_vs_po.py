@@ -44,8 +44,7 @@ class MeshVisibility:
 
         self.geom, self.occ, self.eps_m = geom, Occluder(vertices, faces), eps_m
 
-    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4, lift=False):
-        """Exact shadows from the mesh (lift: ignored, the mesh has no thickness to lift out of)."""
+    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4):
         p = self.geom.means[target_ids].numpy()
         u = origins.double().numpy() - p
         u /= np.linalg.norm(u, axis=1, keepdims=True)

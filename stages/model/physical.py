@@ -15,11 +15,11 @@ Received complex amplitude and power for a batch of links (P_T = 1 W, path gain 
   footprint factor of the surfel's cell (surfels.footprint_cells);
 - Gamma_m(theta, pol): the co-polarised Fresnel (slab) coefficient of the material at the local
   incidence angle (materials.co_polar_reflection; the TE share from the antennas' polarisation);
-- V_l = V_tx V_rx: the lit/shadowed state (1 or 0) of the surfel from each antenna: lit when the
-  transmittance traced through the Gaussians (one RF opacity for every Gaussian, frozen) to a point
-  just off the surfel's own surface (traced_lit) exceeds `lit_threshold`, as physical optics lights a
-  facet (surfaces are opaque; docs/physics.md section 8.6); one factor when the antennas are
-  co-located, which is the monostatic radar (the two legs share one path);
+- V_l = V_tx V_rx: the lit/shadowed state (1 or 0) of the surfel's mean from each antenna: lit when
+  the transmittance traced through the Gaussians (one RF opacity for every Gaussian, frozen) exceeds
+  `lit_threshold` (traced_lit), as physical optics lights a facet (surfaces are opaque; docs/physics.md
+  section 8.6); one factor when the antennas are co-located, which is the monostatic radar (the two
+  legs share one path);
 - g: a system gain (1 unless fitted: the level is physical);
 - with settings.edge_waves, the fringe field of the planar patches' outer edges is added to S_spec
   (edges.py, docs/physics.md section 8.13), as the double bounces are (second_order.py).
@@ -124,10 +124,7 @@ class PairGeometry:
 class PairSettings:
     """visibility: trace V (False: every lit surfel sees both antennas). opacity: the RF opacity of
     every Gaussian for the traced V. margin_m: occluders closer than this in front of a surfel are
-    ignored (a surface does not shadow itself). lift: the traced segment ends off the surfel's mean,
-    along its normal on the antenna's side, by the reach of the surfel's own Gaussian along its normal
-    (occlusion.segment_rays), so that near grazing the other Gaussians of its own flat surface do not
-    shadow it. colocated_tol_m: Tx and Rx closer than this are one
+    ignored (a surface does not shadow itself). colocated_tol_m: Tx and Rx closer than this are one
     radar (one visibility factor). polarisation: "V" or "H". link_chunk: links per geometry block.
     second_order: add double bounces between planar patches of at least min_patch_area_m2
     (second_order.py; co-located antennas only). lit_threshold: a surfel is lit from an antenna when
@@ -138,7 +135,6 @@ class PairSettings:
     visibility: bool = True
     opacity: float = 0.9
     margin_m: float = 0.0025
-    lift: bool = True
     t_stop: float = 1e-4
     colocated_tol_m: float = 0.01
     polarisation: str = "V"
@@ -185,13 +181,13 @@ def lit_state(transmittance: torch.Tensor, threshold: float) -> torch.Tensor:
 def traced_lit(provider: OcclusionProvider, origins: torch.Tensor, gauss: torch.Tensor, settings: PairSettings,
                num_gaussians: int) -> torch.Tensor:
     """V [Q] of one leg: the lit state (lit_state) of surfel gauss [Q] from the antenna at origins [Q, 3] m,
-    traced through the Gaussians with settings' opacity, margin and lift (docs/physics.md section 8.6).
+    traced through the Gaussians with settings' opacity and margin (docs/physics.md section 8.6).
     The one definition of a surfel's lit state: the first order, the edge waves and (through the pairs'
     table) the double bounce use it."""
     op = torch.full((num_gaussians,), settings.opacity, dtype=torch.float64)
     return lit_state(provider.segment_transmittance(origins, gauss, settings.margin_m, op,
-                                                    lit_stop(settings.t_stop, settings.lit_threshold),
-                                                    lift=settings.lift), settings.lit_threshold)
+                                                    lit_stop(settings.t_stop, settings.lit_threshold)),
+                    settings.lit_threshold)
 
 
 def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern,

@@ -50,7 +50,7 @@ class OcclusionProvider(Protocol):
                  t_stop: float = 0.0) -> HitTable: ...
 
     def segment_transmittance(self, origins: torch.Tensor, target_ids: torch.Tensor, margin_m: float,
-                              opacity: torch.Tensor, t_stop: float = 1e-4, lift: bool = False) -> torch.Tensor: ...
+                              opacity: torch.Tensor, t_stop: float = 1e-4) -> torch.Tensor: ...
 
 
 def lit_stop(t_stop: float, lit_threshold: float) -> float:
@@ -149,12 +149,10 @@ class BruteForceOcclusion:
         """All hits (opacity and t_stop are accepted for interface parity; no early stop here)."""
         return self._run(origins.double(), directions.double(), torch.full((len(origins),), float("inf")), None)
 
-    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4, lift=False) -> torch.Tensor:
-        """V [Q] from origins to the targets' means (lift: to the points segment_rays lifts them to), ignoring
-        the last margin_m before each target (t_stop is accepted for interface parity; no early stop here)."""
-        ids, g = target_ids.long(), self.geom
-        o, d, t_max = segment_rays(origins, g.means[ids], margin_m, own_surface(g, ids, self.alpha_min) if lift else None)
-        return product_from_hits(self._run(o, d, t_max, ids), opacity)
+    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4) -> torch.Tensor:
+        hits = self.segment_hits(origins, target_ids)
+        length = (self.geom.means[target_ids[hits.query]] - origins[hits.query].double()).norm(dim=-1)
+        return product_from_hits(hits.select(hits.t_m < length - margin_m), opacity)
 
 class TracerOcclusion:
     """rfir_tracer's BVH (transmittance_to_points for segments, trace for rays)."""
@@ -203,17 +201,13 @@ class TracerOcclusion:
         with torch.no_grad():
             return self._chunks(len(directions), part)
 
-    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4, lift=False) -> torch.Tensor:
-        """V [Q] from origins to the targets' means, ignoring the last margin_m before each target (lift: to
-        the points segment_rays lifts them to, off their own surface)."""
+    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4) -> torch.Tensor:
+        """V [Q] from origins to the targets' means, ignoring the last margin_m before each target."""
         out = torch.empty(len(target_ids), dtype=torch.float64)
-        g = self.geom
         with torch.no_grad():
             for a in range(0, len(target_ids), self.chunk):
                 b = min(len(target_ids), a + self.chunk)
-                ids = target_ids[a:b].long()
-                o, d, t_max = segment_rays(origins[a:b], g.means[ids], margin_m,
-                                           own_surface(g, ids, self.alpha_min) if lift else None)
+                o, d, t_max = segment_rays(origins[a:b], self.geom.means[target_ids[a:b].long()], margin_m)
                 out[a:b] = self.rays_transmittance(o, d, t_max, opacity, t_stop, target_ids[a:b].long())
         return out
 
@@ -225,41 +219,13 @@ class TracerOcclusion:
                                             t_stop=t_stop, exclude=exclude.to(self.device)).cpu()
 
 
-def own_surface(geom: FrozenGeometry, ids: torch.Tensor, alpha_min: float) -> tuple:
-    """segment_rays' lift for segments ending at the means of Gaussians ids [Q]: (normals [Q, 3], covariances
-    [Q, 3, 3] m^2, alpha_min)."""
-    return geom.normals[ids], covariance(geom.log_scales[ids].double(), geom.rotations[ids].double()), alpha_min
-
-
-def segment_rays(origins: torch.Tensor, ends: torch.Tensor, margin_m: float, lift: tuple | None = None) -> tuple:
+def segment_rays(origins: torch.Tensor, ends: torch.Tensor, margin_m: float) -> tuple:
     """(o [Q, 3], d = ends - o [Q, 3], t_max [Q]) of segments origins -> ends [Q, 3] m with their last margin_m
-    left out (t in units of the segment: t_max = 1 - margin_m / length, at least 0). float64.
-
-    lift: None, or (normals [Q, 3] unit, covariances [Q, 3, 3] m^2, alpha_min) of the Gaussians whose means
-    the ends are. Each end is then moved along its normal, to the origin's side of its plane, by the reach
-    of its own Gaussian along that normal, h = kappa sqrt(n^T Sigma n) with kappa = sqrt(2 ln(1 / alpha_min)),
-    and the margin left out along the segment is shortened by h (at least 0): in front of the mean the same
-    margin_m is ignored as without the lift. Why: a segment that ends on a flat surface seen near grazing
-    runs inside the thickness of that surface's other Gaussians for h / sin(grazing angle) (several cm
-    at 1-2 degrees), which absorb it, though a flat surface cannot shadow itself. From the lifted end the
-    segment only rises above the plane, and any Gaussian with the same plane and thickness responds there
-    at most exp(-(h^2 / 2) / (n^T Sigma n)) = alpha_min (d^T Sigma^-1 d >= (n.d)^2 / n^T Sigma n), below
-    which the tracers count no hit; an occluder standing off the plane (the other face of a sheet thicker
-    than h, the other plate of a fold) still lies across the segment."""
+    left out (t in units of the segment: t_max = 1 - margin_m / length, at least 0). float64."""
     o = origins.double().contiguous()
-    ends = ends.double()
-    margin = torch.full((len(o),), float(margin_m), dtype=torch.float64)
-    if lift is not None:
-        n, cov, alpha_min = lift
-        n = n.double()
-        h = math.sqrt(2.0 * math.log(1.0 / alpha_min)) * torch.einsum("qi,qij,qj->q", n, cov.double(), n).clamp(
-            min=0.0).sqrt()
-        side = torch.where(((o - ends) * n).sum(-1) >= 0, 1.0, -1.0).to(torch.float64)   # toward the origin
-        ends = ends + (h * side)[:, None] * n
-        margin = (margin - h).clamp(min=0.0)
-    d = ends - o
+    d = ends.double() - o
     length = d.norm(dim=-1).clamp(min=1e-12)
-    return o, d, (1.0 - margin / length).clamp(min=0.0)
+    return o, d, (1.0 - margin_m / length).clamp(min=0.0)
 
 
 class ShellSplitOcclusion:
@@ -342,7 +308,7 @@ class ShellSplitOcclusion:
                 clear &= depth > e
         return torch.as_tensor(clear)
 
-    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4, lift=False) -> torch.Tensor:
+    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4) -> torch.Tensor:
         """V [Q] as TracerOcclusion.segment_transmittance (the class docstring says to what precision)."""
         (i_in, local_in, inner), (i_sh, local_sh, shell) = self.parts
         ids = target_ids.long()
@@ -351,9 +317,7 @@ class ShellSplitOcclusion:
             for a in range(0, len(ids), self.provider.chunk):
                 b = min(len(ids), a + self.provider.chunk)
                 with single_thread_torch():   # small tensor ops: thread hand-offs cost more than the work
-                    g = self.provider.geom
-                    o, d, t_max = segment_rays(origins[a:b], g.means[ids[a:b]], margin_m,
-                                               own_surface(g, ids[a:b], self.provider.alpha_min) if lift else None)
+                    o, d, t_max = segment_rays(origins[a:b], self.provider.geom.means[ids[a:b]], margin_m)
                 v = out[a:b]
                 if inner is not None:
                     v[:] = inner.rays_transmittance(o, d, t_max, opacity[i_in], t_stop, local_in[ids[a:b]])
