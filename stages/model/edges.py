@@ -236,16 +236,26 @@ def _straight_runs(simple: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.
     return out
 
 
-def _patch_boundary(x: np.ndarray, cov: np.ndarray, normal: np.ndarray, point: np.ndarray, half: float
-                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+def patch_coverage_of(patches, p: int, x: np.ndarray, cov: np.ndarray, cells: np.ndarray) -> tuple[PatchCoverage, float]:
+    """(patch_coverage of patch p of patches (second_order.Patches), its members' median half-side m), from the
+    Gaussians' means x [G, 3] m, covariances cov [G, 3, 3] m^2 and cells [G, 2, 3] m (surfels.footprint_cells);
+    computed once per set of patches: the edge waves' boundary and the double bounce's aperture share it."""
+    if p not in patches.coverage:
+        members = patches.members[p]
+        half = float(np.median(np.linalg.norm(cells[members], axis=2)))
+        patches.coverage[p] = (patch_coverage(x[members], cov[members], patches.normal[p], patches.point[p], half),
+                               half)
+    return patches.coverage[p]
+
+
+def _patch_boundary(cover: PatchCoverage, half: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """Straight boundary pieces of one patch: (mid [3] m, tangent [3], inward [3], length m, (lo, hi) m: the
-    straight line's extent along the tangent from the segment's midpoint), from the level
-    line at half the interior coverage of the members (means x [G, 3], covariances cov [G, 3, 3]); half: the
-    members' median half-side (m)."""
+    straight line's extent along the tangent from the segment's midpoint), from the level line of its
+    coverage (patch_coverage: half the interior coverage of the members); half: the members' median
+    half-side (m)."""
     import contourpy
 
-    cover = patch_coverage(x, cov, normal, point, half)
-    basis, pts, cov2, reach = cover.basis, cover.pts, cover.cov2, cover.reach
+    basis, point, pts, cov2, reach = cover.basis, cover.point, cover.pts, cover.cov2, cover.reach
     lines = contourpy.contour_generator(cover.gx, cover.gy, cover.grid).lines(cover.level)
     mids, tans, lens, spans = [], [], [], []
     for line in lines:
@@ -282,10 +292,9 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     c = cells.numpy()
     pieces, patch, near = [], [], []
     for p, members in enumerate(patches.members):
-        half = float(np.median(np.linalg.norm(c[members], axis=2)))
+        cover, half = patch_coverage_of(patches, p, x, cv, c)
         tree = cKDTree(x[members])
-        for mid, t, inward, length, span in _patch_boundary(x[members], cv[members], patches.normal[p],
-                                                            patches.point[p], half):
+        for mid, t, inward, length, span in _patch_boundary(cover, half):
             pieces.append((mid, t, inward, length, half, span))
             patch.append(p)
             near.append(members[tree.query(mid + 0.5 * half * inward)[1]])

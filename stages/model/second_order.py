@@ -38,7 +38,7 @@ shallow angles (weak for a co-located radar).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -47,7 +47,7 @@ from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from rfir_stages.rf_fit.render import LinkSet
 
-from .edges import patch_coverage
+from .edges import patch_coverage_of
 from .link_rows import renumber_links
 from .materials import C0
 from .surfels import COPLANAR_M, covariance, footprint_factor
@@ -62,13 +62,15 @@ CELL_MARGIN = 0.5       # a crossing within half a half-side past a cell is on i
 @dataclass
 class Patches:
     """Planar patches: id [G] (-1: in no patch used for double bounces), normal [P, 3], point [P, 3],
-    area [P] m^2, members: list of surfel index arrays."""
+    area [P] m^2, members: list of surfel index arrays; coverage: each patch's edges.patch_coverage_of, kept
+    once computed."""
 
     id: np.ndarray
     normal: np.ndarray
     point: np.ndarray
     area: np.ndarray
     members: list
+    coverage: dict = field(default_factory=dict)
 
 
 def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None = None,
@@ -172,7 +174,7 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
     reach = [float(np.sqrt(areas_m2.numpy()[m].max())) for m in patches.members]
     radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
     cov = covariance(geom.log_scales, geom.rotations).numpy()
-    half = cells.numpy()                                                  # [G, 2, 3] half-side axes
+    cell_axes = cells.numpy()                                             # [G, 2, 3] half-side axes
     parts = []
     for pa, partners in enumerate(dihedral_partners(patches, radius)):
         if not partners:
@@ -182,7 +184,7 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
         xb = x[mb]                                                        # [B, 3]
         side_b = (xb - pa_pt) @ na                                        # B's surfels relative to plane A
         ma = patches.members[pa]
-        aperture = patch_coverage(x[ma], cov[ma], na, pa_pt, float(np.median(np.linalg.norm(half[ma], axis=2))))
+        aperture, _ = patch_coverage_of(patches, pa, x, cov, cell_axes)
         item = _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, trees[pa], ma, reach[pa], vis_lookup,
                            tx_ant, rx_ant, cells, areas_m2, k0, polarisation, patches.point[pa], radius[pa], aperture)
         if item is not None:
