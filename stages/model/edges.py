@@ -540,23 +540,6 @@ def utd_transition(x: np.ndarray) -> np.ndarray:
     return 2j * np.sqrt(x) * np.exp(1j * x) * tail
 
 
-def _crossing_vertex(phi: np.ndarray, kw: np.ndarray) -> np.ndarray:
-    """g(phi) [...]: the hard half-plane's coefficient between the radar (angle phi from the face, 0..pi) and the
-    wave grazing along the face, sec(phi / 2) (Keller's, relative to its value at phi = 0). Where the radar
-    is beyond the face's normal (phi > pi / 2) it approaches the shadow boundary phi = pi of the grazing wave
-    (the radar in the sheet's plane beyond this edge) and the UTD transition function with the distance across
-    (F(2 kw cos^2(phi / 2)) / cos(phi / 2)) keeps it finite; this is the exact half-plane field at the facing
-    edge. On the other side (phi <= pi / 2) the wave arriving along the face is, near grazing, minus the part
-    of the radar's own plane wave that the near edge's shadow removes, and must be diffracted with the same
-    plane-wave coefficient as that plane wave (Keller's, F = 1) for the two to cancel as the exact sheet's do
-    (the transition function's 1 / kw remainder there, F(X) ~ 1 + j / (2 X), is below the theory's accuracy
-    but would leave the hard sheet an echo at grazing)."""
-    phi = np.asarray(phi, dtype=np.float64)
-    c = np.maximum(np.cos(0.5 * phi), 1e-12)
-    near = phi > 0.5 * math.pi
-    return np.where(near, utd_transition(np.where(near, 2.0 * kw * c**2, 1.0)), 1.0) / c
-
-
 def _crossing(kw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(K, 1 / (1 - K^2 / 4)) [...] complex of a sheet of width w crossed in the hard case (kw = k w):
     K = -2 exp(-j (kw + pi / 4)) / sqrt(2 pi kw), one crossing from edge to edge between Keller's coefficients
@@ -573,13 +556,14 @@ def strip_double_diffraction(phi_a: np.ndarray, phi_b: np.ndarray, kw: np.ndarra
     (E across the edges: hard), carried across its face to edge A (width w, kw = k w) and diffracted there
     back to the radar, in the units of `wedge_fringe` and relative to the phase of the path radar-B-A-radar
     without the crossing: K g(phi_a) g(phi_b) / (1 - K^2 / 4) (`_crossing`: Keller's coefficient twice, the
-    wave on the face odd across the sheet, and the further round trips between the edges; `_crossing_vertex`:
-    g = sec(phi / 2), with the UTD transition function at the edge beyond which the radar lies). phi_a, phi_b:
+    wave on the face odd across the sheet, and the further round trips between the edges; g(phi) =
+    `wedge_grazing_vertex`(phi, 2, kw): sec(phi / 2), with the UTD transition function at the edge beyond which
+    the radar lies). phi_a, phi_b:
     the radar's angle from each edge's face, 0..pi (the side of the sheet the radar is on). A soft (E along the
     edges) field vanishes on the face: no such term."""
     kw = np.asarray(kw, dtype=np.float64)
     k_cross, series = _crossing(kw)
-    return k_cross * _crossing_vertex(phi_a, kw) * _crossing_vertex(phi_b, kw) * series
+    return k_cross * wedge_grazing_vertex(phi_a, 2.0, kw) * wedge_grazing_vertex(phi_b, 2.0, kw) * series
 
 
 def strip_return_diffraction(phi_a: np.ndarray, kw: np.ndarray) -> np.ndarray:
@@ -593,7 +577,7 @@ def strip_return_diffraction(phi_a: np.ndarray, kw: np.ndarray) -> np.ndarray:
     vanishes at grazing as (cos theta)^4 (theta from the normal), as the exact one does."""
     kw = np.asarray(kw, dtype=np.float64)
     k_cross, series = _crossing(kw)
-    return 0.5 * k_cross**2 * _crossing_vertex(phi_a, kw) ** 2 * series
+    return 0.5 * k_cross**2 * wedge_grazing_vertex(phi_a, 2.0, kw) ** 2 * series
 
 
 def _double_terms(edges: Edges, lk, radar, m_i, e_i, phi, s, d, st, sin_b, k0, vis_of, tx_ant, rx_ant, links,
@@ -669,14 +653,19 @@ def _hard_item_radiation(edges: Edges, lk, radar, m_i, e_i, w, s, d, st, sb, k0,
 def wedge_grazing_vertex(phi: np.ndarray, n: np.ndarray, kw: np.ndarray) -> np.ndarray:
     """h(phi, n) [...] complex: Keller's hard coefficient of a perfectly conducting wedge (exterior angle n pi)
     between the radar at angle phi from face 0 (0..n pi) and a wave grazing along face 0 (arriving or leaving),
-    with the factor 1/2 of grazing incidence, in the units of `_crossing_vertex` (n = 2, F = 1: sec(phi / 2)):
+    with the factor 1/2 of grazing incidence, relative to its value at phi = 0 for a half-plane (n = 2, F = 1:
+    sec(phi / 2)):
         h = (1 / n) [cot((pi + phi) / (2 n)) + cot((pi - phi) / (2 n)) F(2 kw cos^2(phi / 2))]
           = -(2 sin(pi / n) / n) / (cos(pi / n) - cos(phi / n))   (F = 1);
     the UTD transition function F (`utd_transition`; kw = k w, w the distance to the other end of the grazing
     path) multiplies the one term that is singular at the shadow boundary of the grazing wave (phi = pi: the
     radar in face 0's plane beyond the edge), where the radar is beyond the face's normal (phi > pi / 2); Keller's
-    F = 1 elsewhere, as `_crossing_vertex`. There the term tends to +-sqrt(2 pi kw) (sign of pi - phi, the
-    diffracted wave's jump that makes the total field continuous). n = 1.5 (a 90-degree fold seen from outside):
+    F = 1 elsewhere. There the term tends to +-sqrt(2 pi kw) (sign of pi - phi, the diffracted wave's jump that
+    makes the total field continuous). Why F = 1 on the near side (phi <= pi / 2): the wave arriving along the
+    face is there, near grazing, minus the part of the radar's own plane wave that the near edge's shadow
+    removes, and must be diffracted with the same plane-wave coefficient as that plane wave for the two to
+    cancel as the exact sheet's do (the transition function's 1 / kw remainder, F(X) ~ 1 + j / (2 X), is below
+    the theory's accuracy but would leave a hard sheet an echo at grazing). n = 1.5 (a 90-degree fold seen from outside):
     h(0) = 4 / (3 sqrt(3)) = 0.770."""
     phi, n, kw = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (phi, n, kw)))
     x = (math.pi - phi) / (2.0 * n)
