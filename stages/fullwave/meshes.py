@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_stages.po import dihedral_mesh, plate_mesh
+from rfir_stages.po import dihedral_mesh, plate_mesh, trihedral_mesh
 
 
 def merge_vertices(vertices: np.ndarray, faces: np.ndarray, tol_m: float = 1e-9):
@@ -27,3 +27,17 @@ def dihedral_screen(a_m: float, b_m: float, n: int):
     opening toward +x +y (bisector phi = 45 deg in the x-y plane); merged vertices on the fold."""
     v, f = dihedral_mesh(a_m, b_m, n)  # fold along y, plates x = 0 and z = 0
     return merge_vertices(np.stack([v[:, 0], v[:, 2], v[:, 1]], 1), f)
+
+
+# The trihedral's symmetry plane x = y, spanned by (1, 1, 0)/sqrt(2) and the z edge, becomes the x-y plane:
+# rows are the images of those two directions and of their normal (1, -1, 0)/sqrt(2) (right-handed).
+_TRIHEDRAL_TO_SWEEP = np.array([[1.0, 1.0, 0.0], [0.0, 0.0, np.sqrt(2.0)], [1.0, -1.0, 0.0]]) / np.sqrt(2.0)
+TRIHEDRAL_AXIS_PHI_DEG = float(np.degrees(np.arctan(1.0 / np.sqrt(2.0))))   # 35.26: the axis in the sweep plane
+
+
+def trihedral_screen(a_m: float, n: int):
+    """Square trihedral (plates a_m x a_m, n x n squares each) turned so that its symmetry plane is the
+    x-y plane: an azimuth sweep then passes through the triple-bounce peak 12 pi a^4 / lambda^2 at
+    phi = TRIHEDRAL_AXIS_PHI_DEG, with H in the symmetry plane and V across it; vertices merged on the edges."""
+    v, f = trihedral_mesh(a_m, n)
+    return merge_vertices(v @ _TRIHEDRAL_TO_SWEEP.T, f)

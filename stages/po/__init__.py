@@ -9,9 +9,9 @@ Public API:
   `relative_permittivity(material, freq_hz)` (ITU-R P.2040 table + "pec" + "plastic");
 - `scene_mesh(spec)`: vertices, faces, per-face material names and thicknesses of a SceneSpec;
   `scene_rcs(spec, ...)` runs the solver on it; `antenna_weight(antennas)` applies horn patterns;
-- meshes with closed forms: `plate_mesh`, `dihedral_mesh`, `icosphere`.
+- meshes with closed forms: `plate_mesh`, `dihedral_mesh`, `trihedral_mesh`, `icosphere`.
 """
-from .geometry import dihedral_mesh, icosphere, plate_mesh, polarization_vector, triangle_phase_factor
+from .geometry import dihedral_mesh, icosphere, plate_mesh, polarization_vector, triangle_phase_factor, trihedral_mesh
 from .materials import (ITU_MATERIALS, face_reflection_from_materials, fresnel, itu_reflection_coefficient,
                         known_materials, relative_permittivity)
 from .scene import antenna_weight, scene_mesh, scene_rcs
@@ -22,4 +22,4 @@ BACKEND_NAME = "po"
 __all__ = ["BACKEND_NAME", "ITU_MATERIALS", "Occluder", "antenna_weight", "channel_from_amplitude", "dihedral_mesh",
            "face_reflection_from_materials", "fresnel", "icosphere", "itu_reflection_coefficient", "known_materials",
            "plate_mesh", "po_coefficients", "po_rcs", "po_scattered_field", "polarization_vector", "provenance", "rcs_dbsm",
-           "relative_permittivity", "scene_mesh", "scene_rcs", "triangle_phase_factor"]
+           "relative_permittivity", "scene_mesh", "scene_rcs", "triangle_phase_factor", "trihedral_mesh"]

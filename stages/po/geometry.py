@@ -202,6 +202,21 @@ def dihedral_mesh(a: float, b: float, n: int = 1) -> tuple[np.ndarray, np.ndarra
     return verts, faces
 
 
+def trihedral_mesh(a: float, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Square trihedral corner reflector: three a x a plates in the planes z = 0, x = 0 and y = 0, each
+    covering [0, a]^2 of its two coordinates, opening toward +x +y +z; 6 n^2 triangles (plates not merged).
+
+    Normals +z, +x, +y (into the opening). The monostatic peak 12 pi a^4 / lambda^2 is on the symmetry
+    axis (1, 1, 1)/sqrt(3): a triple bounce, one reflection off each plate.
+    """
+    v, f = plate_mesh(a, a, n)                      # (u, v, 0) with u, v in [-a/2, a/2], normal +z
+    u, w = v[:, 0] + a / 2, v[:, 1] + a / 2
+    z = np.zeros(len(v))
+    # cyclic permutations of (u, w, 0) keep e_u x e_w along the plate's +normal: one face order for all three
+    plates = [np.stack([u, w, z], 1), np.stack([z, u, w], 1), np.stack([w, z, u], 1)]
+    return np.concatenate(plates), np.concatenate([f + i * len(v) for i in range(3)])
+
+
 def icosphere(radius: float, subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
     """Geodesic sphere (20 * 4^subdivisions outward-wound triangles), vertices on the sphere."""
     t = (1.0 + 5.0**0.5) / 2.0
