@@ -1,26 +1,29 @@
-"""Second-order (double-bounce) term of the PO solver: GO on the first bounce, PO on the second.
+"""Multiple-bounce terms of the PO solver: GO on every bounce but the last, PO on the last.
 
-Approximation (shooting-and-bouncing rays, exit-aperture PO, truncated at two bounces):
+Approximation (shooting-and-bouncing rays, PO radiation of every bounce, truncated at `max_bounces`):
 1. The incident wave is cut into square ray tubes of side `spacing_m` (default `auto_tube_spacing`:
    lambda_min / 20, wider for objects too large for that) on a plane across the object (far field:
    parallel rays; near field: rays from the Tx point, tubes widening with the path length). A tube
-   whose footprint on either facet it meets is longer than the side (a grazing bounce) is cut into
+   whose footprint on any facet it meets is longer than the side (a grazing bounce) is cut into
    sub-tubes, each traced again.
 2. Each tube's central ray is traced (Open3D) to its first hit on facet A, where the wave is
-   reflected as geometric optics: mirror direction, the field's TE/TM parts times A's Fresnel
-   coefficients (or the scalar -Gamma rule), tube mirrored.
-3. The reflected ray is traced to facet B. The tube's footprint on B (a parallelogram: the tube
-   cross-section projected along the reflected direction) carries PO currents from the reflected
-   field, radiated toward the Rx with the closed-form parallelogram integral
-   `area * sinc(k w.a/2) * sinc(k w.b/2)` (w = s_hat - reflected direction), if the Rx sees B's
-   hit point (ray cast) from the lit side.
-Not included: the first-bounce PO edge effects of partly hit tubes (a tube is in or out by its
-central ray; errors of order side / facet size), third and higher bounces, diffraction (no
-edge-wave / PTD terms), creeping waves, the GO blockage of the B -> Rx leg by the tube's own width.
-The first-order PO of every facet is computed separately and added; the second-order sum only adds
-the A -> B -> Rx paths.
-Near field: the reflected wave spreads from the image source (amplitude R_t / (t1 + t2)),
-exact for flat A.
+   reflected as geometric optics (`_trace`): mirror direction, the field's TE/TM parts times A's
+   Fresnel coefficients (or the scalar -Gamma rule), tube mirrored. The reflected ray is traced to
+   B, reflected the same way, traced to C, and so on up to `max_bounces` facets.
+3. Every facet after the first radiates (SBR sums all bounces): the tube's footprint on the b-th
+   facet (a parallelogram: the tube cross-section mirrored at the facets before and projected along
+   the ray onto it) carries PO currents from the field reflected b - 1 times, radiated toward the Rx
+   with the closed-form parallelogram integral `area * sinc(k w.a/2) * sinc(k w.b/2)` (w = s_hat -
+   the ray's direction), if the Rx sees the hit point (ray cast) from the lit side. So
+   max_bounces = 2 adds the A -> B -> Rx paths, 3 also the A -> B -> C -> Rx paths (a trihedral's
+   flash).
+Not included: the PO edge effects of partly hit tubes (a tube is in or out by its central ray;
+errors of order side / facet size), bounces past `max_bounces`, diffraction (no edge-wave / PTD
+terms), creeping waves, the GO blockage of the last leg to the Rx by the tube's own width. The
+first-order PO of every facet is computed separately and added; this sum adds the paths of two
+and more facets.
+Near field: the wave reflected b - 1 times spreads from the image source (amplitude
+R_t / (t1 + ... + tb), the path length from the Tx to the b-th hit), exact for flat facets.
 """
 from __future__ import annotations
 
@@ -29,7 +32,6 @@ import numpy as np
 from .geometry import normalize, polarization_vector, sinc_u
 from .solver import _dot, _sum_into, po_coefficients, reflect_field_basis
 
-_PEC_GAMMA = (-1.0, 1.0)
 REFINE_MAX = 32     # a tube side is cut into at most this many parts where its footprint is long (grazing bounces)
 TUBES_PER_WAVELENGTH = 20   # default tube side lambda_min / 20: converged within ~0.3 dB MAE on the lego (docs/po.md)
 MAX_TUBES = 1 << 17         # ... unless the object's grid of tubes would exceed this many per aspect
@@ -89,16 +91,24 @@ def _tube_rays(verts, tx_m, ref, R_t, near_field, spacing):
     return g + big * t_hat, np.broadcast_to(-t_hat, (n, 3)).copy(), su, sv, np.full(n, np.inf)
 
 
-def double_bounce(verts, fcs, tab, refl, occ, tx, rx, ref, ks, pol_t, pol_r, *, near_field=False,
-                  two_sided=True, spacing_m=None, chunk_elements=1 << 19, max_rays=1 << 18, amplitude_weight=None):
-    """Second-order PO amplitude (M, K), same normalisation as po_scattered_field."""
+def multi_bounce(verts, fcs, tab, refl, occ, tx, rx, ref, ks, pol_t, pol_r, *, max_bounces=2, near_field=False,
+                 two_sided=True, spacing_m=None, chunk_elements=1 << 19, max_rays=1 << 18, amplitude_weight=None):
+    """PO amplitude (M, K) of the paths over 2 to max_bounces facets, same normalisation as po_scattered_field.
+
+    tab: facet table of (verts, fcs) (normals, centroids); refl: the solver's _Reflection; occ: its
+    Occluder; tx, rx (M, 3) m; ref (3,) m; ks (K,) rad/m; max_bounces >= 2."""
+    if int(max_bounces) < 2:
+        raise ValueError(f"max_bounces must be >= 2 (got {max_bounces}); first order alone is second_order=False")
     M, K = len(tx), len(ks)
     out = np.zeros((M, K), dtype=complex)
     spacing = float(spacing_m) if spacing_m else auto_tube_spacing(verts, ks)
-    n_all = tab["n"]
     eps = 1e-5 * max(occ.size, 1e-3)
     R_t = np.linalg.norm(tx - ref, axis=1)
     R_r = np.linalg.norm(rx - ref, axis=1)
+    ctx = dict(n_all=tab["n"], centres=tab["c"], refl=refl, occ=occ, tx=tx, rx=rx, ref=ref, R_t=R_t, R_r=R_r, ks=ks,
+               pol_t=pol_t, pol_r=pol_r, near_field=near_field, two_sided=two_sided, eps=eps,
+               chunk_elements=chunk_elements, spacing=spacing, amplitude_weight=amplitude_weight,
+               max_bounces=int(max_bounces))
     batch: list = []
     nb = 0
     for m in range(M):
@@ -107,8 +117,7 @@ def double_bounce(verts, fcs, tab, refl, occ, tx, rx, ref, ks, pol_t, pol_r, *, 
             batch.append((m, rays))
             nb += len(rays[0])
         if batch and (nb >= max_rays or m == M - 1):
-            _trace_batch(out, batch, n_all, tab["c"], fcs, refl, occ, tx, rx, ref, R_t, R_r, ks, pol_t, pol_r,
-                         near_field, two_sided, eps, chunk_elements, spacing, amplitude_weight)
+            _trace_batch(out, batch, ctx)
             batch, nb = [], 0
     return out
 
@@ -120,61 +129,88 @@ def _first_facet(occ, o, d, ref, near_field):
     return occ.first_hit(o + t0[:, None] * d, d)[1]
 
 
-def _two_bounces(occ, rays, n_all, centres, ref, near_field, two_sided, eps) -> dict:
-    """Trace rays (a dict of [N] / [N, 3] arrays: mg, o, d, su, sv, rho) to their first facet A, reflect
-    them (GO) and trace them to B; keep those that reach B and add t1, fa, nA (facing the ray), pA,
-    d2, t2, fb, nB, pB (hit points in float64 on the facets' planes)."""
-    o, d = rays["o"], rays["d"]
-    fa = _first_facet(occ, o, d, ref, near_field)
-    nA = n_all[np.maximum(fa, 0)]
-    cosA = _dot(nA, d)
-    ok = (fa >= 0) & (np.abs(cosA) > 1e-9)
-    if not two_sided:
-        ok &= cosA < 0
-    sel = np.nonzero(ok)[0]
-    r = {k: v[sel] for k, v in rays.items()}
-    fa = fa[sel]
-    nA = nA[sel] * -np.sign(cosA[sel])[:, None]  # facing the incoming ray
-    t1 = _dot(centres[fa] - r["o"], nA) / _dot(r["d"], nA)  # exact plane hit (float64)
-    pA = r["o"] + t1[:, None] * r["d"]
-    d2 = r["d"] - 2.0 * _dot(r["d"], nA)[:, None] * nA
-    t2, fb = occ.first_hit(pA + eps * nA, d2)
-    nB = n_all[np.maximum(fb, 0)]
-    cosB = _dot(nB, d2)
-    ok = (fb >= 0) & (np.abs(cosB) > 1e-6)
-    if not two_sided:
-        ok &= cosB < 0
-    sel = np.nonzero(ok)[0]
-    r = {k: v[sel] for k, v in r.items()}
-    r.update(t1=t1[sel], fa=fa[sel], nA=nA[sel], pA=pA[sel], d2=d2[sel], fb=fb[sel])
-    r["nB"] = nB[sel] * -np.sign(cosB[sel])[:, None]
-    r["t2"] = _dot(centres[r["fb"]] - r["pA"], r["nB"]) / _dot(r["d2"], r["nB"])
-    r["pB"] = r["pA"] + r["t2"][:, None] * r["d2"]
+def _mirror(x, n):
+    """x (N,3) mirrored at planes of unit normals n (N,3): the GO reflection of a direction or a tube side."""
+    return x - 2.0 * _dot(x, n)[:, None] * n
+
+
+def _trace(occ, rays, n_all, centres, ref, near_field, two_sided, eps, max_bounces) -> dict:
+    """Trace rays (a dict of [N] / [N, 3] arrays: mg, o, d, su, sv, rho) from facet to facet, reflecting
+    them (GO mirror) at each, up to max_bounces = B facets. Keeps the rays that reach a second facet and
+    adds their history, padded to B hits: nhit [N] (2..B), f [N, B] facets (-1 past nhit), n [N, B, 3]
+    normals facing the ray (0 past nhit), p [N, B, 3] hit points (float64, on the facets' planes),
+    t [N, B] leg lengths, m (t[:, 0] from o), dirs [N, B + 1, 3] (dirs[:, j] arrives at hit j; dirs[:, 0] = d)."""
+    B = max_bounces
+    steps = []                                               # per hit: (rows of `rays` still travelling, f, n, p, t, reflected d)
+    idx, o, d, n_prev = np.arange(len(rays["o"])), rays["o"], rays["d"], None
+    for j in range(B):
+        if j == 0:
+            fj, tol = _first_facet(occ, o, d, ref, near_field), 1e-9
+        else:   # off the facet just left, so the cast does not hit it again
+            fj, tol = occ.first_hit(o + eps * n_prev, d)[1], 1e-6
+        nj = n_all[np.maximum(fj, 0)]
+        cos = _dot(nj, d)
+        ok = (fj >= 0) & (np.abs(cos) > tol)
+        if not two_sided:
+            ok &= cos < 0
+        sel = np.nonzero(ok)[0]
+        if len(sel) == 0:
+            break
+        idx, o, d, fj = idx[sel], o[sel], d[sel], fj[sel]
+        nj = nj[sel] * -np.sign(cos[sel])[:, None]            # facing the incoming ray
+        tj = _dot(centres[fj] - o, nj) / _dot(d, nj)          # exact plane hit (float64)
+        pj = o + tj[:, None] * d
+        d_next = _mirror(d, nj)
+        steps.append((idx, fj, nj, pj, tj, d_next))
+        o, d, n_prev = pj, d_next, nj
+    # history of the rays that reach a second facet, padded to B hits (built for those rays only: most
+    # tubes of an aspect miss the object or leave it after one hit)
+    keep = steps[1][0] if len(steps) > 1 else np.zeros(0, dtype=np.int64)
+    K = len(keep)
+    r = {k: v[keep] for k, v in rays.items()}
+    f_h = np.full((K, B), -1, dtype=np.int64)
+    n_h, p_h = np.zeros((K, B, 3)), np.zeros((K, B, 3))
+    t_h, dirs = np.zeros((K, B)), np.zeros((K, B + 1, 3))
+    dirs[:, 0] = r["d"]
+    nhit = np.zeros(K, dtype=int)
+    for j, (ij, fj, nj, pj, tj, dn) in enumerate(steps):
+        at = np.searchsorted(ij, keep) if j == 0 else np.searchsorted(keep, ij)   # rows are sorted
+        src = at if j == 0 else slice(None)
+        dst = slice(None) if j == 0 else at
+        f_h[dst, j], n_h[dst, j], p_h[dst, j], t_h[dst, j], dirs[dst, j + 1] = fj[src], nj[src], pj[src], tj[src], dn[src]
+        nhit[dst] = j + 1
+    r.update(nhit=nhit, f=f_h, n=n_h, p=p_h, t=t_h, dirs=dirs)
     return r
 
 
 def _footprint_parts(r: dict, near_field: bool, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Parts [N] (int, >= 1) to cut each side of the tubes of `r` (see _two_bounces) into, so that no
-    sub-tube's footprint on A or on B is longer than `spacing`.
+    """Parts [N] (int, >= 1) to cut each side of the tubes of `r` (see _trace) into, so that no sub-tube's
+    footprint on any facet it hits is longer than `spacing`.
 
     A tube is in or out by its central ray, so a tube meeting a facet at grazing incidence stands for
     a strip spacing / cos(theta) long on it: a 1.3 cm tube seen at 2 degrees covers 37 cm, a whole
     brick top and the side of the next brick, and returns the area of the facet it happens to hit.
-    A side x of the tube (perpendicular to the ray) lands on A's plane as
-    |x_A| = sqrt(|x|^2 + ((x . n_A) / cos theta_A)^2), and on B as the footprint the sum uses
-    (x mirrored at A, projected along the reflected ray onto B)."""
-    grow_a = (r["t1"] / r["rho"])[:, None] if near_field else 1.0          # near field: tubes widen with the path
-    grow_b = ((r["t1"] + r["t2"]) / r["rho"])[:, None] if near_field else 1.0
-    cos_a = np.abs(_dot(r["nA"], r["d"])).clip(1e-3, 1.0)
+    A side x of the tube (perpendicular to the ray) lands on the first facet's plane as
+    |x_A| = sqrt(|x|^2 + ((x . n_A) / cos theta_A)^2), and on each later facet as the footprint the sum
+    uses (x mirrored at the facets before, projected along the ray onto the facet)."""
+    n, dirs, nhit = r["n"], r["dirs"], r["nhit"]
+    reach = np.cumsum(r["t"], axis=1) / r["rho"][:, None] if near_field else None   # near field: tubes widen
+    cos_a = np.abs(_dot(n[:, 0], r["d"])).clip(1e-3, 1.0)
     out = []
     for side in (r["su"], r["sv"]):
-        x = side * grow_a
-        on_a = np.sqrt(_dot(x, x) + (_dot(x, r["nA"]) / cos_a) ** 2)
-        m = side * grow_b
-        m = m - 2.0 * _dot(m, r["nA"])[:, None] * r["nA"]
-        m = m - (_dot(m, r["nB"]) / _dot(r["d2"], r["nB"]))[:, None] * r["d2"]
-        on_b = np.sqrt(_dot(m, m))
-        out.append(np.clip(np.ceil(np.maximum(on_a, on_b) / spacing - 1e-9), 1, REFINE_MAX).astype(int))
+        x = side * reach[:, 0:1] if near_field else side
+        longest = np.sqrt(_dot(x, x) + (_dot(x, n[:, 0]) / cos_a) ** 2)
+        m = side
+        for j in range(1, n.shape[1]):
+            on = nhit > j
+            if not on.any():
+                break
+            m = _mirror(m, n[:, j - 1])   # n = 0 past a ray's last hit: no change
+            x = m * reach[:, j:j + 1] if near_field else m
+            den = np.where(on, _dot(dirs[:, j], n[:, j]), 1.0)
+            x = x - (_dot(x, n[:, j]) / den)[:, None] * dirs[:, j]
+            longest = np.where(on, np.maximum(longest, np.sqrt(_dot(x, x))), longest)
+        out.append(np.clip(np.ceil(longest / spacing - 1e-9), 1, REFINE_MAX).astype(int))
     return out[0], out[1]
 
 
@@ -198,89 +234,110 @@ def _sub_tubes(r: dict, n_u: np.ndarray, n_v: np.ndarray, near_field: bool) -> d
     return sub
 
 
-def _trace_batch(out, batch, n_all, centres, fcs, refl, occ, tx, rx, ref, R_t, R_r, ks, pol_t, pol_r, near_field,
-                 two_sided, eps, chunk_elements, spacing, amplitude_weight=None):
+def _trace_batch(out, batch, ctx):
     rays = {"mg": np.concatenate([np.full(len(r[0]), m) for m, r in batch])}
     for i, key in enumerate(("o", "d", "su", "sv", "rho")):
         rays[key] = np.concatenate([r[i] for _, r in batch])
-    r = _two_bounces(occ, rays, n_all, centres, ref, near_field, two_sided, eps)
-    # tubes whose footprint on A or B is longer than the spacing (grazing bounces) are cut into
+    def trace(rays):
+        return _trace(ctx["occ"], rays, ctx["n_all"], ctx["centres"], ctx["ref"], ctx["near_field"], ctx["two_sided"],
+                      ctx["eps"], ctx["max_bounces"])
+
+    r = trace(rays)
+    # tubes whose footprint on any facet is longer than the spacing (grazing bounces) are cut into
     # sub-tubes, each traced again (one level; it may hit other facets)
-    n_u, n_v = _footprint_parts(r, near_field, spacing)
+    n_u, n_v = _footprint_parts(r, ctx["near_field"], ctx["spacing"])
     split = (n_u > 1) | (n_v > 1)
     if split.any():
-        sub = _two_bounces(occ, _sub_tubes({k: v[split] for k, v in r.items()}, n_u[split], n_v[split], near_field),
-                           n_all, centres, ref, near_field, two_sided, eps)
+        sub = trace(_sub_tubes({k: v[split] for k, v in r.items()}, n_u[split], n_v[split], ctx["near_field"]))
         order = np.argsort(np.concatenate([r["mg"][~split], sub["mg"]]), kind="stable")  # sums need rays grouped by aspect
         r = {k: np.concatenate([r[k][~split], sub[k]])[order] for k in r}
-    if len(r["mg"]) == 0:
-        return
-    mg, d, su, sv, rho, t1, fa, nA, pA, d2, t2, fb, nB, pB = (
-        r[k] for k in ("mg", "d", "su", "sv", "rho", "t1", "fa", "nA", "pA", "d2", "t2", "fb", "nB", "pB"))
+    for b in range(2, ctx["max_bounces"] + 1):   # every bounce radiates
+        sel = np.nonzero(r["nhit"] >= b)[0]
+        if len(sel):
+            _radiate_bounce(out, {k: v[sel] for k, v in r.items()}, b, ctx)
+
+
+def _go_te_tm(refl, kidx, fidx, cos_theta):
+    """(R_TE, R_TM), each (P, len(kidx)), of the GO reflection at facets fidx: the facets' Fresnel
+    coefficients, or for a scalar Gamma the perfect-conductor pair (-1, +1) times -Gamma."""
+    if refl.material_mode:
+        return refl.te_tm(kidx, fidx, cos_theta)
+    g = refl.scalar(kidx, fidx)
+    return g, -g
+
+
+def _radiate_bounce(out, r, b, ctx):
+    """Add the PO field radiated toward the Rx by the footprints of tubes `r` (see _trace, all with
+    nhit >= b) on their b-th facet, lit by the incident field reflected (GO) at the b - 1 facets before."""
+    occ, rx, ref, R_t, R_r, ks = (ctx[k] for k in ("occ", "rx", "ref", "R_t", "R_r", "ks"))
+    near_field, eps, refl = ctx["near_field"], ctx["eps"], ctx["refl"]
+    L = b - 1                                              # index of the radiating hit
+    mg, nL, pL = r["mg"], r["n"][:, L], r["p"][:, L]
     # toward the receiver
-    if near_field:
-        vr = rx[mg] - pB
-        dist_r = np.linalg.norm(vr, axis=1)
-        s_hat = vr / dist_r[:, None]
-    else:
-        s_hat = normalize(rx[mg] - ref)
-    ok = _dot(nB, s_hat) > 0
-    oB = pB + eps * nB
-    if near_field:
-        ok &= occ.unoccluded(oB, rx[mg] - oB, tfar=1.0 - 1e-7)
-    else:
-        ok &= occ.unoccluded(oB, s_hat)
+    s_hat = normalize(rx[mg] - pL) if near_field else normalize(rx[mg] - ref)
+    ok = _dot(nL, s_hat) > 0
+    o = pL + eps * nL
+    ok &= occ.unoccluded(o, rx[mg] - o, tfar=1.0 - 1e-7) if near_field else occ.unoccluded(o, s_hat)
     sel = np.nonzero(ok)[0]
     if len(sel) == 0:
         return
-    mg, d, su, sv, rho, t1, fa, nA, pA, d2, t2, fb, nB, pB, s_hat = (
-        x[sel] for x in (mg, d, su, sv, rho, t1, fa, nA, pA, d2, t2, fb, nB, pB, s_hat))
-    path = t1 + t2
+    r = {k: v[sel] for k, v in r.items()}
+    mg, d, s_hat = r["mg"], r["d"], s_hat[sel]
+    f, n, p, t, dirs = r["f"][:, :b], r["n"][:, :b], r["p"][:, :b], r["t"][:, :b], r["dirs"][:, :b]
+    nL, pL, dL = n[:, L], p[:, L], dirs[:, L]
+    path = t.sum(axis=1)
     if near_field:
-        dist_r = np.linalg.norm(rx[mg] - pB, axis=1)
+        dist_r = np.linalg.norm(rx[mg] - pL, axis=1)
         phase_len = -(path + dist_r - R_t[mg] - R_r[mg])
-        amp = (R_t[mg] / path) * (R_r[mg] / dist_r)
-        scale = path / rho
+        amp = (R_t[mg] / path) * (R_r[mg] / dist_r)        # image source of the b - 1 reflections
+        scale = (path / r["rho"])[:, None]
     else:
-        phase_len = _dot(-d, pA - ref) - t2 + _dot(s_hat, pB - ref)
+        phase_len = -(_dot(d, p[:, 0] - ref) + t[:, 1:].sum(axis=1) - _dot(s_hat, pL - ref))
         amp = np.ones(len(mg))
-        scale = np.ones(len(mg))
-    # tube footprint on B: mirror at A, project along d2 onto B's plane
-    def mirror(x):
-        return x - 2.0 * _dot(x, nA)[:, None] * nA
-
-    def project(x):
-        return x - (_dot(x, nB) / _dot(d2, nB))[:, None] * d2
-
-    a_vec = project(mirror(su * scale[:, None]))
-    b_vec = project(mirror(sv * scale[:, None]))
+        scale = 1.0
+    # tube footprint on the last facet: mirror at the facets before, project along the ray onto its plane
+    a_vec, b_vec = r["su"] * scale, r["sv"] * scale
+    for j in range(L):
+        a_vec, b_vec = _mirror(a_vec, n[:, j]), _mirror(b_vec, n[:, j])
+    den = _dot(dL, nL)
+    a_vec = a_vec - (_dot(a_vec, nL) / den)[:, None] * dL
+    b_vec = b_vec - (_dot(b_vec, nL) / den)[:, None] * dL
     area = np.linalg.norm(np.cross(a_vec, b_vec), axis=1)
-    w = s_hat - d2
+    w = s_hat - dL
     wa, wb = _dot(w, a_vec), _dot(w, b_vec)
-    # fields
-    e_inc = polarization_vector(d, pol_t)
-    p_hat = polarization_vector(-s_hat, pol_r)
-    _, (b_te, b_tm) = reflect_field_basis(nA, d, e_inc)
-    c_te = po_coefficients(nB, d2, s_hat, b_te, p_hat)  # (P,3)
-    c_tm = po_coefficients(nB, d2, s_hat, b_tm, p_hat)
-    cosA_abs = np.abs(_dot(d, nA))
-    cosB_abs = np.abs(_dot(d2, nB))
+    # fields: the incident E split into TE / TM parts at each GO bounce, 2^(b-1) real vectors, each
+    # labelled by its modes (0 = TE, 1 = TM) and later weighted by the product of those coefficients
+    terms = [((), polarization_vector(d, ctx["pol_t"]))]
+    for j in range(L):
+        terms = [(modes + (i,), part) for modes, e in terms
+                 for i, part in enumerate(reflect_field_basis(n[:, j], dirs[:, j], e)[1])]
+    p_hat = polarization_vector(-s_hat, ctx["pol_r"])
+    coefs = [(modes, po_coefficients(nL, dL, s_hat, e, p_hat)) for modes, e in terms]   # (P, 3) each
+    cos_abs = np.abs(np.einsum("pbi,pbi->pb", dirs, n))     # (P, b) at each hit
 
     def kernel(kidx):
         k = ks[kidx][None, :]
         foot = sinc_u(0.5 * k * wa[:, None]) * sinc_u(0.5 * k * wb[:, None])
+        go = [_go_te_tm(refl, kidx, f[:, j], cos_abs[:, j]) for j in range(L)]
         if refl.material_mode:
-            ra_te, ra_tm = refl.te_tm(kidx, fa, cosA_abs)
-            rb_te, rb_tm = refl.te_tm(kidx, fb, cosB_abs)
-            fac = ra_te * (c_te[:, 0:1] + rb_te * c_te[:, 1:2] + rb_tm * c_te[:, 2:3]) + \
-                ra_tm * (c_tm[:, 0:1] + rb_te * c_tm[:, 1:2] + rb_tm * c_tm[:, 2:3])
-        else:
-            pec = _PEC_GAMMA[0] * (c_te[:, 0] - c_te[:, 1] + c_te[:, 2]) + \
-                _PEC_GAMMA[1] * (c_tm[:, 0] - c_tm[:, 1] + c_tm[:, 2])
-            fac = refl.scalar(kidx, fa) * refl.scalar(kidx, fb) * pec[:, None]
+            r_te, r_tm = refl.te_tm(kidx, f[:, L], cos_abs[:, L])
+
+            def last(c):
+                return c[:, 0:1] + r_te * c[:, 1:2] + r_tm * c[:, 2:3]
+        else:   # the perfect-conductor currents scaled by -Gamma
+            g = -refl.scalar(kidx, f[:, L])
+
+            def last(c):
+                return g * (c[:, 0:1] - c[:, 1:2] + c[:, 2:3])
+        fac = 0.0
+        for modes, c in coefs:
+            weight = 1.0
+            for j, i in enumerate(modes):
+                weight = weight * go[j][i]
+            fac = fac + weight * last(c)
         return foot * fac
 
     base = amp * area
-    if amplitude_weight is not None:
-        base = base * np.asarray(amplitude_weight(mg, d, -s_hat))
-    _sum_into(out, mg, ks, chunk_elements, kernel, phase_len, base)
+    if ctx["amplitude_weight"] is not None:
+        base = base * np.asarray(ctx["amplitude_weight"](mg, d, -s_hat))
+    _sum_into(out, mg, ks, ctx["chunk_elements"], kernel, phase_len, base)

@@ -229,7 +229,7 @@ def _parse_pol(polarization):
 
 
 def po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_hz, *,
-                       polarization="V", second_order: bool = False, near_field: bool = False,
+                       polarization="V", second_order: bool = False, max_bounces: int = 2, near_field: bool = False,
                        ref_point=(0.0, 0.0, 0.0), face_thickness=None, two_sided: bool = True,
                        shadow_samples: int = 4, chunk_facets: int = 8192, chunk_elements: int = 1 << 19,
                        sbr_spacing_m: float | None = None, occluder: Occluder | None = None,
@@ -244,12 +244,14 @@ def po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_h
     P.2040 + "pec", angle- and polarisation-dependent TE/TM Fresnel; face_thickness (F,) or
     scalar in m makes them slabs as in Sionna). tx_pos, rx_pos (M,3) m: one radar geometry per
     row (monostatic when equal). freqs_hz (K,). polarization "V", "H", "VH" (tx V, rx H) or a
-    (tx, rx) pair. second_order adds the double-bounce (dihedral) term, see `second_order.py`.
+    (tx, rx) pair. second_order adds the paths over 2 to max_bounces facets (ray tubes, GO then PO,
+    see `second_order.py`): max_bounces = 2 the double bounce (a dihedral's flash), 3 also the triple
+    bounce (a trihedral's flash); ignored when second_order is False.
     shadow_samples 1 (centroid) or 4 (centroid + 3 inner points) ray casts per facet and end.
     chunk_facets bounds the (facet, aspect) pairs processed at once and chunk_elements the
     pairs x frequencies block, so memory stays bounded for any M, F, K.
     amplitude_weight(aspect_index (P,), u_tx (P,3), u_rx (P,3)) -> (P,) multiplies each facet's
-    (and each double-bounce tube's) contribution; u_tx / u_rx are unit vectors from the Tx / Rx
+    (and each multiple-bounce tube's) contribution; u_tx / u_rx are unit vectors from the Tx / Rx
     toward the scattering point. Use it for antenna patterns, sqrt(G_T(u_tx) G_R(u_rx)): then
     |s|^2 = sigma * G_T * G_R for a small object, and channel_from_amplitude gives the channel
     with the patterns included. None = isotropic (s is the bare RCS amplitude).
@@ -267,13 +269,13 @@ def po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_h
     """
     with single_thread_torch():
         return _po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_hz, polarization,
-                                   second_order, near_field, ref_point, face_thickness, two_sided, shadow_samples,
+                                   second_order, max_bounces, near_field, ref_point, face_thickness, two_sided, shadow_samples,
                                    chunk_facets, chunk_elements, sbr_spacing_m, occluder, amplitude_weight,
                                    max_facet_edge_m, shadow_refine_m, progress)
 
 
 def _po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_hz, polarization, second_order,
-                        near_field, ref_point, face_thickness, two_sided, shadow_samples, chunk_facets,
+                        max_bounces, near_field, ref_point, face_thickness, two_sided, shadow_samples, chunk_facets,
                         chunk_elements, sbr_spacing_m, occluder, amplitude_weight, max_facet_edge_m,
                         shadow_refine_m, progress):
     verts = np.asarray(vertices, dtype=float)
@@ -382,11 +384,11 @@ def _po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_
             progress(done, M)
 
     if second_order:
-        from .second_order import double_bounce
+        from .second_order import multi_bounce
 
-        out += double_bounce(verts, fcs, tab0, refl, occ, tx, rx, ref, ks, pol_t, pol_r, near_field=near_field,
-                             two_sided=two_sided, spacing_m=sbr_spacing_m, chunk_elements=chunk_elements,
-                             amplitude_weight=amplitude_weight)
+        out += multi_bounce(verts, fcs, tab0, refl, occ, tx, rx, ref, ks, pol_t, pol_r, max_bounces=max_bounces,
+                            near_field=near_field, two_sided=two_sided, spacing_m=sbr_spacing_m,
+                            chunk_elements=chunk_elements, amplitude_weight=amplitude_weight)
     return out
 
 
@@ -550,7 +552,7 @@ def rcs_dbsm(sigma_m2) -> np.ndarray:
 
 
 PO_METHOD = ("physical optics: ray-cast lit facets (Open3D), closed-form triangle integrals, TE/TM Fresnel "
-             "(ITU-R P.2040) or scalar Gamma; optional double bounce (SBR, GO then PO)")
+             "(ITU-R P.2040) or scalar Gamma; optional multiple bounces up to max_bounces (SBR, GO then PO)")
 
 
 def provenance(**po_kwargs) -> dict:

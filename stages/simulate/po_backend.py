@@ -7,7 +7,7 @@ monostatic at the midpoint of the stored Tx/Rx positions (2 mm apart, the Sionna
 that avoids a second set of shadow rays and changes the geometry by 1 mm at >= 2 m. The horn
 pattern is applied per facet (amplitude sqrt(G_T(u_tx) G_R(u_rx)), u toward the facet), the
 same function the Sionna backend applies per path. All frequencies of a task go through one
-solver call: facet geometry, lit sets, shadow rays and double-bounce tubes are computed once
+solver call: facet geometry, lit sets, shadow rays and multiple-bounce tubes are computed once
 and reused for every frequency (exact per frequency, no anchors).
 """
 from __future__ import annotations
@@ -31,11 +31,16 @@ def simulate_monostatic_po(spec, grid: RadarGrid, freqs_hz, hpbw_deg: float, po:
     ants = [Antenna("horn", tuple(b / np.linalg.norm(b)), hpbw_deg) for b in bore]
     freqs = np.atleast_1d(np.asarray(freqs_hz, float))
     kwargs = dict(po.solver_kwargs(), ref_point=tuple(float(x) for x in centre))
-    if kwargs.get("second_order") and kwargs.get("sbr_spacing_m") is None:   # say what "auto" resolved to
-        from rfir_stages.po.second_order import auto_tube_spacing
-        side = auto_tube_spacing(v, 2 * np.pi * freqs / 299792458.0)
-        progress.log(f"simulate: PO double-bounce ray tubes of {side * 1e3:.1f} mm (simulate.po.sbr_spacing_m = "
-                     "auto: lambda_min / 20, wider for large objects; tubes split at grazing bounces; docs/po.md)")
+    if kwargs.get("second_order"):   # say how many bounces, and what an "auto" tube side resolved to
+        if kwargs.get("sbr_spacing_m") is None:
+            from rfir_stages.po.second_order import auto_tube_spacing
+            side = auto_tube_spacing(v, 2 * np.pi * freqs / 299792458.0)
+            tubes = (f"{side * 1e3:.1f} mm (simulate.po.sbr_spacing_m = auto: lambda_min / 20, wider for large "
+                     "objects; tubes split at grazing bounces)")
+        else:
+            tubes = f"{kwargs['sbr_spacing_m'] * 1e3:.1f} mm (simulate.po.sbr_spacing_m)"
+        progress.log(f"simulate: PO paths over 2 to {kwargs['max_bounces']} facets (simulate.po.max_bounces), "
+                     f"ray tubes of {tubes}; docs/po.md")
     n = len(pos)
     with progress.task(label, total=n) as bar:
         last = [0]

@@ -21,6 +21,7 @@ class PoSettings:
 
     near_field: bool = True
     second_order: bool = True
+    max_bounces: int = 3
     polarization: str = "V"
     shadow_samples: int = 4
     use_thickness: bool = True
@@ -28,8 +29,13 @@ class PoSettings:
     shadow_refine_m: float | None = None
     sbr_spacing_m: float | None = None
 
+    def __post_init__(self):
+        if self.max_bounces < 2:   # read as "simulate: bad setting (...)" by parse_settings
+            raise ValueError(f"po.max_bounces must be >= 2, got {self.max_bounces} (second_order = false: first order only)")
+
     def solver_kwargs(self) -> dict:
         return dict(near_field=bool(self.near_field), second_order=bool(self.second_order),
+                    max_bounces=int(self.max_bounces),
                     polarization=str(self.polarization), shadow_samples=int(self.shadow_samples),
                     max_facet_edge_m=self.max_facet_edge_m, shadow_refine_m=self.shadow_refine_m,
                     sbr_spacing_m=self.sbr_spacing_m)
@@ -182,6 +188,7 @@ def parse_settings(config: dict | None, quick: bool | None = None, scene: str | 
             rssi_max_paths=int(rs.get("max_num_paths_per_src", 2000000)),
             rcs_backend=str(c.get("rcs_backend", "sionna")).lower(),
             po=PoSettings(near_field=bool(po.get("near_field", True)), second_order=bool(po.get("second_order", True)),
+                          max_bounces=int(po.get("max_bounces", 3)),
                           polarization=str(po.get("polarization", "V")).upper(),
                           shadow_samples=int(po.get("shadow_samples", 4)),
                           use_thickness=bool(po.get("use_thickness", True)),

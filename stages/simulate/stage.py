@@ -293,7 +293,7 @@ def _rcs_po(task, spec, s: SimulateSettings, progress):
     attrs = {k: (np.asarray(v) if isinstance(v, list) else v) for k, v in attrs.items()}
     if task == "wideband":
         attrs["wideband_note"] = ("PO solved at every frequency (exact k, Fresnel coefficients per frequency); "
-                                  "facet geometry, lit sets and double-bounce tubes shared across frequencies")
+                                  "facet geometry, lit sets and multiple-bounce tubes shared across frequencies")
     return data, attrs
 
 
