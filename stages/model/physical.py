@@ -22,7 +22,8 @@ Received complex amplitude and power for a batch of links (P_T = 1 W, path gain 
   legs share one path);
 - g: a system gain (1 unless fitted: the level is physical);
 - with settings.edge_waves, the fringe field of the planar patches' outer edges is added to S_spec
-  (edges.py, docs/physics.md section 8.13), as the double bounces are (second_order.py).
+  (edges.py, docs/physics.md section 8.13), as the double and triple bounces are (second_order.py,
+  third_order.py).
 The phase of each term is fixed by geometry and the material: no free phase per Gaussian.
 
 Everything that depends on geometry alone is computed once (`build_pairs`); `PhysicalModel.power`
@@ -30,6 +31,7 @@ is then O(pairs x frequencies) and differentiable in the material parameters.
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -46,6 +48,7 @@ from .materials import C0, co_polar_reflection, fresnel, permittivity
 from .link_rows import renumber_links
 from .edges import EdgeTerms, aggregate_edges, edge_field, edge_reflection, edge_terms, patch_edges
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
+from .third_order import TripleBounce, build_triple_bounce
 from .surfels import covariance, footprint_cells, footprint_factor, surfel_areas
 
 EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
@@ -78,6 +81,7 @@ class PairGeometry:
     freq_hz: torch.Tensor
     double: "DoubleBounce | None" = None    # second-order items (second_order.py), None: first order only
     edges: "EdgeTerms | None" = None        # edge-wave items (edges.py), None: no edge waves
+    triple: "TripleBounce | None" = None    # third-order items (third_order.py; no frequency: any columns), None: none
 
     @property
     def num_pairs(self) -> int:
@@ -117,7 +121,8 @@ class PairGeometry:
                             pick(self.d_o), pick(self.cos_i), pick(self.cos_o), pick(self.te_share), pick(self.gain),
                             pick(self.vis), pick(self.q_cell), pick(self.area), self.freq_hz,
                             None if self.double is None else self.double.select_links(rows),
-                            None if self.edges is None else self.edges.select_links(rows))
+                            None if self.edges is None else self.edges.select_links(rows),
+                            None if self.triple is None else self.triple.select_links(rows))
 
 
 @dataclass
@@ -126,8 +131,9 @@ class PairSettings:
     every Gaussian for the traced V. margin_m: occluders closer than this in front of a surfel are
     ignored (a surface does not shadow itself). colocated_tol_m: Tx and Rx closer than this are one
     radar (one visibility factor). polarisation: "V" or "H". link_chunk: links per geometry block.
-    second_order: add double bounces between planar patches of at least min_patch_area_m2
-    (second_order.py; co-located antennas only). lit_threshold: a surfel is lit from an antenna when
+    second_order: add double bounces between planar patches of at least min_patch_area_m2 (second_order.py),
+    and with third_order triple bounces at their corners (third_order.py); co-located antennas only.
+    lit_threshold: a surfel is lit from an antenna when
     the traced transmittance exceeds this (V = 1, else 0: opaque surfaces with sharp shadow edges);
     0: V is the transmittance itself (soft shadows). edge_waves: add the fringe field of the patches'
     outer edges (edges.py; co-located antennas only)."""
@@ -140,6 +146,7 @@ class PairSettings:
     polarisation: str = "V"
     link_chunk: int = 64
     second_order: bool = True
+    third_order: bool = True
     min_patch_area_m2: float = 2e-3
     lit_threshold: float = 0.2
     edge_waves: bool = False
@@ -195,7 +202,7 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
                 areas_m2: torch.Tensor | None = None, patches: "Patches | None" = None,
                 labels: torch.Tensor | None = None) -> PairGeometry:
     """Trace once and keep the geometry of every lit (link, surfel) pair (see PairGeometry), and the
-    double bounces between planar patches when settings.second_order and their edge waves when
+    double and triple bounces between planar patches when settings.second_order and their edge waves when
     settings.edge_waves (patches: computed from the geometry, and labels when given, unless passed)."""
     with torch.no_grad():
         area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) \
@@ -229,6 +236,11 @@ def build_pairs(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPattern, rx
                     geom, links, tx_ant, rx_ant, patches, area, cells,
                     lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation,
                     settings.colocated_tol_m)
+                if settings.third_order:
+                    pairs.triple = build_triple_bounce(
+                        geom, links, tx_ant, rx_ant, patches, area, cells,
+                        lambda lk, gs: pairs.visibility_of(lk, gs, geom.num), settings.polarisation,
+                        settings.colocated_tol_m)
         return pairs
 
 
@@ -405,7 +417,7 @@ def specular_terms(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats
 def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
                     freq_hz: torch.Tensor | None = None, surfel_factor: torch.Tensor | None = None
                     ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(coherent field [M, K] complex: first and second order, diffuse power [M, K]) without the
+    """(coherent field [M, K] complex: first, second and third order, diffuse power [M, K]) without the
     system gain; arguments as scattered_power."""
     f = pairs.freq_hz if freq_hz is None else freq_hz.double()
     k0 = 2 * math.pi * f / C0                                      # [K]
@@ -417,6 +429,10 @@ def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
         if freq_hz is not None and not torch.equal(f, pairs.double.freq_hz):
             raise ValueError("the double bounces were built for other frequencies")
         field = field + _double_bounce_field(pairs.double, material_of_gaussian, mats, k0)
+    if pairs.triple is not None and pairs.triple.num:
+        tb = pairs.triple
+        field = field + _bounce_field(tb.num_links, tb.link, tb.gauss.unbind(1), tb.cos.unbind(1), tb.pol,
+                                      tb.coef(k0), material_of_gaussian, mats, f, k0)
     if pairs.edges is not None and pairs.edges.num:
         if freq_hz is not None and not torch.equal(f, pairs.edges.freq_hz):
             raise ValueError("the edge waves were built for other frequencies")
@@ -436,26 +452,41 @@ def _double_bounce_field(db: DoubleBounce, material_of_gaussian: torch.Tensor, m
                          k0: torch.Tensor) -> torch.Tensor:
     """Second-order field [M, K]: sum of coef sum_X R_X(A) sqrt(1 - S_A^2) (sum_Y b_XY R_Y(B) sqrt(1 - S_B^2)
     + b_X0) per link (b = db.pol, second_order.second_bounce_factors; b_X0 is the PO radiation of the wave
-    that reaches B, which B's roughness does not scale)."""
-    eta = mats.eta(db.freq_hz)
-    out = torch.zeros((db.num_links, db.freq_hz.numel()), dtype=torch.complex128)
-    coefs = []
-    for g, cos in ((db.gauss_a, db.cos_a), (db.gauss_b, db.cos_b)):
+    that reaches B, which B's roughness does not scale): `_bounce_field` of two planes."""
+    return _bounce_field(db.num_links, db.link, (db.gauss_a, db.gauss_b), (db.cos_a, db.cos_b), db.pol, db.coef,
+                         material_of_gaussian, mats, db.freq_hz, k0)
+
+
+def _bounce_field(num_links: int, link: torch.Tensor, gauss: tuple, cos: tuple, pol: torch.Tensor, coef: torch.Tensor,
+                  material_of_gaussian: torch.Tensor, mats: MaterialValues, freq_hz: torch.Tensor,
+                  k0: torch.Tensor) -> torch.Tensor:
+    """Field [M, K] of I multiple-bounce items over N planes: per link the sum of coef [I, K] times
+    `bounce_product` of the factors pol [I, F] (second_order.bounce_factors) and each plane's reflection
+    coefficients R_TE, R_TM sqrt(1 - S^2) (the material of gauss[n] [I] at the incidence cosine cos[n] [I])."""
+    eta = mats.eta(freq_hz)
+    refl = []
+    for g, c in zip(gauss, cos):
         mat = material_of_gaussian[g]
         th = None if mats.thickness_m is None else mats.thickness_m[mat][:, None]
-        r_te, r_tm = fresnel(eta[mat], cos[:, None], k0[None], th)
+        r_te, r_tm = fresnel(eta[mat], c[:, None], k0[None], th)
         spec = torch.sqrt(1.0 - mats.scattering[mat] ** 2)[:, None]
-        coefs.append((r_te * spec, r_tm * spec))
-    (a_te, a_tm), (b_te, b_tm) = coefs
-    c = db.pol[:, :, None]
-    return out.index_add(0, db.link, db.coef * polarised_product(c[:, 0], c[:, 1], c[:, 2], c[:, 3], c[:, 4], c[:, 5],
-                                                                 a_te, a_tm, b_te, b_tm))
+        refl.append((r_te * spec, r_tm * spec))
+    out = torch.zeros((num_links, freq_hz.numel()), dtype=torch.complex128)
+    return out.index_add(0, link, coef * bounce_product(pol[:, :, None], refl))
 
 
-def polarised_product(c_tt, c_tm, c_mt, c_mm, c_t0, c_m0, a_te, a_tm, b_te, b_tm):
-    """sum_X R_X(A) (sum_Y c_XY R_Y(B) + c_X0): a double bounce's two reflections with its physical-optics
-    factors (second_order.second_bounce_factors); one definition for the exact and the aggregated sums."""
-    return a_te * (c_tt * b_te + c_tm * b_tm + c_t0) + a_tm * (c_mt * b_te + c_mm * b_tm + c_m0)
+def bounce_product(pol: torch.Tensor, refl: list) -> torch.Tensor:
+    """[I, K]: sum_X1..X(N-1) R_X1(1) ... R_X(N-1)(N-1) (sum_XN c_X1..XN R_XN(N) + c_X1..X(N-1),0), the
+    reflections of a multiple bounce over N planes with its physical-optics factors pol [I, F, K or 1]
+    (F = 2^N + 2^(N-1), second_order.bounce_factors' order) and refl: N pairs (R_TE, R_TM) [I, K];
+    one definition for the exact and the aggregated sums, of the double and the triple bounce."""
+    full = 1 << len(refl)
+    c = pol.unbind(1)
+    te, tm = refl[-1]
+    acc = [c[2 * q] * te + c[2 * q + 1] * tm + c[full + q] for q in range(full // 2)]   # 2^(N-1) of [I, K]
+    for te, tm in reversed(refl[:-1]):
+        acc = [te * acc[2 * q] + tm * acc[2 * q + 1] for q in range(len(acc) // 2)]
+    return acc[0]
 
 
 ANGLE_NODES = 46   # incidence-angle nodes of the aggregated form: 2 degree steps from 0 to 90 degrees
@@ -463,40 +494,43 @@ DOUBLE_NODES = 19  # ... of its double bounces: 5 degree steps (two angles per i
 DOUBLE_CULL_REL = 0.01  # per link, the weakest double-bounce cells carrying 1 % of its sum of magnitudes are dropped
 
 
-def _aggregate_double(db: DoubleBounce, material_of_gaussian: torch.Tensor, n: int, j: int, step: float,
-                      cull_rel: float) -> dict:
-    """Double-bounce items summed per cell (link, material A, angle node A, material B, angle node B),
-    each item split bilinearly between the four node pairs around its two incidence angles, and into
-    the four products R_X(A) R_Y(B) and the two R_X(A) with its factors c_XY, c_X0 (db.pol).
-    Per link the weakest cells carrying `cull_rel` of its sum of magnitudes are dropped (cost)."""
+def _aggregate_bounces(link: torch.Tensor, gauss: tuple, cos: tuple, pol: torch.Tensor, coef: torch.Tensor,
+                       material_of_gaussian: torch.Tensor, n: int, j: int, step: float, cull_rel: float) -> dict:
+    """Multiple-bounce items (N planes: gauss, cos N tensors [I]; pol [I, F]; coef [I, K]) summed per cell
+    (link, material and angle node of each plane), each item split multilinearly between the 2^N node
+    combinations around its incidence angles, with its factors pol (`bounce_product`).
+    Per link the weakest cells carrying `cull_rel` of its sum of magnitudes are dropped (cost).
+    Returns link [C], mat [C, N], node [C, N], pol [C, F, K]."""
     ends = []
-    for g, cos in ((db.gauss_a, db.cos_a), (db.gauss_b, db.cos_b)):
-        pos = torch.arccos(cos.clamp(0.0, 1.0)) / step
+    for g, c in zip(gauss, cos):
+        pos = torch.arccos(c.clamp(0.0, 1.0)) / step
         lo = pos.floor().long().clamp(0, j - 2)
         ends.append((material_of_gaussian[g], lo, (pos - lo).clamp(0.0, 1.0)))
-    (ma, lo_a, wa), (mb, lo_b, wb) = ends
-    moments = db.pol                                                                   # [I, 6]
     keys, weights = [], []
-    for da, w_a in ((0, 1 - wa), (1, wa)):
-        for dbb, w_b in ((0, 1 - wb), (1, wb)):
-            keys.append((((db.link * n + ma) * j + lo_a + da) * n + mb) * j + lo_b + dbb)
-            weights.append(w_a * w_b)
+    for corner in itertools.product((0, 1), repeat=len(ends)):
+        key, weight = link, None
+        for (mat, lo, w_hi), up in zip(ends, corner):
+            key = (key * n + mat) * j + lo + up
+            w = w_hi if up else 1 - w_hi
+            weight = w if weight is None else weight * w
+        keys.append(key)
+        weights.append(weight)
     key = torch.cat(keys)
+    num = int(link.numel())
     uniq, inv = torch.unique(key, return_inverse=True)
-    k = db.coef.shape[1]
-    sums = torch.zeros((uniq.numel(), moments.shape[1], k), dtype=torch.complex128)
+    sums = torch.zeros((uniq.numel(), pol.shape[1], coef.shape[1]), dtype=torch.complex128)
     for q, w in enumerate(weights):
-        part = inv[q * db.num:(q + 1) * db.num]
-        sums.index_add_(0, part, (w[:, None] * moments)[:, :, None] * db.coef[:, None, :])
-    node_b, rest = uniq % j, uniq // j
-    mat_b, rest = rest % n, rest // n
-    node_a, rest = rest % j, rest // j
-    mat_a, link = rest % n, rest // n
-    keep = _strong_cells(link, sums.abs().sum(1).max(1).values, cull_rel)
-    sums = sums[keep]
-    return {"link": link[keep], "mat_a": mat_a[keep], "node_a": node_a[keep], "mat_b": mat_b[keep],
-            "node_b": node_b[keep], "c_tt": sums[:, 0], "c_tm": sums[:, 1], "c_mt": sums[:, 2], "c_mm": sums[:, 3],
-            "c_t0": sums[:, 4], "c_m0": sums[:, 5]}
+        part = inv[q * num:(q + 1) * num]
+        sums.index_add_(0, part, (w[:, None] * pol)[:, :, None] * coef[:, None, :])
+    mats_, nodes, rest = [], [], uniq
+    for _ in ends:
+        nodes.append(rest % j)
+        rest = rest // j
+        mats_.append(rest % n)
+        rest = rest // n
+    keep = _strong_cells(rest, sums.abs().sum(1).max(1).values, cull_rel)
+    return {"link": rest[keep], "mat": torch.stack(mats_[::-1], 1)[keep], "node": torch.stack(nodes[::-1], 1)[keep],
+            "pol": sums[keep]}
 
 
 def _strong_cells(link: torch.Tensor, mag: torch.Tensor, rel: float) -> torch.Tensor:
@@ -533,8 +567,9 @@ class AggregatedPairs:
     a_tm: torch.Tensor      # [M, N, J, K] complex
     diffuse: torch.Tensor   # [M, N, J, 3] real
     freq_hz: torch.Tensor   # [K]
-    double: dict | None = None   # second order in cells: link, mat_a/b, node_a/b [C]; c_tt, c_tm, c_mt, c_mm, c_t0, c_m0 [C, K]
+    double: dict | None = None   # second order in cells (_aggregate_bounces): link [C], mat, node [C, 2], pol [C, 6, K]
     edges: torch.Tensor | None = None   # edge waves per (link, material) [M, N, K] complex (edges.aggregate_edges)
+    triple: dict | None = None   # third order in cells: link [C], mat, node [C, 3], pol [C, 12, K]
 
     @staticmethod
     def build(pairs: PairGeometry, material_of_gaussian: torch.Tensor, num_materials: int,
@@ -565,24 +600,32 @@ class AggregatedPairs:
                     a_te.index_add_(0, node, c * (te * w)[:, None])
                     a_tm.index_add_(0, node, c * ((1.0 - te) * w)[:, None])
                     diff.index_add_(0, node, (d * w)[:, None] * torch.stack([te**2, (1 - te) ** 2, te * (1 - te)], 1))
-        double = None if pairs.double is None or not pairs.double.num else \
-            _aggregate_double(pairs.double, material_of_gaussian, n, DOUBLE_NODES, math.radians(90.0) / (DOUBLE_NODES - 1),
-                              double_cull_rel)
+        step2 = math.radians(90.0) / (DOUBLE_NODES - 1)
+        db, tb = pairs.double, pairs.triple
+        double = None if db is None or not db.num else \
+            _aggregate_bounces(db.link, (db.gauss_a, db.gauss_b), (db.cos_a, db.cos_b), db.pol, db.coef,
+                               material_of_gaussian, n, DOUBLE_NODES, step2, double_cull_rel)
+        triple = None if tb is None or not tb.num else \
+            _aggregate_bounces(tb.link, tb.gauss.unbind(1), tb.cos.unbind(1), tb.pol, tb.coef(k0), material_of_gaussian,
+                               n, DOUBLE_NODES, step2, double_cull_rel)
         edges = aggregate_edges(pairs.edges, material_of_gaussian, n) \
             if edge_waves and pairs.edges is not None and pairs.edges.num else None
         return AggregatedPairs(a_te.reshape(m, n, j, k), a_tm.reshape(m, n, j, k), diff.reshape(m, n, j, 3),
-                               pairs.freq_hz, double, edges)
+                               pairs.freq_hz, double, edges, triple)
 
     def select_links(self, rows) -> "AggregatedPairs":
         """The aggregated sums of links `rows` (renumbered 0..len(rows)-1)."""
         r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        double = None
-        if self.double is not None:
-            _, keep, new_link = renumber_links(self.double["link"], self.a_te.shape[0], r)
-            double = {key: v[keep] for key, v in self.double.items()}
-            double["link"] = new_link
-        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz, double,
-                               None if self.edges is None else self.edges[r])
+
+        def cells(d):
+            if d is None:
+                return None
+            _, keep, new_link = renumber_links(d["link"], self.a_te.shape[0], r)
+            out = {key: v[keep] for key, v in d.items()}
+            out["link"] = new_link
+            return out
+        return AggregatedPairs(self.a_te[r], self.a_tm[r], self.diffuse[r], self.freq_hz, cells(self.double),
+                               None if self.edges is None else self.edges[r], cells(self.triple))
 
     def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
         """Received power [M, K] (P_T = 1 W) for materials `mats` (N of them)."""
@@ -593,19 +636,20 @@ class AggregatedPairs:
         r_te, r_tm = fresnel(mats.eta(f)[:, None, :], nodes[None, :, None], k0[None, None], th)   # [N, J, K]
         spec = torch.sqrt(1.0 - mats.scattering**2).to(torch.complex128)[:, None, None]
         field = torch.einsum("mnjk,njk->mk", self.a_te, r_te * spec) - torch.einsum("mnjk,njk->mk", self.a_tm, r_tm * spec)
-        if self.double is not None:
-            # cells (link, material A, node A, material B, node B): the four TE/TM products and A's two terms
-            d = self.double
+        if self.double is not None or self.triple is not None:
+            # cells (link, material and node of each plane): Gamma on the nodes, with sqrt(1 - S^2)
             nodes2 = torch.cos(torch.linspace(0.0, math.pi / 2, DOUBLE_NODES, dtype=torch.float64))
             d_te, d_tm = fresnel(mats.eta(f)[:, None, :], nodes2[None, :, None], k0[None, None], th)   # [N, J2, K]
             kk = f.numel()
-            te_flat = (d_te * spec).reshape(-1, kk)                  # [N * J2, K], with sqrt(1 - S^2)
+            te_flat = (d_te * spec).reshape(-1, kk)                  # [N * J2, K]
             tm_flat = (d_tm * spec).reshape(-1, kk)
-            ua, ub = d["mat_a"] * DOUBLE_NODES + d["node_a"], d["mat_b"] * DOUBLE_NODES + d["node_b"]
-            a_te, a_tm = te_flat.index_select(0, ua), tm_flat.index_select(0, ua)   # index_select: cheap backward
-            b_te, b_tm = te_flat.index_select(0, ub), tm_flat.index_select(0, ub)
-            field = field.index_add(0, d["link"], polarised_product(d["c_tt"], d["c_tm"], d["c_mt"], d["c_mm"],
-                                                                    d["c_t0"], d["c_m0"], a_te, a_tm, b_te, b_tm))
+            for d in (self.double, self.triple):
+                if d is None:
+                    continue
+                u = d["mat"] * DOUBLE_NODES + d["node"]              # [C, N]
+                refl = [(te_flat.index_select(0, u[:, p]), tm_flat.index_select(0, u[:, p]))   # cheap backward
+                        for p in range(u.shape[1])]
+                field = field.index_add(0, d["link"], bounce_product(d["pol"], refl))
         if self.edges is not None:
             field = field + torch.einsum("mnk,nk->mk", self.edges, edge_reflection(mats, f))
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)

@@ -37,6 +37,7 @@ shallow angles (weak for a co-located radar).
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -236,21 +237,13 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     li, bi, v_b = li[lit], bi[lit], v_b[torch.as_tensor(lit)]
     if li.size == 0:
         return None
-    src = tx_img[li]
-    xm = xb[bi]
-    d = xm - src
-    denom = d @ na
-    t = ((pa_pt - src) @ na) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
-    c = src + t[:, None] * d                                              # crossing with plane A
+    t, c = segment_crossing(tx_img[li], xb[bi], pa_pt, na)               # crossing with plane A
     valid = (t > 0) & (t < 1) & (np.linalg.norm(c - centre_a, axis=1) <= radius_a + reach_a)  # near A at all
     li, bi, c, v_b = li[valid], bi[valid], c[valid], v_b[torch.as_tensor(valid)]
     if li.size == 0:
         return None
-    k_near = min(4, len(members_a))
-    dist, near = tree_a.query(c, k=k_near)
-    dist, near = dist.reshape(len(c), k_near), near.reshape(len(c), k_near)
-    valid = (dist[:, 0] < reach_a) & aperture.inside(c)                 # inside A's boundary: its true edge
-    li, bi, c, near, dist, v_b = li[valid], bi[valid], c[valid], near[valid], dist[valid], v_b[torch.as_tensor(valid)]
+    valid, near = aperture_hits(c, tree_a, members_a, reach_a, aperture)   # inside A's boundary: its true edge
+    li, bi, c, near, v_b = li[valid], bi[valid], c[valid], near[valid], v_b[torch.as_tensor(valid)]
     if li.size == 0:
         return None
     link = ml[li]
@@ -299,8 +292,7 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
     q_cell = torch.einsum("pcj,pj->pc", cells[torch.as_tensor(gb)], q)
     # the obliquity is in the PO factors (second_bounce_factors): m is lit from one direction, seen from another
     amp = torch.sqrt(g_t * g_r) * v * areas_m2[torch.as_tensor(gb)] / (4 * math.pi * d_i * d_o)
-    coef = (1j * amp)[:, None] * footprint_factor(q_cell, k0) \
-        * torch.exp(-1j * (d_i + d_o)[:, None] * k0[None])
+    coef = image_coef(amp, q_cell, d_i + d_o, k0)
     return {"link": torch.as_tensor(link), "ga": torch.as_tensor(ga), "gb": torch.as_tensor(gb),
             "cos_a": cos_a, "cos_b": cos_b, "pol": second_bounce_factors(u_c, na_t, -w_i, nb, w_o, polarisation),
             "coef": coef}
@@ -346,23 +338,35 @@ def _reflection_basis(i: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, t
 def polarisation_chain(i_a: torch.Tensor, n_a: torch.Tensor, i_b: torch.Tensor, n_b: torch.Tensor,
                        to_rx: torch.Tensor, pol: str) -> torch.Tensor:
     """[I, 4] factors c_XY with p_r . T_B T_A p_t = sum_XY c_XY R_X(A) R_Y(B), XY = (TE, TE), (TE, TM),
-    (TM, TE), (TM, TM).
+    (TM, TE), (TM, TM): `reflection_chain` of two reflections.
 
     i_a: the wave's direction Tx -> A, n_a: A's normal facing it; i_b: A -> B (the reflected
-    direction), n_b: B's normal facing it; to_rx: B -> Rx; all [I, 3] unit. A reflection is
-    T = R_TE e_TE e_TE^T + R_TM e_TM,r e_TM,i^T (`_reflection_basis`; a perfect conductor has R_TE = -1,
-    R_TM = +1, T = minus the mirror image); p_t, p_r the antennas' polarisations (`antenna_polarisation`,
-    the receiver's along -to_rx). The polarisation is carried from one bounce to the next: a scalar
-    co-polarised coefficient per bounce gets the sign of the TM-TM path wrong (a dihedral returns
-    E across its fold with the opposite sign to E along it: +1 and -1 times a plate's return)."""
-    p_t = antenna_polarisation(i_a, pol)
+    direction), n_b: B's normal facing it; to_rx: B -> Rx; all [I, 3] unit. The polarisation is
+    carried from one bounce to the next: a scalar co-polarised coefficient per bounce gets the sign of
+    the TM-TM path wrong (a dihedral returns E across its fold with the opposite sign to E along it:
+    +1 and -1 times a plate's return)."""
+    return reflection_chain([i_a, i_b], [n_a, n_b], to_rx, pol)
+
+
+def reflection_chain(dirs: list, normals: list, to_rx: torch.Tensor, pol: str) -> torch.Tensor:
+    """[I, 2^N] factors c_X1..XN with p_r . T_N ... T_1 p_t = sum c_X1..XN R_X1(1) ... R_XN(N) for N
+    specular reflections in a row, X in (TE, TM), the first reflection's index slowest (TE before TM).
+
+    dirs: N directions [I, 3] (unit) of the wave arriving at reflection 1..N, each the mirror image of
+    the one before; normals: N planes' normals [I, 3], each facing its wave; to_rx [I, 3]: the last
+    plane -> Rx. A reflection is T = R_TE e_TE e_TE^T + R_TM e_TM,r e_TM,i^T (`_reflection_basis`; a
+    perfect conductor has R_TE = -1, R_TM = +1, T = minus the mirror image); p_t, p_r the antennas'
+    polarisations (`antenna_polarisation`, the receiver's along -to_rx)."""
+    p_t = antenna_polarisation(dirs[0], pol)
     p_r = antenna_polarisation(-to_rx, pol)
-    te_a, tmi_a, tmr_a = _reflection_basis(i_a, n_a)
-    te_b, tmi_b, tmr_b = _reflection_basis(i_b, n_b)
     dot = lambda u, v: (u * v).sum(-1)  # noqa: E731
-    out = [dot(p_r, out_b) * dot(in_b, out_a) * dot(in_a, p_t)
-           for in_a, out_a in ((te_a, te_a), (tmi_a, tmr_a))
-           for in_b, out_b in ((te_b, te_b), (tmi_b, tmr_b))]
+    ends = [((te, te), (tmi, tmr)) for te, tmi, tmr in (_reflection_basis(i, n) for i, n in zip(dirs, normals))]
+    out = []
+    for path in itertools.product(*ends):          # (in, out) of each reflection, the first slowest
+        f = dot(p_r, path[-1][1])
+        for k in range(len(path) - 1, 0, -1):
+            f = f * dot(path[k][0], path[k - 1][1])
+        out.append(f * dot(path[0][0], p_t))
     return torch.stack(out, -1)
 
 
@@ -381,30 +385,75 @@ def second_bounce_factors(i_a: torch.Tensor, n_a: torch.Tensor, i_b: torch.Tenso
     """[I, 6] factors (b_TT, b_TM, b_MT, b_MM, b_T0, b_M0) with the second bounce's physical optics
     sum_X R_X(A) (sum_Y b_XY R_Y(B) + b_X0), X, Y in (TE, TM): P_m of the module docstring, the
     obliquity included; arguments as `polarisation_chain` (to_rx: B -> Rx, the scattering direction).
+    `bounce_factors` of one specular reflection before the physical optics of B."""
+    return bounce_factors([i_a, i_b], [n_a, n_b], to_rx, pol)
 
-    A reflects p_t as geometric optics (`_reflection_basis`): its X part reaches B as the field
-    e_X = e_X,r(A) (e_X,i(A) . p_t). On B that field and its reflection R_TE (e_X . e_TE) e_TE +
-    R_TM (e_X . e_TM,i) e_TM,r carry the PO currents, radiated toward Rx and projected on p_r
-    (`_po_radiation`, halved to the model's normalisation). Where B reflects specularly toward Rx
-    (to_rx the mirror of i_b) b_XY = c_XY cos_i' (`polarisation_chain`) and b_X0 = 0, which is why
-    a corner reflector's flash needs no more than the chain; off that direction the incident
-    field's own currents (b_X0) and the different obliquities of the TE and TM currents count: in
-    B's plane of incidence the TE factor is R_TE (cos_i' + cos_o) / 2 + (cos_o - cos_i') / 2."""
-    p_t = antenna_polarisation(i_a, pol)
+
+def bounce_factors(dirs: list, normals: list, to_rx: torch.Tensor, pol: str) -> torch.Tensor:
+    """[I, 2^N + 2^(N-1)] physical-optics factors of N - 1 specular reflections followed by the physical
+    optics of the last plane: first b_X1..XN (the 2^N products R_X1 ... R_XN, the first reflection's
+    index slowest), then b_X1..X(N-1),0 (the 2^(N-1) products without the last plane's coefficient), with
+    the field sum_X1..X(N-1) R_X1 ... R_X(N-1) (sum_XN b_X1..XN R_XN + b_X1..X(N-1),0); arguments as
+    `reflection_chain` (to_rx: the last plane -> Rx, the scattering direction; it need not be the mirror
+    image of the last wave).
+
+    The N - 1 reflections are geometric optics (`_reflection_basis`): each part X1..X(N-1) of p_t reaches
+    the last plane as the field e = e_X(N-1),r (e_X(N-1),i . ... e_X1,r (e_X1,i . p_t)). On that plane e
+    and its reflection R_TE (e . e_TE) e_TE + R_TM (e . e_TM,i) e_TM,r carry the PO currents, radiated
+    toward Rx and projected on p_r (`_po_radiation`, halved to the model's normalisation). Where the last
+    plane reflects specularly toward Rx (to_rx the mirror of its wave) b_X1..XN = c_X1..XN cos_i'
+    (`reflection_chain`) and b_..0 = 0, which is why a corner reflector's flash needs no more than the
+    chain; off that direction the incident field's own currents (b_..0) and the different obliquities of
+    the TE and TM currents count: in the last plane of incidence the TE factor is
+    R_TE (cos_i' + cos_o) / 2 + (cos_o - cos_i') / 2."""
+    p_t = antenna_polarisation(dirs[0], pol)
     p_r = antenna_polarisation(-to_rx, pol)
-    te_a, tmi_a, tmr_a = _reflection_basis(i_a, n_a)
-    te_b, tmi_b, tmr_b = _reflection_basis(i_b, n_b)
-    r_b = i_b - 2.0 * (i_b * n_b).sum(-1, keepdim=True) * n_b
+    i_l, n_l = dirs[-1], normals[-1]
+    te_l, tmi_l, tmr_l = _reflection_basis(i_l, n_l)
+    r_l = i_l - 2.0 * (i_l * n_l).sum(-1, keepdim=True) * n_l
     cross = lambda u, v: torch.linalg.cross(u, v, dim=-1)  # noqa: E731
     dot = lambda u, v: (u * v).sum(-1)  # noqa: E731
-    rad_te = 0.5 * _po_radiation(n_b, to_rx, p_r, te_b, cross(r_b, te_b))     # B's TE reflection, per unit
-    rad_tm = 0.5 * _po_radiation(n_b, to_rx, p_r, tmr_b, cross(r_b, tmr_b))   # B's TM reflection, per unit
+    rad_te = 0.5 * _po_radiation(n_l, to_rx, p_r, te_l, cross(r_l, te_l))      # the last plane's TE reflection, per unit
+    rad_tm = 0.5 * _po_radiation(n_l, to_rx, p_r, tmr_l, cross(r_l, tmr_l))    # its TM reflection, per unit
+    fields = [p_t]
+    for te, tmi, tmr in (_reflection_basis(i, n) for i, n in zip(dirs[:-1], normals[:-1])):
+        fields = [out * dot(inn, e)[:, None] for e in fields for inn, out in ((te, te), (tmi, tmr))]
     out_xy, out_x0 = [], []
-    for in_a, out_a in ((te_a, te_a), (tmi_a, tmr_a)):
-        e = out_a * dot(in_a, p_t)[:, None]                                    # A's X part at B
-        out_xy += [dot(e, te_b) * rad_te, dot(e, tmi_b) * rad_tm]
-        out_x0.append(0.5 * _po_radiation(n_b, to_rx, p_r, e, cross(i_b, e)))
+    for e in fields:                                                             # each path's field at the last plane
+        out_xy += [dot(e, te_l) * rad_te, dot(e, tmi_l) * rad_tm]
+        out_x0.append(0.5 * _po_radiation(n_l, to_rx, p_r, e, cross(i_l, e)))
     return torch.stack(out_xy + out_x0, -1)
+
+
+def image_coef(amp: torch.Tensor, q_cell: torch.Tensor, path_m: torch.Tensor, k0: torch.Tensor) -> torch.Tensor:
+    """[I, K] complex j amp F_m(k) exp(-j k path): a bounce item's coefficient without its polarisation
+    factors and reflection coefficients; amp [I] (sqrt(G_T G_R) V A_m / (4 pi d_i' d_o), 1/m^0), q_cell [I, 2]
+    m (the surfel's cell times w_i + w_o, surfels.footprint_factor), path_m [I] the unfolded length
+    d_i' + d_o, k0 [K] rad/m."""
+    return (1j * amp)[:, None] * footprint_factor(q_cell, k0) * torch.exp(-1j * path_m[:, None] * k0[None])
+
+
+def segment_crossing(src: np.ndarray, dst: np.ndarray, point: np.ndarray, normal: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(t [N], c [N, 3] m): where the segments src -> dst [N, 3] m cross the plane through `point` with
+    `normal` ([3] each, or one plane per segment [N, 3]) (c = src + t (dst - src); the segment crosses it
+    for 0 < t < 1; NaN when parallel)."""
+    d = dst - src
+    dot = (lambda u, v: u @ v) if np.ndim(normal) == 1 else (lambda u, v: (u * v).sum(1))  # noqa: E731
+    denom = dot(d, normal)
+    t = dot(point - src, normal) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
+    return t, src + t[:, None] * d
+
+
+def aperture_hits(c: np.ndarray, tree, members: np.ndarray, reach: float, aperture) -> tuple[np.ndarray, np.ndarray]:
+    """(valid [N] bool, near [N, k] positions in `members`, nearest first): crossings c [N, 3] m on a patch's
+    plane inside its aperture (the patch's boundary, `edges.patch_coverage`: its true edge) and within
+    `reach` of its nearest member; tree: a cKDTree of the members' means. The k <= 4 nearest members are
+    the candidates for the cell that holds the crossing (`_in_cell`)."""
+    k_near = min(4, len(members))
+    dist, near = tree.query(c, k=k_near)
+    dist, near = dist.reshape(len(c), k_near), near.reshape(len(c), k_near)
+    return (dist[:, 0] < reach) & aperture.inside(c), near
 
 
 def _in_cell(point: torch.Tensor, centre: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:

@@ -97,6 +97,7 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
                          margin_m=float(table.get("self_shadow_margin_m", 0.0025)), t_stop=float(render_cfg.t_stop),
                          colocated_tol_m=float(render_cfg.colocated_tol_m), polarisation=pol,
                          second_order=bool(table.get("second_order", True)),
+                         third_order=bool(table.get("third_order", True)),
                          min_patch_area_m2=float(table.get("min_patch_area_m2", 2e-3)),
                          lit_threshold=float(table.get("lit_threshold", 0.2)),
                          edge_waves=edge_waves_mode(table) is not False)   # traced unless off; candidates choose
