@@ -48,6 +48,12 @@ def at_columns(pairs: PairGeometry, a: int, b: int) -> PairGeometry:
                                edges=None if pairs.edges is None else pairs.edges.at_columns(a, b))
 
 
+def _items(pairs: PairGeometry) -> int:
+    """Terms per frequency column: the surfel pairs and the double-, triple-bounce and edge-wave items (what a
+    chunk's memory grows with)."""
+    return pairs.num_pairs + sum(0 if x is None else x.num for x in (pairs.double, pairs.triple, pairs.edges))
+
+
 def band_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
                surfel_factor: torch.Tensor | None = None, budget: int | None = None
                ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -55,7 +61,7 @@ def band_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: Ma
     K frequencies, evaluated in frequency chunks of about `budget` (default BUDGET) (pair, frequency) values."""
     budget = budget or BUDGET
     k = int(pairs.freq_hz.numel())
-    items = pairs.num_pairs + (0 if pairs.double is None else pairs.double.num)
+    items = _items(pairs)
     step = max(1, budget // max(items, 1))
     if step >= k:
         return scattered_field(pairs, material_of_gaussian, mats, surfel_factor=surfel_factor)
@@ -75,7 +81,7 @@ def band_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: Ma
     budget = budget or BUDGET
     k = int(pairs.freq_hz.numel())
     n = int(mats.eps_r.numel())
-    items = pairs.num_pairs + (0 if pairs.double is None else pairs.double.num)
+    items = _items(pairs)
     step = max(1, min(k, 4 * budget // max(items, 1)))     # the aggregation streams pairs: its chunks bound memory
     out = torch.zeros((pairs.num_links, k), dtype=torch.float64)
     for a in range(0, k, step):
