@@ -37,7 +37,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry
 
 from .link_rows import renumber_links
 from .materials import C0, fresnel, slab_transmission
-from .second_order import Patches, planar_patches
+from .second_order import Patches, mirror_points, planar_patches
 
 MAX_INTERACTIONS = 8      # paths crossing more surfaces than this are dropped (their power is negligible)
 LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
@@ -307,10 +307,6 @@ class RoomPaths:
 # ---------------------------------------------------------------------------------------------------
 # tracing the paths
 # ---------------------------------------------------------------------------------------------------
-def _mirror(x: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    return x - 2.0 * _dot(x - point, normal)[..., None] * normal
-
-
 def _plane_cross(a: np.ndarray, b: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Points [N, 3] where segments a -> b cross the planes (point, normal) [N, 3] each."""
     da = _dot(a - point, normal)
@@ -360,7 +356,7 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
         side_last = side[r, j]
         source, seq = source[r], np.concatenate([seq[r], j[:, None]], 1)
         images = [im[r] for im in images]
-        images.append(_mirror(images[-1], cp[j], cn[j]))
+        images.append(mirror_points(images[-1], cp[j], cn[j]))
         if source.size == 0:
             break
     # every link of each row's transmitter with its receiver on the image's side of the last plane (screened with

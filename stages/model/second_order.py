@@ -64,7 +64,7 @@ CELL_MARGIN = 0.5       # a crossing within half a half-side past a cell is on i
 class Patches:
     """Planar patches: id [G] (-1: in no patch used for double bounces), normal [P, 3], point [P, 3],
     area [P] m^2, members: list of surfel index arrays; coverage: each patch's edges.patch_coverage_of, kept
-    once computed."""
+    once computed; corners: the triple bounce's (third_order), kept once found."""
 
     id: np.ndarray
     normal: np.ndarray
@@ -72,6 +72,7 @@ class Patches:
     area: np.ndarray
     members: list
     coverage: dict = field(default_factory=dict)
+    corners: object = None      # third_order's candidate corners and reflectors, kept once found
 
 
 def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None = None,
@@ -300,6 +301,15 @@ def _pair_items(geom, links, colocated, na, pa_pt, mb, xb, side_b, tree_a, membe
 
 def _unit(v: torch.Tensor) -> torch.Tensor:
     return v / v.norm(dim=-1, keepdim=True).clamp(min=1e-300)
+
+
+def mirror_points(x: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """[..., 3] m: the mirror images of points x [..., 3] m in the planes through point with unit normal
+    ([3] or [..., 3] each): the image sources of the bounce terms. The dot product is written out (the order of
+    numpy's sum over a last axis of 3, several times faster than that reduction on long arrays)."""
+    r = x - point
+    side = r[..., 0] * normal[..., 0] + r[..., 1] * normal[..., 1] + r[..., 2] * normal[..., 2]
+    return x - 2.0 * side[..., None] * normal
 
 
 def antenna_polarisation(pointing: torch.Tensor, pol: str) -> torch.Tensor:

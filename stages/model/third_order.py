@@ -40,8 +40,8 @@ from rfir_stages.rf_fit.render import LinkSet
 
 from .edges import patch_coverage_of
 from .link_rows import renumber_links
-from .second_order import (Patches, _in_cell, aperture_hits, bounce_factors, dihedral_partners,
-                           image_coef, segment_crossing)
+from .second_order import (Patches, _in_cell, _unit, aperture_hits, bounce_factors, dihedral_partners,
+                           image_coef, mirror_points, segment_crossing)
 from .surfels import COPLANAR_M, covariance
 
 NUM_FACTORS = 12   # bounce_factors of three planes: 8 products R_X(A) R_Y(B) R_Z(C), then 4 of R_X(A) R_Y(B)
@@ -115,18 +115,13 @@ def build_triple_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
     colocated = ((links.tx_m - links.rx_m).norm(dim=-1) < colocated_tol_m).numpy()
     if patches.area.size < 3 or not colocated.any():
         return empty_triple_bounce(links.num)
-    x = geom.means.numpy()
-    radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
-    triples = np.asarray(corner_triples(dihedral_partners(patches, radius)), dtype=np.int64).reshape(-1, 3)
+    if patches.corners is None:   # geometry only: found once per set of patches (prediction's link chunks reuse it)
+        patches.corners = _corners(geom, patches, areas_m2, cells)
+    triples, refl = patches.corners
     if not len(triples):
         return empty_triple_bounce(links.num)
-    refl = _Reflectors(geom, patches, areas_m2, cells, radius)
+    lo, hi = refl.lo, refl.hi
     lit = _lit_patches(links.num, patches, vis_lookup)
-    n = len(patches.members)
-    ends = np.unique(np.concatenate([triples[:, 0] * n + triples[:, 1], triples[:, 1] * n + triples[:, 0],
-                                     triples[:, 1] * n + triples[:, 2], triples[:, 2] * n + triples[:, 1]]))
-    lo, hi = _side_extents(patches, x, cells.numpy(), np.stack([ends // n, ends % n], 1))
-    refl.lo, refl.hi = lo, hi
     tx = links.tx_m.numpy()
     parts = []
     per_block = max(1, TRIPLE_BLOCK // links.num)
@@ -146,6 +141,21 @@ def build_triple_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
                         cat["path"])
 
 
+def _corners(geom: FrozenGeometry, patches: Patches, areas_m2: torch.Tensor, cells: torch.Tensor):
+    """(ordered triples [T, 3] of `corner_triples`, the patches as `_Reflectors` with the side extents lo, hi
+    of the pairs the triples use): everything of the triple bounce that depends on the geometry alone."""
+    x = geom.means.numpy()
+    radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
+    triples = np.asarray(corner_triples(dihedral_partners(patches, radius)), dtype=np.int64).reshape(-1, 3)
+    refl = _Reflectors(geom, patches, areas_m2, cells, radius)
+    if len(triples):
+        n = len(patches.members)
+        ends = np.unique(np.concatenate([triples[:, 0] * n + triples[:, 1], triples[:, 1] * n + triples[:, 0],
+                                         triples[:, 1] * n + triples[:, 2], triples[:, 2] * n + triples[:, 1]]))
+        refl.lo, refl.hi = _side_extents(patches, x, cells.numpy(), np.stack([ends // n, ends % n], 1))
+    return triples, refl
+
+
 class _Reflectors:
     """The patches as reflectors: normal [P, 3], point [P, 3] m, radius [P] m (members' farthest distance from
     point), reach [P] m (largest surfel's side), size [P] members, flat [sum] members patch after patch from
@@ -162,7 +172,7 @@ class _Reflectors:
         self.start = np.concatenate([[0], np.cumsum(self.size)[:-1]])
         self.flat = np.concatenate(patches.members)
         self._trees, self._cov = {}, None
-        self.lo = self.hi = None        # [P, P] m: _side_extents of the pairs in use, set by the build
+        self.lo = self.hi = None        # [P, P] m: _side_extents of the pairs in use, set by `_corners`
 
     def tree(self, p: int):
         from scipy.spatial import cKDTree
@@ -243,11 +253,6 @@ def _open_corners(abc: np.ndarray, patches: Patches, lo: np.ndarray, hi: np.ndar
     return colocated[None] & lit[:, a].T & lit[:, c].T & has(a, b, s_a) & has(b, a, s_b) & has(b, c, s_b)
 
 
-def _mirror(p: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """[N, 3] m: the mirror images of points p [N, 3] m in the planes through point [N, 3] with normal [N, 3]."""
-    return p - 2.0 * ((p - point) * normal).sum(1)[:, None] * normal
-
-
 def _may_cross(refl: _Reflectors, pb: np.ndarray, pc: np.ndarray, src: np.ndarray) -> np.ndarray:
     """[Q] bool: a segment from src [Q, 3] m (an image, on the far side of patch B's plane from the points
     of patch C that count) to some point of C can cross B's plane within B's radius and reach of its
@@ -277,8 +282,8 @@ def _corner_items(geom, links, abc, link, refl: _Reflectors, vis_lookup, tx_ant,
     its aperture at c_A, m is lit from Rx and the surfel of A at c_A from Tx."""
     pa, pb, pc = abc.T
     tx = links.tx_m.numpy()[link]
-    tx_a = _mirror(tx, refl.point[pa], refl.normal[pa])                  # image in A
-    tx_ab = _mirror(tx_a, refl.point[pb], refl.normal[pb])               # ... in B
+    tx_a = mirror_points(tx, refl.point[pa], refl.normal[pa])                # image in A
+    tx_ab = mirror_points(tx_a, refl.point[pb], refl.normal[pb])             # ... in B
     near = _may_cross(refl, pb, pc, tx_ab) & _may_cross(refl, pa, pb, tx_a)   # Tx_AB -> C across B, Tx_A -> B across A
     abc, link, pa, pb, pc, tx, tx_a, tx_ab = (v[near] for v in (abc, link, pa, pb, pc, tx, tx_a, tx_ab))
     if not len(abc):
@@ -353,10 +358,6 @@ def _corner_items(geom, links, abc, link, refl: _Reflectors, vis_lookup, tx_ant,
             "cos": torch.stack([cos_a, cos_b, cos_c], 1),
             "pol": bounce_factors([i_1, i_2, -w_i], [n_a, n_b, nc], w_o, polarisation),
             "amp": amp, "q_cell": q_cell, "path": d_i + d_o}
-
-
-def _unit(v: torch.Tensor) -> torch.Tensor:
-    return v / v.norm(dim=-1, keepdim=True).clamp(min=1e-300)
 
 
 def _facing(n: torch.Tensor, i: torch.Tensor) -> torch.Tensor:

@@ -8,6 +8,7 @@ overlap of the trihedral's aperture with its image through the corner (the GO eq
 on the symmetry axis that is sqrt(3) a^2, so sigma = 12 pi a^4 / lambda^2.
 """
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -186,7 +187,7 @@ def test_max_bounces_setting_and_provenance():
         po_scattered_field(v, f, "pec", FAR * AXIS[None], FAR * AXIS[None], FREQS, second_order=True, max_bounces=1)
 
 
-BEM_DIR = __import__("pathlib").Path(__file__).resolve().parents[1] / "model" / "data"
+BEM_DIR = Path(__file__).resolve().parents[1] / "model" / "data"
 
 
 @pytest.mark.parametrize("pol", ["H", "V"])
