@@ -169,7 +169,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
                  f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, physical model: polarisation "
                  f"{pair_settings.polarisation}, sigma ~ f^{fit_cfg.sigma_exponent:g}, double bounces "
-                 f"{'on' if pair_settings.second_order else 'off'}, edge waves "
+                 f"{'on' if pair_settings.second_order else 'off'}, triple bounces "
+                 f"{'on' if pair_settings.second_order and pair_settings.third_order else 'off'}, edge waves "
                  f"{ {'auto': 'chosen by validation', True: 'on', False: 'off'}[edge_waves_mode(phys_table)]}, shadows "
                  + (f"lit/shadowed at transmittance {pair_settings.lit_threshold:g}" if pair_settings.lit_threshold > 0
                     else "soft (transmittance)")
