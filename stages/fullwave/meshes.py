@@ -29,6 +29,19 @@ def dihedral_screen(a_m: float, b_m: float, n: int):
     return merge_vertices(np.stack([v[:, 0], v[:, 2], v[:, 1]], 1), f)
 
 
+def wedge_screen(a_m: float, b_m: float, n: int, angle_deg: float):
+    """Two plates a_m (along the fold, z) x b_m (width), n x n squares each, the fold on the z axis: one in the
+    half plane y = 0, x >= 0, the other turned by angle_deg about z (the wedge's inner angle), bisector at
+    phi = angle_deg / 2 in the x-y plane; merged vertices on the fold. An acute wedge (60 degrees) returns a
+    triple-bounce flash on its bisector: the ray one plate turns onto the other at normal incidence."""
+    v, f = plate_mesh(b_m, a_m, n)                    # x across [-b/2, b/2], y along the fold, z = 0
+    s = v[:, 0] + b_m / 2                             # distance from the fold
+    t = np.radians(angle_deg)
+    v1 = np.stack([s, np.zeros_like(s), v[:, 1]], 1)
+    v2 = np.stack([s * np.cos(t), s * np.sin(t), v[:, 1]], 1)
+    return merge_vertices(np.concatenate([v1, v2]), np.concatenate([f, f + len(v)]))
+
+
 # The trihedral's symmetry plane x = y, spanned by (1, 1, 0)/sqrt(2) and the z edge, becomes the x-y plane:
 # rows are the images of those two directions and of their normal (1, -1, 0)/sqrt(2) (right-handed).
 _TRIHEDRAL_TO_SWEEP = np.array([[1.0, 1.0, 0.0], [0.0, 0.0, np.sqrt(2.0)], [1.0, -1.0, 0.0]]) / np.sqrt(2.0)

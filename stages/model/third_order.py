@@ -20,11 +20,12 @@ the leg A -> B is not traced (the surfel of B at c_B is chosen among those whose
 from the antenna or not: a corner's plates shadow parts of each other from the radar that the wave
 reflected by A reaches). Co-located antennas only (monostatic radar), as the double bounce.
 
-Triples: ordered (A, B, C) of three distinct patches of which every two are dihedral partners
-(`second_order.dihedral_partners`): a corner of three mutually steep planes (a trihedral, the inner
-corner of stacked bricks). That bounds the cost; a path that returns to a plane it has left
-(A -> B -> A, a 60-degree dihedral's retro-reflection) and triple bounces between parallel or far
-apart planes are left out.
+Triples (`bounce_triples`): corners, ordered (A, B, C) of three distinct patches of which every two are
+dihedral partners (`second_order.dihedral_partners`; a trihedral, the inner corner of stacked bricks), and
+returns, (A, B, A) of every partner pair: the ray that A turns onto B at normal incidence comes back the
+way it went (an acute wedge's flash, on a 60-degree wedge's bisector; C = A is the same construction).
+That bounds the cost; triple bounces over planes that are not pairwise partners (parallel or far
+apart) are left out.
 """
 from __future__ import annotations
 
@@ -90,13 +91,16 @@ def empty_triple_bounce(num_links: int) -> TripleBounce:
                         torch.zeros((0, NUM_FACTORS), dtype=torch.float64), f, torch.zeros((0, 2), dtype=torch.float64), f)
 
 
-def corner_triples(partners: list[list[int]]) -> list[tuple[int, int, int]]:
-    """Ordered triples (A, B, C) of distinct patches of which every two are partners (partners[p]: the
-    dihedral partners of patch p, a symmetric relation); each corner in its 6 orders (6 paths)."""
+def bounce_triples(partners: list[list[int]]) -> list[tuple[int, int, int]]:
+    """Ordered triples (A, B, C) of patches a triple bounce may visit in turn (partners[p]: the dihedral
+    partners of patch p, a symmetric relation): corners, three distinct patches of which every two are
+    partners (each corner in its 6 orders), and returns (A, B, A) of every partner pair (both orders: the
+    ray that A turns onto B at normal incidence comes back the way it went; an acute wedge's flash)."""
     sets = [set(p) for p in partners]
     out = []
     for a, pa in enumerate(sets):
         for b in pa:
+            out.append((a, b, a))
             for c in pa & sets[b]:
                 if c != a and c != b:
                     out.append((a, b, c))
@@ -113,7 +117,7 @@ def build_triple_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
     (`_open_corners` per triple and link, then the crossing of B's plane near B and m's lit state, then
     the apertures): a corner-rich object has 10^5 ordered triples, of which few carry items."""
     colocated = ((links.tx_m - links.rx_m).norm(dim=-1) < colocated_tol_m).numpy()
-    if patches.area.size < 3 or not colocated.any():
+    if patches.area.size < 2 or not colocated.any():
         return empty_triple_bounce(links.num)
     if patches.corners is None:   # geometry only: found once per set of patches (prediction's link chunks reuse it)
         patches.corners = _corners(geom, patches, areas_m2, cells)
@@ -142,11 +146,11 @@ def build_triple_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
 
 
 def _corners(geom: FrozenGeometry, patches: Patches, areas_m2: torch.Tensor, cells: torch.Tensor):
-    """(ordered triples [T, 3] of `corner_triples`, the patches as `_Reflectors` with the side extents lo, hi
+    """(ordered triples [T, 3] of `bounce_triples`, the patches as `_Reflectors` with the side extents lo, hi
     of the pairs the triples use): everything of the triple bounce that depends on the geometry alone."""
     x = geom.means.numpy()
     radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
-    triples = np.asarray(corner_triples(dihedral_partners(patches, radius)), dtype=np.int64).reshape(-1, 3)
+    triples = np.asarray(bounce_triples(dihedral_partners(patches, radius)), dtype=np.int64).reshape(-1, 3)
     refl = _Reflectors(geom, patches, areas_m2, cells, radius)
     if len(triples):
         n = len(patches.members)
