@@ -64,6 +64,7 @@ class ResidualConfig:
     weight: float | None = None              # None: chosen by validation; inf: physics only
     weights: tuple = (0.03, 0.3, 3.0)        # smooth / blend: eta candidates
     lengths_deg: tuple = (1.0, 2.0, 4.0, 8.0)
+    sector_lengths_deg: tuple = (1.0, 2.0, 4.0)   # a held-out sector's candidates (residual_sector_lengths_deg)
     range_lengths: tuple = (0.1, 1.0)        # l_rho, in ln(range)
     gaussian_weights: tuple = (0.3, 3.0, 30.0)
     iterations: int = 150
@@ -182,8 +183,10 @@ def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nda
     interpolation protocols (data, every-N) whole training aspects (every range of them), every
     KFOLDS-th aspect in turn, so that no fold is predicted from its own aspect at another range."""
     from rfir_stages.rf_fit.splits import validation_folds
-    name = protocol.partition(":")[0]
-    if name in ("sector", "range") or aspect_deg is None:
+    name, _, arg = protocol.partition(":")
+    if name == "sector" and aspect_deg is not None:
+        return sector_blocks(aspect_deg, *(float(x) for x in arg.split(":")))
+    if name == "range" or aspect_deg is None:
         return validation_folds(protocol, aspect_deg, range_m)
     key = np.round(np.mod(np.asarray(aspect_deg, float), 360.0), 6)
     uniq, inv = np.unique(key, return_inverse=True)
@@ -191,6 +194,23 @@ def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nda
     if k < 2:
         return [np.arange(0, num_rows, 10)], "every 10th training row"
     return [np.flatnonzero(inv % k == j) for j in range(k)], f"{k}-fold, every {k}th training aspect in turn"
+
+
+def sector_blocks(aspect_deg: np.ndarray, a_deg: float, b_deg: float) -> tuple[list[np.ndarray], str]:
+    """Folds for a held-out sector [a, b) degrees: the training aspects cut into contiguous blocks about as
+    wide as the sector (at least 2), going round from its end, each held out in turn. A block is predicted
+    across a gap like the sector's, so the validation sees how far a residual carries into unmeasured
+    aspects; the rows next to the sector alone (splits.validation_folds) are never farther than half
+    their own number of aspects from a fitted one, and chose residuals that the physics alone beat
+    inside the sector (docs/rf-model.md "Residual")."""
+    width = (b_deg - a_deg) % 360.0 or 360.0
+    off = np.mod(np.asarray(aspect_deg, float) - b_deg, 360.0)          # from the sector's end, 0 .. 360 - width
+    span = max(360.0 - width, 1e-9)
+    k = max(2, int(round(span / width)))
+    block = np.minimum((off / span * k).astype(np.int64), k - 1)
+    folds = [np.flatnonzero(block == j) for j in range(k)]
+    folds = [f for f in folds if f.size]
+    return folds, f"{len(folds)} blocks of training aspects about as wide as the sector, each in turn"
 
 
 # ----- fitting -----

@@ -48,6 +48,7 @@ from .surfels import COPLANAR_M, covariance
 NUM_FACTORS = 12   # bounce_factors of three planes: 8 products R_X(A) R_Y(B) R_Z(C), then 4 of R_X(A) R_Y(B)
 TRIPLE_BLOCK = 1 << 21   # (ordered triple, link) entries per block of the pre-test (bounded memory)
 CANDIDATE_BLOCK = 1 << 20   # (triple, link, surfel of C) rows tested at once (bounded memory)
+RETURN_COS = 0.02   # returns (A, B, A) need a wedge under 89 degrees: nearer a right angle the ray grazes A
 
 
 @dataclass
@@ -151,6 +152,7 @@ def _corners(geom: FrozenGeometry, patches: Patches, areas_m2: torch.Tensor, cel
     x = geom.means.numpy()
     radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
     triples = np.asarray(bounce_triples(dihedral_partners(patches, radius)), dtype=np.int64).reshape(-1, 3)
+    triples = triples[_acute_or_unknown(triples, patches, x)]
     refl = _Reflectors(geom, patches, areas_m2, cells, radius)
     if len(triples):
         n = len(patches.members)
@@ -158,6 +160,25 @@ def _corners(geom: FrozenGeometry, patches: Patches, areas_m2: torch.Tensor, cel
                                          triples[:, 1] * n + triples[:, 2], triples[:, 2] * n + triples[:, 1]]))
         refl.lo, refl.hi = _side_extents(patches, x, cells.numpy(), np.stack([ends // n, ends % n], 1))
     return triples, refl
+
+
+def _acute_or_unknown(abc: np.ndarray, patches: Patches, x: np.ndarray, tol: float = COPLANAR_M) -> np.ndarray:
+    """[T] bool: keep the corners, and the returns (A, B, A) unless A and B make a wedge of 89 degrees or
+    more. A return needs the ray that A turns onto B at normal incidence: with each normal turned towards
+    the other patch (B's surfel centres x [G, 3] m all on one side of A's plane and A's of B's), that ray
+    meets A from inside the wedge only when the inner angle is acute (n_A . n_B < 0); a right-angled
+    dihedral's return would run along A. Patches whose centres straddle each other's plane are kept
+    (the crossings decide)."""
+    keep = np.ones(len(abc), dtype=bool)
+    normal, point = patches.normal, patches.point
+    def side(p, q):             # +1 / -1: q's centres all above / below p's plane; 0: they straddle it
+        off = (x[patches.members[q]] - point[p]) @ normal[p]
+        return 1.0 if off.min() > -tol else -1.0 if off.max() < tol else 0.0
+    for t in np.flatnonzero(abc[:, 0] == abc[:, 2]):
+        a, b = abc[t, :2]
+        cos = float(normal[a] @ normal[b]) * side(a, b) * side(b, a)
+        keep[t] = cos < -RETURN_COS or side(a, b) == 0 or side(b, a) == 0
+    return keep
 
 
 class _Reflectors:

@@ -28,6 +28,7 @@ EDGES = "+edges"     # a candidate's name suffix: its model includes the edge wa
 LOSSES = ("db_mse", "db_huber")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent", "reflection_ranges")
 RESIDUAL_LISTS = {"residual_weights": "weights", "residual_lengths_deg": "lengths_deg",
+                  "residual_sector_lengths_deg": "sector_lengths_deg",
                   "residual_range_lengths": "range_lengths", "residual_gaussian_weights": "gaussian_weights"}
 
 
@@ -192,6 +193,8 @@ class PhysicalSetup:
         pairs = self.pairs_for(sharing)
         phys = physics_db(pairs, idx, vals, gain)
         folds, how = residual_folds(protocol, aspect_deg, range_m, len(target_db))
+        if protocol.partition(":")[0] == "sector":   # into unmeasured aspects: the shorter lengths (configs/rf_fit.toml)
+            cfg = dataclasses.replace(cfg, lengths_deg=cfg.sector_lengths_deg)
         if cfg.form != "gaussian":
             centre = 0.5 * (self.geom.means.min(0).values + self.geom.means.max(0).values).numpy()
             fit = fit_smooth(link_coords(tx_m, rx_m, centre), phys, target_db, folds, cfg, how)

@@ -104,6 +104,36 @@ def test_kernel_residual_gives_way_to_the_physics_inside_a_held_out_sector(scene
     assert np.abs(pred_deep - scene["phys"][deep]).max() < 0.05
 
 
+@pytest.mark.parametrize("sector", [(45.0, 135.0), (310.0, 340.0), (315.0, 45.0)])
+def test_sector_folds_are_blocks_as_wide_as_the_sector(sector):
+    """A held-out sector's residual folds: contiguous blocks of the training aspects (at least 2), about as
+    wide as the sector, disjoint and covering every training row (each range of an aspect in one block)."""
+    a, b = sector
+    width = (b - a) % 360.0
+    aspects = np.tile(np.arange(0.0, 360.0, 1.0), 2)                       # two ranges
+    train = np.flatnonzero(np.mod(aspects - a, 360.0) >= width)
+    folds, how = residual_folds(f"sector:{a:g}:{b:g}", aspects[train], None, len(train))
+    assert "blocks" in how and len(folds) == max(2, round((360.0 - width) / width))
+    rows = np.concatenate(folds)
+    assert np.array_equal(np.sort(rows), np.arange(len(train)))            # disjoint, every row once
+    for f in folds:
+        off = np.unique(np.mod(aspects[train][f] - b, 360.0))
+        assert off.max() - off.min() == len(off) - 1                       # contiguous whole degrees
+        assert abs(len(off) - (360.0 - width) / len(folds)) <= 1.0
+        assert len(f) == 2 * len(off)                                       # both ranges of each aspect
+
+
+def test_sector_candidates_use_the_sector_lengths():
+    """rf_fit.physical.residual_sector_lengths_deg is read and checked like the other lists."""
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit.physical_stage import residual_config
+
+    assert residual_config({}).sector_lengths_deg == (1.0, 2.0, 4.0)
+    assert residual_config({"residual_sector_lengths_deg": [2, 6]}).sector_lengths_deg == (2.0, 6.0)
+    with pytest.raises(ConfigError, match="residual_sector_lengths_deg"):
+        residual_config({"residual_sector_lengths_deg": [0.0]})
+
+
 def test_selection_keeps_the_physics_when_the_data_are_physical(scene):
     train = np.arange(0, 360, 2)
     fit, _ = _kernel_predict(scene, train, train, scene["phys"].copy(), ResidualConfig())

@@ -1,5 +1,6 @@
 """The model's triple bounce (docs/physics.md section 8.7.1): a trihedral's flash against its closed form, an
-acute wedge's return flash against the PO solver, a right-angled dihedral left unchanged, and the three reflections' polarisation against mirror matrices."""
+acute wedge's return flash against the PO solver and the BEM, a right-angled dihedral left unchanged, and the
+three reflections' polarisation against mirror matrices."""
 import math
 from pathlib import Path
 
@@ -251,6 +252,24 @@ def test_wedge_against_the_full_wave_curve(pol, monkeypatch):
         monkeypatch.setattr(physical_module, "build_triple_bounce", lambda *a, **k: None)
         without = _rcs(geom, phi[flash], 2.4e9, True, second_order=True, polarisation=pol)
         assert np.abs(without - bem[flash]).mean() > 8.0
+
+
+@pytest.mark.parametrize("angle_deg, returns", [(60.0, 2), (75.0, 2), (90.0, 0), (110.0, 0)])
+def test_returns_only_for_acute_wedges(angle_deg, returns):
+    """Returns (A, B, A) are offered for both orders of an acute wedge's plates and for no right-angled or
+    obtuse one (the ray that A turns onto B at normal incidence meets A from inside only when acute)."""
+    from rfir_stages.fullwave.meshes import wedge_screen
+    from rfir_stages.model.second_order import planar_patches
+    from rfir_stages.model.surfels import footprint_cells, surfel_areas
+    from rfir_stages.model.third_order import _corners
+
+    geom, _ = surfels(*wedge_screen(A_M, A_M, 2, angle_deg), 0.02)
+    area = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    cells = footprint_cells(geom.log_scales, geom.rotations, geom.normals, area)
+    patches = planar_patches(geom, area)
+    assert len(patches.members) == 2
+    triples, _ = _corners(geom, patches, area, cells)
+    assert len(triples) == returns and all(t[0] == t[2] for t in triples.tolist())
 
 
 def test_third_order_switch():
