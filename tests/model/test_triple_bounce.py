@@ -42,6 +42,17 @@ def _trihedral_pairs(spacing_m, freqs_hz, polarisation, directions):
         geom.num
 
 
+def _with_and_without_triple(pairs, num_gaussians, range_m, freq_hz):
+    """(RCS [M] dBsm of a perfect conductor at the pairs' first frequency, the same without the triple
+    bounce; the pairs' triple items are dropped)."""
+    out = []
+    for _ in range(2):
+        field, diffuse = _field(pairs, num_gaussians)
+        out.append(rcs_dbsm((field.abs() ** 2 + diffuse).numpy()[:, 0], range_m, freq_hz))
+        pairs.triple = None
+    return out[0], out[1]
+
+
 @pytest.mark.parametrize("spacing_m", [0.02, 0.04])
 @pytest.mark.parametrize("freq_hz", [2.4e9, 5.8e9])
 def test_trihedral_flash_on_its_axis(spacing_m, freq_hz):
@@ -183,11 +194,7 @@ def test_trihedral_cut_against_po_solver():
     pos = range_m * d
     links = make_links(pos, pos, [freq], torch.zeros(3, dtype=torch.float64), "rcs")
     pairs = build_pairs(geom, links, ISO, ISO, make_provider("auto", geom), PairSettings())
-    field, diffuse = _field(pairs, geom.num)
-    ours = rcs_dbsm((field.abs() ** 2 + diffuse).numpy()[:, 0], range_m, freq)
-    pairs.triple = None
-    field, diffuse = _field(pairs, geom.num)
-    without = rcs_dbsm((field.abs() ** 2 + diffuse).numpy()[:, 0], range_m, freq)
+    ours, without = _with_and_without_triple(pairs, geom.num, range_m, freq)
     s = po_scattered_field(verts, faces, "pec", pos, pos, [freq], near_field=True, second_order=True, max_bounces=3,
                            sbr_spacing_m=0.004)
     err = ours - 20 * np.log10(np.abs(s[:, 0]))
@@ -212,11 +219,7 @@ def test_acute_wedge_return_flash_against_po_solver(polarisation):
     pos, links = monostatic(aspects, range_m, [freq])
     pairs = build_pairs(geom, links, ISO, ISO, make_provider("auto", geom), PairSettings(polarisation=polarisation))
     assert pairs.triple is not None and pairs.triple.num > 0
-    field, diffuse = _field(pairs, geom.num)
-    ours = rcs_dbsm((field.abs() ** 2 + diffuse).numpy()[:, 0], range_m, freq)
-    pairs.triple = None
-    field, diffuse = _field(pairs, geom.num)
-    without = rcs_dbsm((field.abs() ** 2 + diffuse).numpy()[:, 0], range_m, freq)
+    ours, without = _with_and_without_triple(pairs, geom.num, range_m, freq)
     s = po_scattered_field(verts, faces, "pec", pos, pos, [freq], near_field=True, second_order=True, max_bounces=3,
                            sbr_spacing_m=0.004, polarization=polarisation)
     err = ours - 20 * np.log10(np.abs(s[:, 0]))
