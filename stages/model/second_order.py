@@ -173,8 +173,7 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
         return empty_double_bounce(links.num, freq)
     x = geom.means.numpy()
     trees = [cKDTree(x[m]) for m in patches.members]
-    reach = [float(np.sqrt(areas_m2.numpy()[m].max())) for m in patches.members]
-    radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
+    radius, reach = patch_extents(patches, x, areas_m2)
     cov = covariance(geom.log_scales, geom.rotations).numpy()
     cell_axes = cells.numpy()                                             # [G, 2, 3] half-side axes
     parts = []
@@ -196,6 +195,14 @@ def build_double_bounce(geom: FrozenGeometry, links: LinkSet, tx_ant: AntennaPat
     cat = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
     return DoubleBounce(links.num, cat["link"], cat["ga"], cat["gb"], cat["cos_a"], cat["cos_b"], cat["pol"],
                         cat["coef"], freq)
+
+
+def patch_extents(patches: Patches, x: np.ndarray, areas_m2: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """(radius [P] m: each patch's members' farthest distance from its point, reach [P] m: its largest surfel's
+    side) from the Gaussians' means x [G, 3] m and areas [G] m^2: how far a crossing of its plane may lie."""
+    area = areas_m2.numpy()
+    radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
+    return radius, np.array([float(np.sqrt(area[m].max())) for m in patches.members])
 
 
 def dihedral_partners(patches: Patches, radius: np.ndarray) -> list[list[int]]:

@@ -42,7 +42,7 @@ from rfir_stages.rf_fit.render import LinkSet
 from .edges import patch_coverage_of
 from .link_rows import renumber_links
 from .second_order import (Patches, _in_cell, _unit, aperture_hits, bounce_factors, dihedral_partners,
-                           image_coef, mirror_points, segment_crossing)
+                           image_coef, mirror_points, patch_extents, segment_crossing)
 from .surfels import COPLANAR_M, covariance
 
 NUM_FACTORS = 12   # bounce_factors of three planes: 8 products R_X(A) R_Y(B) R_Z(C), then 4 of R_X(A) R_Y(B)
@@ -150,10 +150,10 @@ def _corners(geom: FrozenGeometry, patches: Patches, areas_m2: torch.Tensor, cel
     """(ordered triples [T, 3] of `bounce_triples`, the patches as `_Reflectors` with the side extents lo, hi
     of the pairs the triples use): everything of the triple bounce that depends on the geometry alone."""
     x = geom.means.numpy()
-    radius = np.array([np.linalg.norm(x[m] - patches.point[i], axis=1).max() for i, m in enumerate(patches.members)])
+    radius, reach = patch_extents(patches, x, areas_m2)
     triples = np.asarray(bounce_triples(dihedral_partners(patches, radius)), dtype=np.int64).reshape(-1, 3)
     triples = triples[_acute_or_unknown(triples, patches, x)]
-    refl = _Reflectors(geom, patches, areas_m2, cells, radius)
+    refl = _Reflectors(geom, patches, areas_m2, cells, radius, reach)
     if len(triples):
         n = len(patches.members)
         ends = np.unique(np.concatenate([triples[:, 0] * n + triples[:, 1], triples[:, 1] * n + triples[:, 0],
@@ -176,8 +176,8 @@ def _acute_or_unknown(abc: np.ndarray, patches: Patches, x: np.ndarray, tol: flo
         return 1.0 if off.min() > -tol else -1.0 if off.max() < tol else 0.0
     for t in np.flatnonzero(abc[:, 0] == abc[:, 2]):
         a, b = abc[t, :2]
-        cos = float(normal[a] @ normal[b]) * side(a, b) * side(b, a)
-        keep[t] = cos < -RETURN_COS or side(a, b) == 0 or side(b, a) == 0
+        s_ab, s_ba = side(a, b), side(b, a)
+        keep[t] = s_ab == 0 or s_ba == 0 or float(normal[a] @ normal[b]) * s_ab * s_ba < -RETURN_COS
     return keep
 
 
@@ -187,11 +187,11 @@ class _Reflectors:
     start [P]; each patch's cKDTree of its members' means and aperture (edges.patch_coverage_of), made when
     first asked for."""
 
-    def __init__(self, geom, patches: Patches, areas_m2: torch.Tensor, cells: torch.Tensor, radius: np.ndarray):
+    def __init__(self, geom, patches: Patches, areas_m2: torch.Tensor, cells: torch.Tensor, radius: np.ndarray,
+                 reach: np.ndarray):
         self.geom, self.patches, self.cells = geom, patches, cells
         self.x = geom.means.numpy()
-        self.normal, self.point, self.radius = patches.normal, patches.point, radius
-        self.reach = np.array([float(np.sqrt(areas_m2.numpy()[m].max())) for m in patches.members])
+        self.normal, self.point, self.radius, self.reach = patches.normal, patches.point, radius, reach
         self.areas_m2 = areas_m2
         self.size = np.array([len(m) for m in patches.members])
         self.start = np.concatenate([[0], np.cumsum(self.size)[:-1]])
