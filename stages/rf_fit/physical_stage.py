@@ -193,8 +193,12 @@ class PhysicalSetup:
         pairs = self.pairs_for(sharing)
         phys = physics_db(pairs, idx, vals, gain)
         folds, how = residual_folds(protocol, aspect_deg, range_m, len(target_db))
+        lengths_key = "residual_lengths_deg"
         if protocol.partition(":")[0] == "sector":   # into unmeasured aspects: the shorter lengths (configs/rf_fit.toml)
             cfg = dataclasses.replace(cfg, lengths_deg=cfg.sector_lengths_deg)
+            lengths_key = "residual_sector_lengths_deg"
+        if cfg.form != "gaussian":
+            how += f"; lengths {', '.join(f'{v:g}' for v in cfg.lengths_deg)} deg ({lengths_key})"
         if cfg.form != "gaussian":
             centre = 0.5 * (self.geom.means.min(0).values + self.geom.means.max(0).values).numpy()
             fit = fit_smooth(link_coords(tx_m, rx_m, centre), phys, target_db, folds, cfg, how)

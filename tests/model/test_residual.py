@@ -246,6 +246,13 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=tmp_path / "meas.h5")
     assert out.metrics["mae_db"] < 0.5 * out.metrics["mae_db_physics_only"], out.metrics
     assert res.train_mae_db > 0.5                                        # the materials alone cannot fit the error
+    assert "(residual_lengths_deg)" in training["residual_validation"]
+    # a held-out sector: blocks as wide as it, the sector lengths, said in the artifact
+    run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf_sector.h5", dict(cfg, split="sector:45:135"))
+    training = read_artifact(tmp_path / "rf_sector.h5", "rf").free["training@attrs"]
+    assert "blocks" in training["residual_validation"], training["residual_validation"]
+    assert "lengths 1, 2, 4 deg (residual_sector_lengths_deg)" in training["residual_validation"]
+    assert "l=8 deg" not in training["residual_candidates"] and "l=4 deg" in training["residual_candidates"]
 
 
 def test_validation_scores_equal_the_literal_computation_of_every_candidate(scene):
