@@ -200,7 +200,7 @@ def target_rcs_po(r: Plan) -> Table:
     ranges = "3 m" if r.quick else ", ".join(f"{x:g}" for x in r.sizes["po_ranges_m"]) + " m"
     t.notes += [
         "data: physical optics (`rfir simulate lego|trio|car --no-photos --rcs-backend po`: coherent surface currents "
-        "with double bounces, ITU materials as slabs, 40-degree horns; docs/po.md), "
+        "with up to three bounces (`simulate.po.max_bounces`), ITU materials as slabs, 40-degree horns; docs/po.md), "
         + ("6-degree aspects, 3 m (quick)" if r.quick else f"1-degree aspects, ranges {ranges}, 2.4 and 5.8 GHz")
         + "; unlike Sionna RT's geometric optics + diffuse, its lobes narrow with frequency, so these are the "
         "physics rows (the rcs table is on Sionna data)",
