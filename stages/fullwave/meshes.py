@@ -54,3 +54,26 @@ def trihedral_screen(a_m: float, n: int):
     phi = TRIHEDRAL_AXIS_PHI_DEG, with H in the symmetry plane and V across it; vertices merged on the edges."""
     v, f = trihedral_mesh(a_m, n)
     return merge_vertices(v @ _TRIHEDRAL_TO_SWEEP.T, f)
+
+
+def box_surface(a_m: float, b_m: float, c_m: float, edge_m: float):
+    """Closed box a_m x b_m x c_m along x, y, z, centred on the origin, each face tiled in squares of at most
+    edge_m, triangles wound outward, vertices merged on the box's edges (a closed PEC body for the EFIE;
+    pick sizes away from the cavity's interior resonances, where the EFIE fails)."""
+    dims = np.array([a_m, b_m, c_m], float)
+    verts, faces, base = [], [], 0
+    for axis in range(3):
+        u, w = (axis + 1) % 3, (axis + 2) % 3              # e_u x e_w = e_axis: counter-clockwise seen from outside
+        nu, nw = (int(np.ceil(dims[k] / edge_m - 1e-9)) for k in (u, w))
+        U, W = np.meshgrid(np.linspace(-dims[u] / 2, dims[u] / 2, nu + 1),
+                           np.linspace(-dims[w] / 2, dims[w] / 2, nw + 1), indexing="ij")
+        idx = np.arange((nu + 1) * (nw + 1)).reshape(nu + 1, nw + 1)
+        q0, q1, q2, q3 = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+        tri = np.concatenate([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)])
+        for sign in (1.0, -1.0):
+            p = np.zeros((U.size, 3))
+            p[:, u], p[:, w], p[:, axis] = U.ravel(), W.ravel(), sign * dims[axis] / 2
+            verts.append(p)
+            faces.append(base + (tri if sign > 0 else tri[:, ::-1]))
+            base += len(p)
+    return merge_vertices(np.concatenate(verts), np.concatenate(faces))

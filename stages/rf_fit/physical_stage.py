@@ -80,6 +80,17 @@ def split_candidate(candidate: str) -> tuple[str, bool]:
     return (candidate[:-len(EDGES)], True) if candidate.endswith(EDGES) else (candidate, False)
 
 
+SELECTION_RULES = ("one_se", "lowest")
+
+
+def selection_rule(table: dict) -> str:
+    """rf_fit.physical.selection: how validation picks the material sharing (configs/rf_fit.toml)."""
+    rule = str(table.get("selection", "one_se"))
+    if rule not in SELECTION_RULES:
+        raise ConfigError(f"rf_fit.physical.selection = {rule!r}: expected one of {', '.join(SELECTION_RULES)}")
+    return rule
+
+
 def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSettings, dict]:
     """(fit settings, pair settings, the [rf_fit.physical] table) from the [rf_fit] table."""
     table = dict(config.get("physical", {}))
@@ -103,6 +114,7 @@ def physical_config(config: dict, render_cfg) -> tuple[PhysicalFitConfig, PairSe
                          lit_threshold=float(table.get("lit_threshold", 0.2)),
                          edge_waves=edge_waves_mode(table) is not False)   # traced unless off; candidates choose
     residual_config(table)   # refused here, before any tracing, when wrong
+    selection_rule(table)
     return fit_cfg, pairs, table
 
 

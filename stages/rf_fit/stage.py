@@ -34,11 +34,11 @@ from .links import check_overlap, check_positions, geometry_from_artifact, make_
 from .occlusion import make_provider
 from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_db, material_table,
                              physical_artifact_fields, physical_config, range_words, residual_training_attrs,
-                             edge_waves_mode, sharing_candidates, split_candidate)
+                             edge_waves_mode, selection_rule, sharing_candidates, split_candidate)
 from .render import RenderSettings
 from .splits import describe as describe_split
-from .splits import protocol_masks, split_rows, validation_folds
-from .splits import MIN_VALIDATION_LINKS
+from .splits import protocol_masks, split_rows
+from .validation import MIN_VALIDATION_LINKS, validation_folds
 from .wideband_stage import band_config, is_wideband_request
 
 
@@ -199,7 +199,8 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         asp, rng = meas.get("aspect_rad"), meas.get("range_m")
         folds, how = validation_folds(protocol, None if asp is None else np.degrees(np.asarray(asp)[rows]),
                                       None if rng is None else np.asarray(rng)[rows])
-        selection.update(_select_sharing(physical, target, folds, how, sharings, fit_cfg, progress))
+        selection.update(_select_sharing(physical, target, folds, how, sharings, fit_cfg, progress,
+                                         selection_rule(phys_table)))
         starts = selection.pop("states", [])
         _save_selection(chosen, key, selection)
     select_s = time.time() - t_sel
@@ -235,13 +236,14 @@ def _load_selection(path: Path, key: str) -> dict | None:
 
 
 def _select_sharing(physical: PhysicalSetup, target: np.ndarray, folds: list[np.ndarray], how: str,
-                    sharings: list[str], fit_cfg, progress) -> dict:
+                    sharings: list[str], fit_cfg, progress, rule: str = "one_se") -> dict:
     """The material sharing ("label" / "class" / "segment" / "global") that predicts held-out training rows best
     after the same fit on the rest. `folds`: lists of training rows held out in turn, shaped like the
-    protocol's test by splits.validation_folds; the test split is never looked at. Fewer than 10
-    training links: the first sharing. Returns {"sharing_selected", "validation_links", "validation",
-    "val_mae_<sharing>_db", "fit_time_<sharing>_s", "states"} ("states": the selected sharing's fits
-    per fold, PhysicalFitResult)."""
+    protocol's test by validation.validation_folds; the test split is never looked at. Fewer than 10
+    training links: the first sharing. rule "one_se": the one-standard-error rule
+    (one_standard_error_choice); "lowest": the lowest validation MAE. Returns {"sharing_selected", "validation_links", "validation",
+    "val_mae_<sharing>_db", "fit_time_<sharing>_s", "validation_se_db", "states"} ("states": the selected
+    sharing's fits per fold, PhysicalFitResult)."""
     m = len(target)
     val_all = np.concatenate(folds) if folds else np.zeros(0, np.int64)
     if m < 10 or len(val_all) == 0 or any(len(f) in (0, m) for f in folds):
@@ -253,7 +255,7 @@ def _select_sharing(physical: PhysicalSetup, target: np.ndarray, folds: list[np.
         out["warning"] = (f"the material sharing was chosen on {len(val_all)} validation links (< "
                           f"{MIN_VALIDATION_LINKS}): the choice may be noise; more training rows make it firmer")
         progress.log(f"warning: {out['warning']}")
-    scores, states = {}, {}
+    scores, states, errors = {}, {}, {}
     for sharing in sharings:
         t0 = time.time()
         pred = np.zeros((len(val_all), target.shape[1]))
@@ -266,14 +268,37 @@ def _select_sharing(physical: PhysicalSetup, target: np.ndarray, folds: list[np.
             states[sharing].append(res)
             at += len(val)
         scores[sharing] = mae_db(pred, target[val_all])
+        errors[sharing] = np.abs(pred - target[val_all])
         out[f"val_mae_{sharing}_db"] = scores[sharing]
         out[f"fit_time_{sharing}_s"] = time.time() - t0
-    out["sharing_selected"] = min(sharings, key=scores.get)
-    out["states"] = states[out["sharing_selected"]]
+    materials = {sharing: len(physical.for_sharing(sharing)[2]) for sharing in sharings}
+    chosen, best, se = one_standard_error_choice(scores, errors, materials)
+    if rule == "lowest":
+        chosen = best
+    out.update(sharing_selected=chosen, validation_se_db=se, states=states[chosen])
+    why = "" if chosen == best else (f" (within one standard error, {se:.2f} dB, of {sharing_words(best)}: "
+                                     f"{materials[chosen]} material{'s' * (materials[chosen] > 1)} "
+                                     f"instead of {materials[best]})")
     progress.log(f"rf-fit: validation MAE on {len(val_all)} held-out training links ({how}): "
                  + ", ".join(f"{sharing_words(s)} {v:.2f} dB" for s, v in scores.items())
-                 + f" -> {out['sharing_selected']}")
+                 + f" -> {chosen}{why}")
     return out
+
+
+def one_standard_error_choice(scores: dict, errors: dict, materials: dict) -> tuple[str, str, float]:
+    """The candidate with the fewest materials whose validation MAE is within one standard error of the
+    best's (the one-standard-error rule; ties in material count go to the lower score): the free
+    parameters grow with the materials, and on a few held-out links a richer model's lower score is often
+    noise (12 links of a metal box: eight segment materials 3.69 dB against one 3.87, and the one
+    material predicts the test better). scores {candidate: MAE dB}; errors {candidate: |error| dB of
+    each held-out entry}; materials {candidate: count}. Returns (chosen, best, standard error dB: of the
+    best's mean absolute error over its held-out entries)."""
+    best = min(scores, key=scores.get)
+    err = np.asarray(errors[best], np.float64)
+    err = err[np.isfinite(err)]
+    se = float(np.std(err, ddof=1) / np.sqrt(err.size)) if err.size > 1 else 0.0
+    within = [c for c in scores if scores[c] <= scores[best] + se]
+    return min(within, key=lambda c: (materials[c], scores[c])), best, se
 
 
 def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, phys_cfg, pair_settings, scene, meas,

@@ -102,10 +102,13 @@ def test_sharing_auto_offers_per_class_and_global_and_records_the_choice(tmp_pat
     res = run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf.h5", cfg)
     keys = {k for k in res.selection if k.startswith("val_mae_")}
     assert keys == {"val_mae_class_db", "val_mae_global_db"}, res.selection
-    best = min(("class", "global"), key=lambda s: res.selection[f"val_mae_{s}_db"])
-    assert res.selection["sharing_selected"] == best
+    score = {s: res.selection[f"val_mae_{s}_db"] for s in ("class", "global")}
+    best = min(score, key=score.get)               # one material wins also within one standard error of it
+    expected = "global" if score["global"] <= score[best] + res.selection["validation_se_db"] else best
+    assert res.selection["validation_se_db"] > 0 and res.selection["sharing_selected"] == expected
     attrs = read_artifact(tmp_path / "rf.h5", "rf").free["training@attrs"]
-    assert attrs["selection_sharing_selected"] == best and attrs["sharing"] == best
+    assert attrs["selection_sharing_selected"] == expected and attrs["sharing"] == expected
+    assert attrs["selection_validation_se_db"] == res.selection["validation_se_db"]
 
 
 def test_bad_physical_settings_are_config_errors(metal_box, tmp_path):
@@ -114,6 +117,7 @@ def test_bad_physical_settings_are_config_errors(metal_box, tmp_path):
 
     for cfg, msg in (({"physical": {"sharing": "brick"}}, "rf_fit.physical.sharing"),
                      ({"physical": {"polarisation": "X"}}, "polarisation"),
+                     ({"physical": {"selection": "best"}}, "rf_fit.physical.selection"),
                      ({"loss": "paper"}, "rf_fit.loss")):
         with pytest.raises(ConfigError, match=msg):
             run(metal_box / "scene.h5", metal_box / "meas.h5", tmp_path / "rf.h5", {"antenna": "isotropic", **cfg})
@@ -142,3 +146,22 @@ def test_truth_material_reproduces_the_po_simulator(metal_box):
     assert np.median(err) < 1.5, np.median(err, axis=0)
     k0 = 2 * math.pi * 2.4e9 / C0
     assert abs(fresnel(permittivity(eps, sig, 2.4e9), 1.0, k0, 0.003)[0].item()) > 0.999
+
+
+def test_one_standard_error_rule_prefers_fewer_materials_only_within_the_noise():
+    """The candidate with fewer materials wins when its validation MAE is within one standard error of the
+    best's, and only then; among equal counts the lower score wins."""
+    from rfir_stages.rf_fit.stage import one_standard_error_choice
+    rng = np.random.default_rng(0)
+    best_err = np.abs(rng.normal(0.0, 3.0, 12))                  # 12 held-out links: a noisy score
+    se = best_err.std(ddof=1) / np.sqrt(best_err.size)
+    scores = {"segment": best_err.mean(), "global": best_err.mean() + 0.5 * se, "global+edges": best_err.mean() + 0.9 * se}
+    errors = {k: best_err for k in scores}
+    materials = {"segment": 8, "global": 1, "global+edges": 1}
+    chosen, best, got_se = one_standard_error_choice(scores, errors, materials)
+    assert (chosen, best) == ("global", "segment") and math.isclose(got_se, se)
+    scores["global"] = scores["global+edges"] = best_err.mean() + 1.5 * se    # outside the noise: the best
+    assert one_standard_error_choice(scores, errors, materials)[0] == "segment"
+    many = np.abs(rng.normal(0.0, 3.0, 2000))                    # many links: the same gap is outside one SE
+    scores = {"segment": many.mean(), "global": many.mean() + 0.5 * se}
+    assert one_standard_error_choice(scores, {k: many for k in scores}, materials)[0] == "segment"
