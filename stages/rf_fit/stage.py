@@ -241,9 +241,9 @@ def _select_sharing(physical: PhysicalSetup, target: np.ndarray, folds: list[np.
     after the same fit on the rest. `folds`: lists of training rows held out in turn, shaped like the
     protocol's test by validation.validation_folds; the test split is never looked at. Fewer than 10
     training links: the first sharing. rule "one_se": the one-standard-error rule
-    (one_standard_error_choice); "lowest": the lowest validation MAE. Returns {"sharing_selected", "validation_links", "validation",
-    "val_mae_<sharing>_db", "fit_time_<sharing>_s", "validation_se_db", "states"} ("states": the selected
-    sharing's fits per fold, PhysicalFitResult)."""
+    (one_standard_error_choice); "lowest": the lowest validation MAE. Returns {"sharing_selected",
+    "validation_links", "validation", "val_mae_<sharing>_db", "fit_time_<sharing>_s", "validation_se_db",
+    "states"} ("states": the selected sharing's fits per fold, PhysicalFitResult)."""
     m = len(target)
     val_all = np.concatenate(folds) if folds else np.zeros(0, np.int64)
     if m < 10 or len(val_all) == 0 or any(len(f) in (0, m) for f in folds):
