@@ -183,15 +183,14 @@ def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nda
     (rf_fit.validation.validation_folds); for the interpolation protocols (data, every-N) whole training
     aspects (every range of them), every KFOLDS-th aspect in turn, so that no fold is predicted from its own
     aspect at another range."""
-    from rfir_stages.rf_fit.validation import validation_folds
+    from rfir_stages.rf_fit.validation import aspect_index, validation_folds
     name, _, arg = protocol.partition(":")
     if name == "sector" and aspect_deg is not None:
         return sector_blocks(aspect_deg, *(float(x) for x in arg.split(":")))
     if name == "range" or aspect_deg is None:
         return validation_folds(protocol, aspect_deg, range_m)
-    key = np.round(np.mod(np.asarray(aspect_deg, float), 360.0), 6)
-    uniq, inv = np.unique(key, return_inverse=True)
-    k = min(KFOLDS, len(uniq))
+    inv = aspect_index(aspect_deg)
+    k = min(KFOLDS, int(inv.max()) + 1 if inv.size else 0)
     if k < 2:
         return [np.arange(0, num_rows, 10)], "every 10th training row"
     return [np.flatnonzero(inv % k == j) for j in range(k)], f"{k}-fold, every {k}th training aspect in turn"

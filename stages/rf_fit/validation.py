@@ -16,9 +16,7 @@ def validation_rows(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nd
     name, _, arg = protocol.partition(":")
     m = len(aspect_deg) if aspect_deg is not None else len(range_m) if range_m is not None else 0
     if name == "sector" and aspect_deg is not None and m >= 10:
-        a, b = (float(x) % 360.0 for x in arg.split(":"))
-        deg = np.mod(np.asarray(aspect_deg, np.float64), 360.0)
-        gap = np.minimum(np.mod(deg - b, 360.0), np.mod(a - deg, 360.0))   # degrees to the sector's edges
+        gap = gap_to_sector_deg(aspect_deg, arg)
         return np.sort(np.argsort(gap, kind="stable")[:m // 10]), "the tenth of the training rows next to the sector"
     if name == "range" and range_m is not None:
         rng = np.asarray(range_m, np.float64)
@@ -43,8 +41,8 @@ def validation_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.n
     protocol's test: "range:R": each training range in turn (leave-one-range-out); "sector:A:B":
     a larger share next to the sector (up to a third of the training rows); "data" / "every-N":
     KFOLDS folds of whole aspects dealt at random (aspect_folds) covering every training row when there
-    are at most KFOLD_MAX_LINKS of them (the fits are cheap there), else every third row. Returns (folds, description); the
-    caller warns when the folds still hold fewer than min_links links."""
+    are at most KFOLD_MAX_LINKS of them (the fits are cheap there), else every third row. Returns (folds,
+    description); the caller warns when the folds still hold fewer than min_links links."""
     val, how = validation_rows(protocol, aspect_deg, range_m)
     m = len(aspect_deg) if aspect_deg is not None else len(range_m) if range_m is not None else 0
     if len(val) >= min_links or m < 10:
@@ -57,9 +55,7 @@ def validation_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.n
             return [np.flatnonzero(rng == r) for r in ranges], f"each training range in turn ({ranges.size} folds)"
         return [val], how
     if name == "sector" and aspect_deg is not None:
-        a, b = (float(x) % 360.0 for x in arg.split(":"))
-        deg = np.mod(np.asarray(aspect_deg, np.float64), 360.0)
-        gap = np.minimum(np.mod(deg - b, 360.0), np.mod(a - deg, 360.0))
+        gap = gap_to_sector_deg(aspect_deg, arg)
         n = min(min_links, m // 3)
         return [np.sort(np.argsort(gap, kind="stable")[:n])], f"the {n} training rows next to the sector"
     if m <= KFOLD_MAX_LINKS:
@@ -78,11 +74,22 @@ def aspect_folds(aspect_deg: np.ndarray | None, m: int, k: int) -> list[np.ndarr
     symmetry (12 aspects 30 degrees apart, every 3rd in turn: four aspects 90 degrees apart, a box's
     four broadsides in one fold, none in the others), and a fold that holds one range of an aspect
     while another range of it trains is easier than the test, which holds out whole aspects."""
-    if aspect_deg is None:
-        key = np.arange(m)
-    else:
-        key = np.unique(np.round(np.mod(np.asarray(aspect_deg, np.float64), 360.0), 6), return_inverse=True)[1]
+    key = np.arange(m) if aspect_deg is None else aspect_index(aspect_deg)
     num = int(key.max()) + 1 if m else 0
     fold_of = np.empty(num, np.int64)
     fold_of[np.random.default_rng(FOLD_SEED).permutation(num)] = np.arange(num) % k
-    return [np.flatnonzero(fold_of[key.ravel()] == j) for j in range(k)]
+    return [np.flatnonzero(fold_of[key] == j) for j in range(k)]
+
+
+def aspect_index(aspect_deg: np.ndarray) -> np.ndarray:
+    """[M] int: each row's aspect among the distinct aspects (sorted, 0 .. A-1; aspects equal to 1e-6 degree
+    modulo 360 are one): rows of one aspect at several ranges share an index."""
+    key = np.round(np.mod(np.asarray(aspect_deg, np.float64), 360.0), 6)
+    return np.unique(key, return_inverse=True)[1].ravel()
+
+
+def gap_to_sector_deg(aspect_deg: np.ndarray, sector: str) -> np.ndarray:
+    """[M] degrees from each aspect to the nearer edge of the sector "A:B" ([A, B) degrees, wrapping)."""
+    a, b = (float(x) % 360.0 for x in sector.split(":"))
+    deg = np.mod(np.asarray(aspect_deg, np.float64), 360.0)
+    return np.minimum(np.mod(deg - b, 360.0), np.mod(a - deg, 360.0))
