@@ -77,3 +77,58 @@ def box_surface(a_m: float, b_m: float, c_m: float, edge_m: float):
             faces.append(base + (tri if sign > 0 else tri[:, ::-1]))
             base += len(p)
     return merge_vertices(np.concatenate(verts), np.concatenate(faces))
+
+
+def _ring_strip(inner: np.ndarray, outer: np.ndarray) -> np.ndarray:
+    """Triangles [T, 3] joining two closed rings of vertex indices (each in increasing angle from 0; the
+    inner may be a single centre vertex) so that every ring edge belongs to one triangle: walk both rings
+    together, advancing the one whose next vertex comes first in angle."""
+    if len(inner) == 1:
+        return np.stack([np.full(len(outer), inner[0]), outer, np.roll(outer, -1)], 1)
+    ni, no = len(inner), len(outer)
+    tris, i, o = [], 0, 0
+    while i < ni or o < no:
+        if o < no and (i == ni or (o + 1) / no <= (i + 1) / ni):
+            tris.append([inner[i % ni], outer[o], outer[(o + 1) % no]])
+            o += 1
+        else:
+            tris.append([inner[i], outer[o % no], inner[(i + 1) % ni]])
+            i += 1
+    return np.array(tris)
+
+
+def cylinder_surface(radius_m: float, length_m: float, edge_m: float):
+    """Closed circular cylinder of radius_m and length_m, axis along x, centred on the origin: the side a
+    polygon of an even number of facets (symmetric under y -> -y and z -> -z, so that an azimuth sweep in
+    the x-y plane over 0-90 degrees gives all 360) at most edge_m wide in rings at most edge_m apart, the
+    two flat end caps in concentric rings; triangles wound outward, vertices shared on the rims (a closed
+    PEC body for the EFIE; keep 2.4 GHz below the cavity's first resonance, TE111, as radius 3 cm does)."""
+    n_phi = 2 * int(np.ceil(np.pi * radius_m / edge_m - 1e-9))
+    n_x = int(np.ceil(length_m / edge_m - 1e-9))
+    n_rings = int(np.ceil(radius_m / edge_m - 1e-9))
+
+    def ring(r, x, n):
+        t = 2 * np.pi * np.arange(n) / n
+        return np.stack([np.full(n, x), r * np.cos(t), r * np.sin(t)], 1)
+
+    verts = [ring(radius_m, x, n_phi) for x in np.linspace(-length_m / 2, length_m / 2, n_x + 1)]
+    faces = []
+    idx = np.arange((n_x + 1) * n_phi).reshape(n_x + 1, n_phi)
+    a, b = idx[:-1], np.roll(idx[:-1], -1, axis=1)            # ring j, vertex k and k + 1
+    c, d = np.roll(idx[1:], -1, axis=1), idx[1:]
+    faces.append(np.concatenate([np.stack([a.ravel(), b.ravel(), c.ravel()], 1),   # outward: the volume test
+                                 np.stack([a.ravel(), c.ravel(), d.ravel()], 1)]))
+    base = (n_x + 1) * n_phi
+    for sign, rim in ((-1.0, idx[0]), (1.0, idx[-1])):
+        rings = [rim]
+        for k in range(n_rings - 1, 0, -1):                   # inward from the rim
+            n = max(6, 2 * int(round(n_phi * k / n_rings / 2)))
+            verts.append(ring(radius_m * k / n_rings, sign * length_m / 2, n))
+            rings.append(base + np.arange(n))
+            base += n
+        verts.append(np.array([[sign * length_m / 2, 0.0, 0.0]]))
+        rings.append(np.array([base]))
+        base += 1
+        cap = np.concatenate([_ring_strip(rings[k + 1], rings[k]) for k in range(len(rings) - 1)])
+        faces.append(cap if sign > 0 else cap[:, ::-1])
+    return merge_vertices(np.concatenate(verts), np.concatenate(faces))

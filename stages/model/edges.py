@@ -75,6 +75,7 @@ from .link_rows import renumber_links
 from .materials import C0
 
 WEDGE_T_COS = 0.9       # outer edges of two patches with tangents this parallel, on one line: one wedge
+WEDGE_ACROSS_HALF = 1.0  # ... and at most this many surfel half-sides apart across their tangent (see patch_edges)
 SINGULAR_RAD = 1e-3     # near a face's normal GTD and PO are singular: the fringe is averaged at +-this
 
 
@@ -317,7 +318,10 @@ def patch_edges(geom: FrozenGeometry, cov: torch.Tensor, cells: torch.Tensor, pa
     along = np.einsum("ecj,ej->ec", off, tangent)
     across = np.linalg.norm(off - along[..., None] * tangent[:, None], axis=-1)
     ok = valid & (patch[j] != patch[:, None]) & (np.abs(np.einsum("ej,ecj->ec", tangent, tangent[j])) >= WEDGE_T_COS)
-    ok &= across <= 0.5 * np.maximum(half[:, None], half[j])
+    # each level line is uncertain by a fraction of a surfel, most on a patch one or two surfels wide (a
+    # facet of a curved surface): there two facets' lines miss each other by up to a half-side, and an
+    # unpaired pair of lines would count as two half-plane edges where the surface has none
+    ok &= across <= WEDGE_ACROSS_HALF * np.maximum(half[:, None], half[j])
     ok &= np.abs(along) <= 0.5 * (length[:, None] + length[j])
     dist = np.where(ok, np.linalg.norm(off, axis=-1), np.inf)
     has = ok.any(1)

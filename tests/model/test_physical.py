@@ -286,3 +286,22 @@ def test_a_closed_box_against_the_po_simulator():
         ours[:, k] = 10 * np.log10(scattered_power(pairs, torch.zeros(geom.num, dtype=torch.int64),
                                                    mats).detach().numpy()[:, k])
     assert (np.abs(ours - target).mean(0) < 0.7).all()
+
+
+@pytest.mark.parametrize("edge_m", [0.005, 0.01])
+@pytest.mark.parametrize("freq_hz", [2.4e9, 5.8e9])
+def test_cylinder_broadside_whatever_the_facets(edge_m, freq_hz):
+    """A curved surface: surfels on a faceted cylinder (radius 5 cm, 0.4 m long, k a = 2.5 and 6.1) give
+    2 pi a L^2 / lambda at broadside within 0.5 dB (measured +0.27-0.29 at 2.4 GHz, -0.03 at 5.8) with 62
+    or 32 facets round it (11 520 or 2 880 surfels): the level comes from the stationary phase of the
+    surfels' coherent sum, not from their number. Its end caps are edge-on there; the far side is
+    shadowed (without the visibility test it adds 0.7-2.6 dB)."""
+    from rfir_cli.physics.closed_forms import cylinder_rcs_broadside_m2
+    from rfir_stages.fullwave.meshes import cylinder_surface
+
+    a, length, r = 0.05, 0.4, 200.0
+    geom, _ = surfels(*cylinder_surface(a, length, edge_m), 0.03)
+    _, links = monostatic([90.0], r, freq_hz)
+    power = _power(geom, links, settings=PairSettings(), provider=make_provider("auto", geom))
+    sigma_db = rcs_dbsm(power[:, 0], r, freq_hz)
+    assert abs(sigma_db[0] - 10 * np.log10(cylinder_rcs_broadside_m2(a, length, freq_hz))) < 0.5

@@ -57,3 +57,9 @@ def plate_rcs_broadside_m2(area_m2, freq_hz):
 def sphere_rcs_m2(radius_m):
     """Optical-region RCS of a conducting sphere (radius >> lambda): pi a^2."""
     return np.pi * np.asarray(radius_m, dtype=float) ** 2
+
+
+def cylinder_rcs_broadside_m2(radius_m, length_m, freq_hz):
+    """Far-field broadside RCS of a conducting circular cylinder (k a >> 1, length >> lambda), the
+    stationary-phase result of physical optics: 2 pi a L^2 / lambda."""
+    return 2.0 * np.pi * np.asarray(radius_m, dtype=float) * np.asarray(length_m, dtype=float) ** 2 / wavelength_m(freq_hz)
