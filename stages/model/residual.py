@@ -48,6 +48,7 @@ from rfir_stages.po.geometry import single_thread_torch
 from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms
 
 FORMS = ("auto", "smooth", "blend", "gaussian", "off")
+INTERPOLATION = ("half-spacing", "validated")   # the residual between training aspects (ResidualConfig.interpolation)
 KERNEL_FORMS = {"auto": ("smooth", "blend"), "smooth": ("smooth",), "blend": ("blend",)}
 KFOLDS = 5          # interpolation protocols: every 5th training aspect held out in turn
 FLOOR_DB = -250.0   # as predict.FLOOR_DB (a link that sees no lit surfel)
@@ -69,6 +70,7 @@ class ResidualConfig:
     gaussian_weights: tuple = (0.3, 3.0, 30.0)
     iterations: int = 150
     lr: float = 0.05
+    interpolation: str = "half-spacing"      # data / every-N protocols (fit_smooth's local_length_deg)
 
 
 @dataclass
@@ -113,6 +115,17 @@ def kernel_of_distances(angle_sq: np.ndarray, log_range_sq: np.ndarray, length_r
 def kernel(a, b, length_rad: float, range_length: float) -> np.ndarray:
     """k(a_i, b_j) [La, Lb] for coordinates a, b from link_coords (module docstring)."""
     return kernel_of_distances(*link_distances(a, b), length_rad, range_length)
+
+
+def training_spacing_deg(aspect_deg: np.ndarray) -> float | None:
+    """The training aspects' spacing, degrees: the median over the distinct training aspects of the angle
+    to the nearest other one (other ranges and frequencies of an aspect do not count; for a monostatic
+    radar the kernel's angle between two links is their aspect difference). None for fewer than two."""
+    u = np.unique(np.round(np.mod(np.asarray(aspect_deg, float), 360.0), 6))
+    if len(u) < 2:
+        return None
+    gap = np.diff(np.concatenate([u, u[:1] + 360.0]))                 # to the next aspect round the circle
+    return float(np.median(np.minimum(gap, np.roll(gap, 1))))
 
 
 # The linear algebra runs in torch, one thread (callers hold single_thread_torch): a model selection is
@@ -295,24 +308,42 @@ def _select(coords, folds: list[np.ndarray], grid: list, target_db: np.ndarray, 
 
 
 def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[np.ndarray], cfg: ResidualConfig,
-               how: str) -> ResidualFit:
+               how: str, local_length_deg: float | None = None) -> ResidualFit:
     """Choose the kernel form (smooth / blend, as cfg.form allows) and its (l, l_rho, eta) by validation
     over `folds` (physics only among the candidates, `choose`) and fit it on every training row.
-    coords: link_coords of the training rows; [M, K] arrays."""
+    coords: link_coords of the training rows; [M, K] arrays.
+
+    local_length_deg: where the test links lie between training links (the data and every-N protocols,
+    ResidualConfig.interpolation "half-spacing"), the length is given (half the training spacing) and the
+    weight is the smallest of cfg.weights; only l_rho is chosen, and the candidates are applied whatever
+    the physics alone scores. Why not by validation: a held-out training aspect lies a whole spacing from
+    the rest, twice as far as any test aspect, and the two disagree in sign where the residual
+    decorrelates within a spacing. Measured on 12 rows (docs/rf-model.md "Residual"): a thin cylinder's
+    every 10th aspect, where validation kept the physics alone (3.37 dB; linear interpolation 1.42),
+    scores 0.94 with it; the mean over the rows falls from 1.14 to 0.90 dB, and no row loses more than
+    0.09 dB. The physics alone is still scored and reported."""
     t0 = time.time()
     val_all = np.concatenate(folds)
     errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
     floor_db = np.min(target_db, axis=0) - BELOW_WEAKEST_DB          # [F] (module docstring)
     phys_db = np.maximum(phys_db, floor_db[None])                      # what the kernel forms see
-    grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
-            for lr in cfg.range_lengths for eta in ((cfg.weight,) if cfg.weight is not None else cfg.weights)]
+    weights = (cfg.weight,) if cfg.weight is not None else cfg.weights
+    if local_length_deg is not None:
+        grid = [(KERNEL_FORMS[cfg.form][0], local_length_deg, lr, min(weights)) for lr in cfg.range_lengths]
+    else:
+        grid = [(kind, ld, lr, eta) for kind in KERNEL_FORMS[cfg.form] for ld in cfg.lengths_deg
+                for lr in cfg.range_lengths for eta in weights]
     grid = [g for g in grid if math.isfinite(g[3])]
     preds: dict = {g: [] for g in grid}
     with single_thread_torch():
         _select(coords, folds, grid, target_db, phys_db, preds)
     for (kind, ld, lr, eta), pred in preds.items():
-        errors[f"{kind} l={ld:g} deg, l_rho={lr:g}, eta={eta:g}"] = np.abs(np.concatenate(pred) - target_db[val_all])
-    chosen, scores = choose(errors)
+        errors[f"{kind} l={ld:.3g} deg, l_rho={lr:g}, eta={eta:g}"] = np.abs(np.concatenate(pred) - target_db[val_all])
+    if local_length_deg is not None and grid:
+        scores = {k: float(np.mean(v)) for k, v in errors.items()}
+        chosen = min(list(scores)[1:], key=scores.get)
+    else:
+        chosen, scores = choose(errors)
     out = ResidualFit("off", validation=scores, chosen=chosen, how=how)
     if chosen != "physics only":
         kind, ld, lr, eta = grid[list(scores).index(chosen) - 1]

@@ -19,8 +19,8 @@ from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
 from rfir_stages.model.physical import EPS_R_MAX, POLARISATIONS, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
-from rfir_stages.model.residual import (FORMS, ResidualConfig, ResidualFit, fit_gaussian, fit_smooth, link_coords,
-                                        physics_db, residual_folds)
+from rfir_stages.model.residual import (FORMS, INTERPOLATION, ResidualConfig, ResidualFit, fit_gaussian, fit_smooth,
+                                        link_coords, physics_db, residual_folds, training_spacing_deg)
 from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "class", "segment", "global")
@@ -38,6 +38,13 @@ def mae_db(pred_db: np.ndarray, meas_db: np.ndarray) -> float:
     return float(np.mean(d[np.isfinite(d)])) if np.isfinite(d).any() else float("nan")
 
 
+def between_training_links(protocol: str, aspect_deg) -> bool:
+    """Whether the protocol's test aspects lie between training ones (data, every-N), where the residual
+    takes its length from the training spacing (ResidualConfig.interpolation); not a held-out sector or
+    range, nor links without aspects."""
+    return aspect_deg is not None and protocol.partition(":")[0] not in ("sector", "range")
+
+
 def residual_config(table: dict) -> ResidualConfig:
     """The residual settings of the [rf_fit.physical] table (ConfigError naming the key when wrong)."""
     form = str(table.get("residual", "auto"))
@@ -51,7 +58,11 @@ def residual_config(table: dict) -> ResidualConfig:
     if weight is not None and not weight > 0:
         raise ConfigError(f"rf_fit.physical.residual_weight = {raw!r}: expected \"auto\" or a number > 0 "
                           "(inf: the physics alone)")
-    kw = {"form": form, "weight": weight}
+    interpolation = str(table.get("residual_interpolation", "half-spacing"))
+    if interpolation not in INTERPOLATION:
+        raise ConfigError(f"rf_fit.physical.residual_interpolation = {interpolation!r}: expected one of "
+                          f"{', '.join(INTERPOLATION)}")
+    kw = {"form": form, "weight": weight, "interpolation": interpolation}
     for key, name in RESIDUAL_LISTS.items():
         if key in table:
             vals = [float(v) for v in table[key]]
@@ -210,15 +221,24 @@ class PhysicalSetup:
             cfg = dataclasses.replace(cfg, lengths_deg=cfg.sector_lengths_deg)
             lengths_key = "residual_sector_lengths_deg"
         if cfg.form != "gaussian":
-            how += f"; lengths {', '.join(f'{v:g}' for v in cfg.lengths_deg)} deg ({lengths_key})"
-        if cfg.form != "gaussian":
             centre = 0.5 * (self.geom.means.min(0).values + self.geom.means.max(0).values).numpy()
-            fit = fit_smooth(link_coords(tx_m, rx_m, centre), phys, target_db, folds, cfg, how)
+            coords = link_coords(tx_m, rx_m, centre)
+            local = None
+            if cfg.interpolation == "half-spacing" and between_training_links(protocol, aspect_deg):
+                spacing = training_spacing_deg(aspect_deg)
+                local = None if spacing is None else 0.5 * spacing
+            if local is None:
+                how += f"; lengths {', '.join(f'{v:g}' for v in cfg.lengths_deg)} deg ({lengths_key})"
+            else:
+                how += (f"; length {local:.3g} deg, half the training spacing {2 * local:.3g} deg, and the smallest "
+                        "weight, applied whatever the physics alone scores (residual_interpolation)")
+            fit = fit_smooth(coords, phys, target_db, folds, cfg, how, local_length_deg=local)
         else:
             fit = fit_gaussian(pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)
         best = min(fit.validation.values())
         progress.log(f"rf-fit: residual ({cfg.form}) validation MAE on {sum(len(f) for f in folds)} training links "
-                     f"({how}): physics only {fit.validation['physics only']:.2f} dB, best {best:.2f} dB -> "
+                     f"({how}): physics only {fit.validation['physics only']:.2f} dB, best {best:.2f} dB"
+                     f"{'' if fit.chosen not in fit.validation else f', chosen {fit.validation[fit.chosen]:.2f} dB'} -> "
                      f"{fit.chosen} ({fit.wall_time_s:.0f} s)")
         return fit
 

@@ -241,11 +241,17 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     rf = read_artifact(tmp_path / "rf.h5", "rf")
     training = rf.free["training@attrs"]
     assert rf.free["model@attrs"]["residual.form"] in ("smooth", "blend"), training["residual_candidates"]
-    assert training["residual_val_mae_db"] < training["residual_val_mae_physics_only_db"]
+    assert training["residual_val_mae_db"] < training["residual_val_mae_physics_only_db"], (training["residual_candidates"], training["residual_validation"])
     assert np.asarray(rf["residual/weights_db"]).shape == (90, 1)
     out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=tmp_path / "meas.h5")
     assert out.metrics["mae_db"] < 0.5 * out.metrics["mae_db_physics_only"], out.metrics
     assert res.train_mae_db > 0.5                                        # the materials alone cannot fit the error
+    # even/odd aspects 2 degrees apart: training every 4 degrees, the residual's length half of that
+    assert "length 2 deg, half the training spacing 4 deg" in training["residual_validation"]
+    assert "l=2 deg" in training["residual_candidates"]
+    run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf_val.h5",
+        dict(cfg, physical=dict(cfg["physical"], residual_interpolation="validated")))
+    training = read_artifact(tmp_path / "rf_val.h5", "rf").free["training@attrs"]
     assert "(residual_lengths_deg)" in training["residual_validation"]
     # a held-out sector: blocks as wide as it, the sector lengths, said in the artifact
     run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf_sector.h5", dict(cfg, split="sector:45:135"))
@@ -253,6 +259,27 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     assert "blocks" in training["residual_validation"], training["residual_validation"]
     assert "lengths 1, 2, 4 deg (residual_sector_lengths_deg)" in training["residual_validation"]
     assert "l=8 deg" not in training["residual_candidates"] and "l=4 deg" in training["residual_candidates"]
+
+
+def test_training_spacing_counts_each_aspect_once_and_wraps_round():
+    from rfir_stages.model.residual import training_spacing_deg
+
+    every_10_two_ranges = np.concatenate([np.arange(0.0, 360.0, 10.0)] * 2)
+    assert training_spacing_deg(every_10_two_ranges) == 10.0
+    assert training_spacing_deg(np.array([350.0, 0.0, 10.0, 20.0])) == 10.0       # 350 -> 0 across the wrap
+    sector_held_out = np.concatenate([np.arange(0.0, 45.0), np.arange(135.0, 360.0)])
+    assert training_spacing_deg(sector_held_out) == 1.0
+    assert training_spacing_deg(np.array([30.0, 30.0])) is None
+
+
+def test_residual_interpolation_setting_is_checked():
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit.physical_stage import residual_config
+
+    assert residual_config({}).interpolation == "half-spacing"
+    assert residual_config({"residual_interpolation": "validated"}).interpolation == "validated"
+    with pytest.raises(ConfigError, match="residual_interpolation"):
+        residual_config({"residual_interpolation": "nearest"})
 
 
 def test_validation_scores_equal_the_literal_computation_of_every_candidate(scene):
