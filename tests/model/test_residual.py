@@ -241,7 +241,7 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     rf = read_artifact(tmp_path / "rf.h5", "rf")
     training = rf.free["training@attrs"]
     assert rf.free["model@attrs"]["residual.form"] in ("smooth", "blend"), training["residual_candidates"]
-    assert training["residual_val_mae_db"] < training["residual_val_mae_physics_only_db"], (training["residual_candidates"], training["residual_validation"])
+    assert training["residual_val_mae_db"] < training["residual_val_mae_physics_only_db"], training["residual_candidates"]
     assert np.asarray(rf["residual/weights_db"]).shape == (90, 1)
     out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=tmp_path / "meas.h5")
     assert out.metrics["mae_db"] < 0.5 * out.metrics["mae_db_physics_only"], out.metrics
