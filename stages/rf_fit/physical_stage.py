@@ -226,12 +226,14 @@ class PhysicalSetup:
             local = None
             if cfg.interpolation == "half-spacing" and between_training_links(protocol, aspect_deg):
                 spacing = training_spacing_deg(aspect_deg)
-                local = None if spacing is None else 0.5 * spacing
+                # at most the longest validated length: no correction reaches further than any candidate would
+                local = None if spacing is None else min(0.5 * spacing, max(cfg.lengths_deg))
             if local is None:
                 how += f"; lengths {', '.join(f'{v:g}' for v in cfg.lengths_deg)} deg ({lengths_key})"
             else:
-                how += (f"; length {local:.3g} deg, half the training spacing {2 * local:.3g} deg, and the smallest "
-                        "weight, applied whatever the physics alone scores (residual_interpolation)")
+                how += (f"; length {local:.3g} deg (half the training spacing {spacing:.3g} deg, at most the longest of "
+                        "residual_lengths_deg) and the smallest weight unless a validated candidate beats it "
+                        "(residual_interpolation)")
             fit = fit_smooth(coords, phys, target_db, folds, cfg, how, local_length_deg=local)
         else:
             fit = fit_gaussian(pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)

@@ -247,7 +247,7 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     assert out.metrics["mae_db"] < 0.5 * out.metrics["mae_db_physics_only"], out.metrics
     assert res.train_mae_db > 0.5                                        # the materials alone cannot fit the error
     # even/odd aspects 2 degrees apart: training every 4 degrees, the residual's length half of that
-    assert "length 2 deg, half the training spacing 4 deg" in training["residual_validation"]
+    assert "length 2 deg (half the training spacing 4 deg" in training["residual_validation"]
     assert "l=2 deg" in training["residual_candidates"]
     run(tmp_path / "scene.h5", tmp_path / "meas.h5", tmp_path / "rf_val.h5",
         dict(cfg, physical=dict(cfg["physical"], residual_interpolation="validated")))
