@@ -236,11 +236,11 @@ def physics_db(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: Ma
     return np.maximum(10 * np.log10(np.maximum(p, 1e-300)), FLOOR_DB)
 
 
-def choose(errors: dict, default: str = "physics only") -> tuple[str, dict]:
+def choose(errors: dict) -> tuple[str, dict]:
     """(chosen candidate, {candidate: validation MAE dB}) from each candidate's absolute validation
-    errors (same entries). The one-standard-error rule: the lowest MAE wins only when it beats the
-    default (the physics alone, the simplest candidate) by more than SE_MARGIN standard errors of their
-    paired difference (`beats`); otherwise the default is kept (a residual that fits noise must not be
+    errors (same entries; "physics only" among them). The one-standard-error rule: the lowest MAE wins
+    only when it beats the physics alone (the simplest candidate) by more than SE_MARGIN standard errors
+    of their paired difference (`beats`); otherwise the physics alone is kept (a residual that fits noise must not be
     chosen by the luck of the folds).
 
     Why one and not two: the validation folds hold out whole training aspects, so a held-out aspect
@@ -249,7 +249,8 @@ def choose(errors: dict, default: str = "physics only") -> tuple[str, dict]:
     stricter margin rejected residuals that halved the test error (docs/rf-model.md "Residual")."""
     scores = {k: float(np.mean(v)) for k, v in errors.items()}
     best = min(scores, key=scores.get)
-    return (best if best == default or beats(errors[best], errors[default]) else default), scores
+    keep = best == "physics only" or beats(errors[best], errors["physics only"])
+    return (best if keep else "physics only"), scores
 
 
 def beats(errors_a: np.ndarray, errors_b: np.ndarray) -> bool:
