@@ -121,7 +121,8 @@ def training_spacing_deg(aspect_deg: np.ndarray) -> float | None:
     """The training aspects' spacing, degrees: the median over the distinct training aspects of the angle
     to the nearest other one (other ranges and frequencies of an aspect do not count; for a monostatic
     radar the kernel's angle between two links is their aspect difference). None for fewer than two."""
-    u = np.unique(np.round(np.mod(np.asarray(aspect_deg, float), 360.0), 6))
+    from rfir_stages.rf_fit.validation import distinct_aspects
+    u = distinct_aspects(aspect_deg)[0]
     if len(u) < 2:
         return None
     gap = np.diff(np.concatenate([u, u[:1] + 360.0]))                 # to the next aspect round the circle
@@ -341,17 +342,18 @@ def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[n
     preds: dict = {g: [] for g in grid}
     with single_thread_torch():
         _select(coords, folds, grid, target_db, phys_db, preds)
-    names = {}
+    names = {g: f"{g[0]} l={g[1]:.3g} deg, l_rho={g[2]:g}, eta={g[3]:g}" + (" (half-spacing)" if g in local else "")
+             for g in preds}
     for g, pred in preds.items():
-        names[g] = f"{g[0]} l={g[1]:.3g} deg, l_rho={g[2]:g}, eta={g[3]:g}" + (" (half-spacing)" if g in local else "")
         errors[names[g]] = np.abs(np.concatenate(pred) - target_db[val_all])
-    chosen, scores = choose({k: v for k, v in errors.items() if not k.endswith("(half-spacing)")})
-    local_names = [names[g] for g in local if g in names]
+    validated = {"physics only"} | {names[g] for g in preds if g not in local}
+    chosen, _ = choose({k: v for k, v in errors.items() if k in validated})
+    local_names = [names[g] for g in preds if g in local]
     if local_names:      # the half-spacing residual unless a validated one beats it (and the physics alone)
         best_local = min(local_names, key=lambda k: float(np.mean(errors[k])))
         if chosen == "physics only" or not beats(errors[chosen], errors[best_local]):
             chosen = best_local
-        scores = {k: float(np.mean(v)) for k, v in errors.items()}
+    scores = {k: float(np.mean(v)) for k, v in errors.items()}
     out = ResidualFit("off", validation=scores, chosen=chosen, how=how)
     if chosen != "physics only":
         kind, ld, lr, eta = next(g for g, n in names.items() if n == chosen)

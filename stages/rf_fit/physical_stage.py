@@ -239,8 +239,8 @@ class PhysicalSetup:
             fit = fit_gaussian(pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)
         best = min(fit.validation.values())
         progress.log(f"rf-fit: residual ({cfg.form}) validation MAE on {sum(len(f) for f in folds)} training links "
-                     f"({how}): physics only {fit.validation['physics only']:.2f} dB, best {best:.2f} dB"
-                     f"{'' if fit.chosen not in fit.validation else f', chosen {fit.validation[fit.chosen]:.2f} dB'} -> "
+                     f"({how}): physics only {fit.validation['physics only']:.2f} dB, best {best:.2f} dB, "
+                     f"chosen {fit.validation[fit.chosen]:.2f} dB -> "
                      f"{fit.chosen} ({fit.wall_time_s:.0f} s)")
         return fit
 

@@ -81,11 +81,17 @@ def aspect_folds(aspect_deg: np.ndarray | None, m: int, k: int) -> list[np.ndarr
     return [np.flatnonzero(fold_of[key] == j) for j in range(k)]
 
 
-def aspect_index(aspect_deg: np.ndarray) -> np.ndarray:
-    """[M] int: each row's aspect among the distinct aspects (sorted, 0 .. A-1; aspects equal to 1e-6 degree
-    modulo 360 are one): rows of one aspect at several ranges share an index."""
+def distinct_aspects(aspect_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the distinct aspects [A] degrees in [0, 360), sorted; each row's index among them [M] int): aspects
+    equal to 1e-6 degree modulo 360 are one, so rows of one aspect at several ranges share an index."""
     key = np.round(np.mod(np.asarray(aspect_deg, np.float64), 360.0), 6)
-    return np.unique(key, return_inverse=True)[1].ravel()
+    uniq, inv = np.unique(key, return_inverse=True)
+    return uniq, inv.ravel()
+
+
+def aspect_index(aspect_deg: np.ndarray) -> np.ndarray:
+    """[M] int: each row's aspect among the distinct aspects (distinct_aspects)."""
+    return distinct_aspects(aspect_deg)[1]
 
 
 def gap_to_sector_deg(aspect_deg: np.ndarray, sector: str) -> np.ndarray:
