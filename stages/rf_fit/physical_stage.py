@@ -20,7 +20,8 @@ from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult,
 from rfir_stages.model.physical import EPS_R_MAX, POLARISATIONS, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
 from rfir_stages.model.residual import (FORMS, INTERPOLATION, ResidualConfig, ResidualFit, fit_gaussian, fit_smooth,
-                                        link_coords, physics_db, residual_folds, training_spacing_deg)
+                                        link_coords, physics_db, residual_folds, training_spacing_deg,
+                                        half_spacing_length_deg, visible_lengths)
 from rfir_stages.model.surfels import surfel_areas
 
 SHARINGS = ("auto", "label", "class", "segment", "global")
@@ -223,18 +224,18 @@ class PhysicalSetup:
         if cfg.form != "gaussian":
             centre = 0.5 * (self.geom.means.min(0).values + self.geom.means.max(0).values).numpy()
             coords = link_coords(tx_m, rx_m, centre)
-            local = None
+            spacing = None
             if cfg.interpolation == "half-spacing" and between_training_links(protocol, aspect_deg):
                 spacing = training_spacing_deg(aspect_deg)
-                # at most the longest validated length: no correction reaches further than any candidate would
-                local = None if spacing is None else min(0.5 * spacing, max(cfg.lengths_deg))
-            if local is None:
+            if spacing is None:
                 how += f"; lengths {', '.join(f'{v:g}' for v in cfg.lengths_deg)} deg ({lengths_key})"
             else:
-                how += (f"; length {local:.3g} deg (half the training spacing {spacing:.3g} deg, at most the longest of "
-                        "residual_lengths_deg) and the smallest weight unless a validated candidate beats it "
-                        "(residual_interpolation)")
-            fit = fit_smooth(coords, phys, target_db, folds, cfg, how, local_length_deg=local)
+                shown = ", ".join(f"{v:g}" for v in visible_lengths(cfg, spacing)) or "none"
+                how += (f"; length {half_spacing_length_deg(cfg, spacing):.3g} deg (half the training spacing "
+                        f"{spacing:.3g} deg, at most the longest of residual_lengths_deg) and the smallest weight "
+                        "unless a validated candidate beats it (residual_interpolation); validated lengths "
+                        f"{shown} deg (none shorter than half the spacing)")
+            fit = fit_smooth(coords, phys, target_db, folds, cfg, how, spacing_deg=spacing)
         else:
             fit = fit_gaussian(pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)
         best = min(fit.validation.values())

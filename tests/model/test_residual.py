@@ -9,7 +9,8 @@ import torch
 
 from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs
 from rfir_stages.model.residual import (ResidualConfig, blend_at, fit_gaussian, fit_smooth, kernel_predict, link_coords,
-                                        physics_db, residual_folds, smooth_correction, smooth_weights)
+                                        physics_db, residual_folds, smooth_correction, smooth_weights,
+                                        visible_lengths)
 from rfir_stages.rf_fit.links import make_links
 
 from .helpers import ISO, monostatic, plate_mesh, surfels
@@ -366,7 +367,7 @@ def test_half_spacing_residual_between_training_aspects(scene):
     cfg = ResidualConfig(form="smooth")
     validated = fit_smooth(pick(train), scene["phys"][train], fast[train], folds, cfg, how)
     assert validated.chosen == "physics only"
-    local = fit_smooth(pick(train), scene["phys"][train], fast[train], folds, cfg, how, local_length_deg=5.0)
+    local = fit_smooth(pick(train), scene["phys"][train], fast[train], folds, cfg, how, spacing_deg=10.0)
     assert local.chosen.endswith("(half-spacing)") and local.params["length_deg"] == 5.0
     assert local.validation[local.chosen] > local.validation["physics only"]          # validation says no
     pred = blend_at("smooth", pick(train), local.params, pick(test), scene["phys"][test], math.radians(5.0),
@@ -374,5 +375,27 @@ def test_half_spacing_residual_between_training_aspects(scene):
     phys_err = np.mean(np.abs(scene["phys"][test] - fast[test]))
     assert np.mean(np.abs(pred - fast[test])) < 0.6 * phys_err        # measured 1.07 against 2.49 dB
     slow = scene["phys"] + _perturbation(aspects)
-    fit = fit_smooth(pick(train), scene["phys"][train], slow[train], folds, cfg, how, local_length_deg=5.0)
+    fit = fit_smooth(pick(train), scene["phys"][train], slow[train], folds, cfg, how, spacing_deg=10.0)
     assert not fit.chosen.endswith("(half-spacing)") and fit.params["length_deg"] > 5.0
+
+
+def test_validation_offers_only_lengths_it_can_see(scene):
+    """Between training aspects 10 degrees apart a validated candidate shorter than half the spacing is
+    nearly zero at every held-out aspect, so validation would score it as the physics alone and could
+    pick it on a hundredth of a dB: only lengths of at least half the spacing are offered (8 of the
+    default 1, 2, 4, 8 at 10 degrees; none at 30, where the half-spacing candidate stands alone)."""
+    aspects = scene["aspects"]
+    coords = link_coords(scene["pos"], scene["pos"], CENTRE)
+    target = scene["phys"] + _perturbation(aspects)
+    cfg = ResidualConfig(form="auto")
+    assert visible_lengths(cfg, 10.0) == (8.0,) and visible_lengths(cfg, 30.0) == () and \
+        visible_lengths(cfg, None) == cfg.lengths_deg
+    for every, shown in ((10, {"8"}), (30, set())):
+        train = np.flatnonzero(aspects % every == 0)
+        folds, how = residual_folds(f"every-{every}", aspects[train], None, len(train))
+        fit = fit_smooth(tuple(c[train] for c in coords), scene["phys"][train], target[train], folds, cfg, how,
+                         spacing_deg=float(every))
+        validated = {k for k in fit.validation if k != "physics only" and not k.endswith("(half-spacing)")}
+        assert {k.split("l=")[1].split(" ")[0] for k in validated} == shown
+        half = {k for k in fit.validation if k.endswith("(half-spacing)")}
+        assert half and all(f"l={min(every / 2, 8):g} deg" in k for k in half)
