@@ -230,11 +230,12 @@ class PhysicalSetup:
             if spacing is None:
                 how += f"; lengths {', '.join(f'{v:g}' for v in cfg.lengths_deg)} deg ({lengths_key})"
             else:
-                shown = ", ".join(f"{v:g}" for v in visible_lengths(cfg, spacing)) or "none"
+                shown = ", ".join(f"{v:g}" for v in visible_lengths(cfg, spacing))
+                offered = (f"validated lengths {shown} deg (none shorter than half the spacing)" if shown else
+                           "no validated lengths (every one of residual_lengths_deg is shorter than half the spacing)")
                 how += (f"; length {half_spacing_length_deg(cfg, spacing):.3g} deg (half the training spacing "
                         f"{spacing:.3g} deg, at most the longest of residual_lengths_deg) and the smallest weight "
-                        "unless a validated candidate beats it (residual_interpolation); validated lengths "
-                        f"{shown} deg (none shorter than half the spacing)")
+                        f"unless a validated candidate beats it (residual_interpolation); {offered}")
             fit = fit_smooth(coords, phys, target_db, folds, cfg, how, spacing_deg=spacing)
         else:
             fit = fit_gaussian(pairs, idx, vals, gain, self.geom.num, phys, target_db, folds, cfg, how)

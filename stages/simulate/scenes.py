@@ -345,6 +345,20 @@ _LEGO_COLORS = {"red": (0.75, 0.08, 0.06), "blue": (0.05, 0.25, 0.65), "yellow":
                 "green": (0.10, 0.50, 0.20), "white": (0.92, 0.92, 0.90), "black": (0.08, 0.08, 0.09)}
 
 
+# The assembly: (i, j, layer, nx, ny, colour) per brick, in stud pitches and brick layers. Bricks of a layer
+# never share volume (tests/simulate/test_scenes.py): coincident faces of two overlapping boxes would carry
+# the physical-optics current twice (the PO solver integrates every facet it finds lit).
+LEGO_LAYOUT = [
+    (0, 0, 0, 4, 2, "red"), (4, 0, 0, 4, 2, "blue"), (8, 0, 0, 2, 2, "yellow"),
+    (0, 2, 0, 4, 2, "green"), (4, 2, 0, 4, 2, "red"), (8, 2, 0, 2, 2, "white"),
+    (0, 4, 0, 4, 2, "yellow"), (4, 4, 0, 4, 2, "blue"), (8, 4, 0, 2, 2, "red"),
+    (1, 1, 1, 4, 2, "white"), (5, 1, 1, 4, 2, "yellow"), (1, 3, 1, 4, 2, "blue"), (5, 3, 1, 4, 2, "green"),
+    (2, 1, 2, 2, 4, "red"), (4, 2, 2, 2, 2, "black"), (6, 1, 2, 2, 4, "blue"),
+    (3, 2, 3, 4, 2, "yellow"), (3, 2, 4, 2, 2, "red"), (5, 2, 4, 2, 2, "white"),
+    (4, 2, 5, 2, 2, "green"),
+]
+
+
 def _lego_brick(i, j, k, nx, ny):
     """Brick of nx x ny studs with its lower corner at stud (i, j), layer k; with its studs."""
     u, hgt = LEGO_UNIT_M, LEGO_PLATE_H_M
@@ -365,17 +379,8 @@ def lego() -> SceneSpec:
     Radio material: ABS plastic (eps_r ~ 2.7) is not an ITU material; "plasterboard" has
     eps_r = 2.73 and low loss, so it stands in, with 0.0075 m walls (hollow bricks, 5x 1.5 mm).
     """
-    layout = [  # (i, j, layer, nx, ny, colour)
-        (0, 0, 0, 4, 2, "red"), (4, 0, 0, 4, 2, "blue"), (8, 0, 0, 2, 2, "yellow"),
-        (0, 2, 0, 4, 2, "green"), (4, 2, 0, 4, 2, "red"), (8, 2, 0, 2, 2, "white"),
-        (0, 4, 0, 4, 2, "yellow"), (4, 4, 0, 4, 2, "blue"), (8, 4, 0, 2, 2, "red"),
-        (1, 1, 1, 4, 2, "white"), (5, 1, 1, 4, 2, "yellow"), (1, 3, 1, 4, 2, "blue"), (5, 3, 1, 4, 2, "green"),
-        (2, 1, 2, 2, 4, "red"), (4, 2, 2, 4, 2, "black"), (6, 1, 2, 2, 4, "blue"),
-        (3, 2, 3, 4, 2, "yellow"), (3, 2, 4, 2, 2, "red"), (5, 2, 4, 2, 2, "white"),
-        (4, 2, 5, 2, 2, "green"),
-    ]
     b = _Builder()
-    for n, (i, j, k, nx, ny, col) in enumerate(layout):
+    for n, (i, j, k, nx, ny, col) in enumerate(LEGO_LAYOUT):
         b.add(f"brick_{n:02d}", _lego_brick(i, j, k, nx, ny), "plasterboard", "plastic", _LEGO_COLORS[col], 0.0075)
     _centre_objects(b.objects)
     return SceneSpec("lego", "object", b.objects, _bounds(b.objects), info={"material_note": "ABS ~ plasterboard"})

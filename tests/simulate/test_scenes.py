@@ -158,3 +158,20 @@ def test_default_photo_counts_follow_the_scene_kind():
     assert view_count(build_scene("lego").kind, 0) == 60
     assert view_count(build_scene("classroom").kind, 0) == 120
     assert view_count("object", 24) == 24
+
+
+def test_lego_bricks_never_share_volume():
+    """Two bricks of a layer that overlap put coincident, co-facing faces into the mesh, which the
+    physical-optics solver lights and integrates twice (one surface, twice the current)."""
+    from rfir_stages.simulate.scenes import LEGO_LAYOUT
+
+    cells = {}
+    for n, (i, j, k, nx, ny, _) in enumerate(LEGO_LAYOUT):
+        for a in range(i, i + nx):
+            for b in range(j, j + ny):
+                assert (a, b, k) not in cells, f"brick {n} overlaps brick {cells[(a, b, k)]} at stud ({a}, {b}), layer {k}"
+                cells[(a, b, k)] = n
+    # every brick above the first layer rests on a brick below it
+    for n, (i, j, k, nx, ny, _) in enumerate(LEGO_LAYOUT):
+        if k:
+            assert any((a, b, k - 1) in cells for a in range(i, i + nx) for b in range(j, j + ny)), n
