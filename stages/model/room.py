@@ -39,6 +39,8 @@ class RoomSettings:
     higher_order_min_area_m2: float = 1.0
     third_order_min_area_m2: float = 10.0
     coplanar_m: float = 0.01
+    # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
+    patch_extent: str = "disks"
     diffuse: bool = True
     diffuse_cell_m: float = 0.7
     # occluders this close to a diffuse cell are ignored: its own surface must not shadow it at grazing views
@@ -72,7 +74,8 @@ class RoomGeometry:
         self.geom, self.settings, self.alpha_min = geom, settings, float(alpha_min)
         self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) if areas_m2 is None \
             else torch.as_tensor(areas_m2, dtype=torch.float64)
-        self.patches: PatchSet = build_patch_set(geom, self.areas, labels, settings.coplanar_m)
+        self.patches: PatchSet = build_patch_set(geom, self.areas, labels, settings.coplanar_m,
+                                                    extent=settings.patch_extent)
         mat = np.asarray(material_of_gaussian, dtype=np.int64)
         # a patch lies within one label, so its surfels share one material: take the first
         first = np.full(self.patches.num, -1)

@@ -38,10 +38,18 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry
 from .link_rows import renumber_links
 from .materials import C0, fresnel, slab_transmission
 from .second_order import Patches, mirror_points, planar_patches
+from .surfels import footprint_cells
 
 MAX_INTERACTIONS = 8      # paths crossing more surfaces than this are dropped (their power is negligible)
 LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
-FOOTPRINT_REACH = 0.75    # a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
+FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
+# "tiles": a surfel covers its rectangle cell (docs/physics.md 8.6: its Gaussian's in-plane axes, sides in the
+# ratio of its spreads, its area share), and gaps between tiles narrower than TILE_CLOSING tile sides are
+# closed: a patch ends where its tiles end. A disk of the area's size widens a desk top's 3 cm edge band by
+# centimetres, and legs that graze it cross it falsely.
+TILE_CLOSING = 1.0
+TILE_OVERLAP = 1.1        # rectangles a tenth wider than the tile's: neighbours overlap where the tiles are triangles
+PATCH_EXTENTS = ("disks", "tiles")
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -115,10 +123,27 @@ def _labelled_planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, label
     return Patches(ids, np.concatenate(normal), np.concatenate(point), np.concatenate(area), members)
 
 
+def surfel_footprints(geom: FrozenGeometry, areas_m2: np.ndarray, idx: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """Surfels idx as the rectangle cells of docs/physics.md 8.6 (surfels.footprint_cells: the covariance's
+    in-plane axes, sides in the ratio of the Gaussian's spreads, area the surfel's area share), on a patch with
+    axes u, v [3]: (unit cell axes [n, 2, 2] in (u, v) coordinates, half-sides [n, 2] m, half diagonal [n] m)."""
+    cells = footprint_cells(geom.log_scales[idx], geom.rotations[idx], geom.normals[idx],
+                            torch.as_tensor(areas_m2[idx], dtype=torch.float64)).numpy()      # [n, 2, 3]
+    half = np.linalg.norm(cells, axis=2)
+    axes = cells / half.clip(1e-300)[:, :, None]
+    return np.stack([axes @ u, axes @ v], 2), half, np.sqrt((half ** 2).sum(1))
+
+
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
-                    coplanar_m: float, max_cells: int = 40_000) -> PatchSet:
-    """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints."""
+                    coplanar_m: float, *, extent: str, max_cells: int = 40_000) -> PatchSet:
+    """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints: a
+    cell belongs to the patch when its centre lies in the footprint of one of its 8 nearest surfels
+    (extent "disks": FOOTPRINT_REACH; "tiles": surfel_footprints, then gaps closed; see PATCH_EXTENTS)."""
+    from scipy import ndimage
     from scipy.spatial import cKDTree
+
+    if extent not in PATCH_EXTENTS:
+        raise ValueError(f"patch extent {extent!r}: expected one of {', '.join(PATCH_EXTENTS)}")
 
     raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m)
     x = geom.means.numpy()
@@ -133,7 +158,10 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
         v = np.cross(n, u)
         rel = x[idx] - raw.point[p]
         uv = np.stack([rel @ u, rel @ v], 1)
-        reach = FOOTPRINT_REACH * np.sqrt(a[idx])
+        if extent == "tiles":
+            axes, half, reach = surfel_footprints(geom, a, idx, u, v)
+        else:
+            reach = FOOTPRINT_REACH * np.sqrt(a[idx])
         lo = uv.min(0) - reach.max()
         hi = uv.max(0) + reach.max()
         cell = max(0.25 * float(np.median(np.sqrt(a[idx]))), 1e-4)
@@ -141,10 +169,20 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
         shape = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
         ci, cj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
         centres = lo + (np.stack([ci.ravel(), cj.ravel()], 1) + 0.5) * cell
-        k = min(4, len(idx))
+        k = min(8 if extent == "tiles" else 4, len(idx))
         d, near = cKDTree(uv).query(centres, k=k)
         d, near = d.reshape(len(centres), k), near.reshape(len(centres), k)
-        occupied = (d <= reach[near] + 0.5 * cell).any(1)
+        if extent == "tiles":
+            off = centres[:, None, :] - uv[near]                                      # [C, k, 2]
+            along = np.abs(np.einsum("cki,ckai->cka", off, axes[near]))                # [C, k, 2] on each axis
+            occupied = (along <= TILE_OVERLAP * half[near]).all(2).any(1)
+            r = max(int(round(TILE_CLOSING * float(np.median(np.sqrt(a[idx]))) / cell)), 1)
+            yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+            padded = np.pad(occupied.reshape(shape[0], shape[1]), r + 1)      # the closing must not eat the border
+            occupied = ndimage.binary_closing(padded, structure=xx ** 2 + yy ** 2 <= r * r)[r + 1:-r - 1,
+                                                                                            r + 1:-r - 1].ravel()
+        else:
+            occupied = (d <= reach[near] + 0.5 * cell).any(1)
         normals.append(n)
         points.append(raw.point[p])
         us.append(u)

@@ -24,6 +24,7 @@ from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index, reflection_ranges
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
+from rfir_stages.model.room_paths import PATCH_EXTENTS
 
 from .physical_stage import attach_ranges, bound_warnings, range_words
 
@@ -45,6 +46,9 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     settings = RoomSettings(**{k: type(getattr(RoomSettings, k))(v) for k, v in table.items()})
     if settings.polarisation not in ("V", "H") or settings.max_order < 0:
         raise ConfigError("rf_fit.room: polarisation must be 'V' or 'H' and max_order >= 0")
+    if settings.patch_extent not in PATCH_EXTENTS:
+        raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
+                          f"{', '.join(PATCH_EXTENTS)}")
     if settings.device_gains not in DEVICE_CHOICES or not settings.device_gain_prior_db > 0:
         raise ConfigError(f"rf_fit.room: device_gains must be one of {', '.join(DEVICE_CHOICES)} and "
                           "device_gain_prior_db > 0")
@@ -107,7 +111,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     room = RoomGeometry(geom, None if labels is None else torch.as_tensor(np.asarray(labels, dtype=np.int64)),
                         material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches, "
-                 f"{len(rows)} training links, materials per {sharing} ({len(names)}), reflections up to order "
+                 f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
+                 f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order}, diffuse {'on' if settings.diffuse else 'off'}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "

@@ -38,7 +38,7 @@ def _room(meshes, spacing=0.25):
     geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls))
     labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
     areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    return build_patch_set(geom, areas, labels, coplanar_m=0.01), make_provider("auto", geom)
+    return build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles"), make_provider("auto", geom)
 
 
 def _field(paths, patches, eta_of_label, thickness_of_label=None, s=0.0):
@@ -225,7 +225,7 @@ def test_a_coarse_wall_stays_one_patch_beside_finely_tiled_furniture():
                             for k in ("means", "log_scales", "rotations", "normals")))
     labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
     areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    patches = build_patch_set(geom, areas, labels, coplanar_m=0.01)
+    patches = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles")
     on_wall = np.unique(patches.surfel_patch[g["gaussians/labels"] == 0])
     assert len(on_wall) == 1
     assert patches.area[on_wall[0]] == pytest.approx(float(areas[labels == 0].sum()), rel=1e-9)
@@ -236,3 +236,54 @@ def test_a_coarse_wall_stays_one_patch_beside_finely_tiled_furniture():
     paths = trace_room_paths(tx, rx, np.full(1, F), patches, prov, max_order=1)
     off_wall = (paths.order == 1) & (paths.patch[:, 0] == int(on_wall[0]))
     assert int(off_wall.sum()) == 1
+
+
+@pytest.mark.parametrize("spacing", [0.07, 0.1])
+def test_tiled_patches_end_where_their_surfaces_end(spacing):
+    """extent "tiles" at furniture tilings (size / 12 of a 1.2 m desk): a desk top's 3 cm edge band stays
+    3 cm tall (the "disks" extent widens it, which made grazing legs cross it falsely), a table top ends at
+    its edges, a wall has no holes between tiles. (A 3 cm band tiled at 25 cm keeps gaps: the rectangles of long
+    thin triangles do not cover it, and a closing wider than the band cannot fill them.)"""
+    top = plate_mesh((0.0, 0.0, 0.75), (1, 0, 0), (0, 1, 0), 1.2, 0.6)
+    band = plate_mesh((0.0, 0.3, 0.735), (1, 0, 0), (0, 0, 1), 1.2, 0.03)
+    wall = plate_mesh((0.0, 3.0, 1.5), (1, 0, 0), (0, 0, 1), 6.0, 3.0)
+    vs, fs, ls, off = [], [], [], 0
+    for i, (v, f) in enumerate([top, band, wall]):
+        vs.append(v)
+        fs.append(f + off)
+        ls.append(np.full(len(f), i))
+        off += len(v)
+    geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls))
+    labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    tiles = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles")
+    disks = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="disks")
+    assert tiles.num == disks.num == 3
+    t, b, w = (int(np.flatnonzero(tiles.label == i)[0]) for i in range(3))
+    over_band = np.array([[0.0, 0.3, 0.77], [0.3, 0.3, 0.70]])       # 2 cm above and 2 cm below the 3 cm band
+    assert tiles.contains(np.full(2, b), np.array([[0.0, 0.3, 0.735], [0.4, 0.3, 0.73]])).all()
+    assert not tiles.contains(np.full(2, b), over_band).any()
+    assert disks.contains(np.full(2, b), over_band).any()
+    inside = np.array([[0.56, 0.0, 0.75], [-0.56, 0.0, 0.75], [0.0, 0.26, 0.75], [0.0, -0.26, 0.75]])
+    outside = np.array([[0.615, 0.0, 0.75], [-0.615, 0.0, 0.75], [0.0, 0.315, 0.75], [0.0, -0.315, 0.75]])
+    assert tiles.contains(np.full(4, t), inside).all()
+    assert not tiles.contains(np.full(4, t), outside).any()
+    xs, zs = np.meshgrid(np.linspace(-2.96, 2.96, 120), np.linspace(0.04, 2.96, 60))
+    grid = np.stack([xs.ravel(), np.full(xs.size, 3.0), zs.ravel()], 1)
+    assert tiles.contains(np.full(len(grid), w), grid).all()         # no holes between tiles
+    # a reflection off the table top exists only where its specular point lies on the table
+    tx = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0]])
+    rx = np.array([[1.08, 0.0, 2.0], [1.23, 0.0, 2.0]])              # specular points at x = 0.54 and 0.615
+    paths = trace_room_paths(tx, rx, np.full(2, F), tiles, make_provider("auto", geom), max_order=1)
+    hit = np.zeros(2, int)
+    np.add.at(hit, paths.link[(paths.order == 1) & (paths.patch[:, 0] == t)].numpy(), 1)
+    assert hit.tolist() == [1, 0]
+
+
+def test_an_unknown_patch_extent_is_refused():
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit.room_stage import room_config
+
+    with pytest.raises(ConfigError, match="patch_extent"):
+        room_config({"room": {"patch_extent": "hull"}})
+    assert room_config({"room": {"patch_extent": "tiles"}})[0].patch_extent == "tiles"

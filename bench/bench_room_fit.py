@@ -1,0 +1,142 @@
+"""Benchmark of `rfir rf-fit` on RSSI links (the room model, docs/rssi.md): how its cost grows with the
+number of Gaussians and with the number of links it fits (issue 23's speed target: the classroom within
+5 minutes on the 2-core CPU, model selection included).
+
+    .venv/bin/python bench/bench_room_fit.py                      # the classroom's layout, synthetic levels
+    .venv/bin/python bench/bench_room_fit.py --measurements M.h5  # the simulated classroom's links instead
+    .venv/bin/python bench/bench_room_fit.py --quick              # two geometries, two link counts
+
+Needs no simulator: the classroom's meshes are built by code and tiled as `rfir mesh-gaussians
+classroom_gt.ply --spacing S [--object-cells N]` tiles them, at five tilings from 2.6k to 105k surfels
+(uniform spacings 0.8, 0.25 and 0.15 m, whose planar patches stay the same surfaces; and furniture at
+size / 12 and size / 24, which add patches). The links are the classroom's layout (`rfir simulate
+classroom`: 24 transmitters x 440 receivers, 20 % test), their levels free space plus N(0, 3 dB) unless
+`--measurements` gives the simulated ones (the fit's cost depends on the geometry and the number of
+links, not on the levels). Each fit is `rfir --seed 0 --set rf_fit.room.fit_links=L rf-fit SCENE MEAS -o
+rf.h5` in a process of its own, as a user runs it (python start-up included). Printed per fit: Gaussians,
+planar patches, specular paths per link, links fitted, wall and CPU seconds (user + sys: the machine may
+be shared, printed with the load average), the fit's own split (trace: patches, paths, visibility;
+fit: the optimiser with its starting materials) and the peak resident memory. Then the growth exponents
+(log-log slope of the CPU time between the runs) and bench/room_fit.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench_rssi import FREQ, classroom_fields
+from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.physics.closed_forms import friis_path_gain
+from rfir_stages.geom import write_scene_artifact
+from rfir_stages.simulate.rssi import grid_positions
+
+TARGET_S = 300.0                      # issue 23: rf-fit of the classroom within 5 minutes
+BOUNDS = np.array([[0.0, 0.0, 0.0], [9.0, 7.0, 3.0]])
+# (spacing m, object cells): uniform tilings keep the patches and grow the Gaussians; object cells add
+# furniture patches as well.
+TILINGS = {"full": [(0.8, 0), (0.25, 0), (0.15, 0), (0.8, 12), (0.4, 24)], "quick": [(0.8, 0), (0.8, 12)]}
+LINKS = {"full": [500, 1500, 4000], "quick": [500, 1500]}
+LINKS_TILING = (0.8, 12)              # the link counts are run on this tiling (the default of docs/rssi.md)
+
+
+def classroom_links(seed: int = 0) -> dict:
+    """The layout of `rfir simulate classroom` ([simulate.rssi]: 6 x 4 transmitters at 2.2 m, 22 x 20
+    receivers at 1.0 m) with free-space levels plus N(0, 3 dB): the fields of a measurements artifact."""
+    tx = grid_positions(BOUNDS, 6, 4, 2.2, 1.0)
+    rx = grid_positions(BOUNDS, 22, 20, 1.0, 0.4)
+    t, r = np.repeat(tx, len(rx), 0), np.tile(rx, (len(tx), 1))
+    rng = np.random.default_rng(seed)
+    gain = 10 * np.log10(friis_path_gain(np.linalg.norm(r - t, axis=1), FREQ)) + rng.normal(0, 3.0, len(t))
+    split = (rng.random(len(t)) < 0.2).astype(np.int64)
+    return {"tx_pos": t, "rx_pos": r, "freq_hz": np.array([FREQ]), "path_gain_db": gain[:, None],
+            "split": split, "tx_id": np.repeat(np.arange(len(tx)), len(rx)), "scene_bounds": BOUNDS}
+
+
+def run_fit(scene: Path, meas: Path, out: Path, fit_links: int) -> dict:
+    """One `rfir rf-fit` in its own process: wall, CPU and peak memory of that process, and what it logged."""
+    cmd = [str(Path(sys.executable).with_name("rfir")), "--seed", "0", "--set", f"rf_fit.room.fit_links={fit_links}",
+           "rf-fit", str(scene), str(meas), "-o", str(out)]
+    t0 = time.time()
+    with tempfile.TemporaryFile("w+") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.time() - t0
+        log.seek(0)
+        text = log.read()
+    if os.waitstatus_to_exitcode(status) != 0:
+        sys.exit(f"bench_room_fit: rf-fit failed on {scene.name}:\n{text[-3000:]}")
+    attrs = read_artifact(out, "rf").free["training@attrs"]
+    patches = re.search(r"Gaussians in (\d+) planar patches", text)
+    paths = re.search(r"\(([\d.]+) per link\)", text)
+    return {"fit_links": fit_links, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+            "peak_rss_mb": usage.ru_maxrss / 1024, "trace_s": float(attrs["trace_time_s"]),
+            "fit_s": float(attrs["fit_time_s"]), "stage_s": float(attrs["wall_time_s"]),
+            "patches": int(patches.group(1)) if patches else None,
+            "paths_per_link": float(paths.group(1)) if paths else None,
+            "train_mae_db": float(attrs["train_mae_db"]), "load_average_1min": os.getloadavg()[0]}
+
+
+def slope(rows: list[dict], x: str, y: str = "cpu_s") -> float:
+    """Least-squares slope of log y against log x: cost ~ x ** slope over the rows."""
+    return float(np.polyfit(np.log([r[x] for r in rows]), np.log([r[y] for r in rows]), 1)[0])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--measurements", type=Path, help="a classroom measurements artifact (else synthetic levels)")
+    ap.add_argument("--quick", action="store_true", help="two tilings and two link counts")
+    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("room_fit.json"))
+    args = ap.parse_args()
+    size = "quick" if args.quick else "full"
+    fmt = "{:>8} {:>6} {:>7} {:>6} {:>6} {:>8} {:>7} {:>7} {:>7} {:>8} {:>5}"
+    print(fmt.format("Gaussians", "tiling", "patches", "paths", "links", "wall s", "CPU s", "trace s", "fit s",
+                     "peak MB", "load"), flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        meas = args.measurements
+        if meas is None:
+            meas = d / "meas.h5"
+            write_artifact(meas, "measurements", classroom_links(), attrs={"task": "rssi", "scene": "classroom"})
+        runs = [(t, 1500) for t in TILINGS[size]] + [(LINKS_TILING, n) for n in LINKS[size] if n != 1500]
+        for (spacing, cells), fit_links in runs:
+            scene = d / f"scene_{spacing:g}_{cells}.h5"
+            if not scene.exists():
+                fields, names = classroom_fields(spacing, cells)
+                write_scene_artifact(scene, fields, label_names=names)
+            row = {"gaussians": int(read_artifact(scene, "scene")["gaussians/means"].shape[0]),
+                   "spacing_m": spacing, "object_cells": cells, **run_fit(scene, meas, d / "rf.h5", fit_links)}
+            rows.append(row)
+            print(fmt.format(row["gaussians"], f"{spacing:g}/{cells}", row["patches"], f"{row['paths_per_link']:.1f}",
+                             fit_links, f"{row['wall_s']:.1f}", f"{row['cpu_s']:.1f}", f"{row['trace_s']:.1f}",
+                             f"{row['fit_s']:.1f}", f"{row['peak_rss_mb']:.0f}", f"{row['load_average_1min']:.1f}"),
+                  flush=True)
+    uniform = [r for r in rows if r["object_cells"] == 0 and r["fit_links"] == 1500]
+    by_links = [r for r in rows if (r["spacing_m"], r["object_cells"]) == LINKS_TILING]
+    growth = {"cpu_vs_gaussians_uniform": slope(uniform, "gaussians") if len(uniform) > 1 else None,
+              "cpu_vs_fit_links": slope(by_links, "fit_links") if len(by_links) > 1 else None,
+              "trace_vs_fit_links": slope(by_links, "fit_links", "trace_s") if len(by_links) > 1 else None,
+              "fit_vs_fit_links": slope(by_links, "fit_links", "fit_s") if len(by_links) > 1 else None}
+    print("growth (log-log slope of CPU seconds): " + ", ".join(
+        f"{k} {v:.2f}" for k, v in growth.items() if v is not None))
+    worst = max(r["wall_s"] for r in rows)
+    print(f"longest fit {worst:.0f} s wall against the {TARGET_S:.0f} s target")
+    out = {"rows": rows, "growth": growth, "target_s": TARGET_S, "measurements": str(args.measurements or "synthetic"),
+           "note": "cpu_s: user + sys of the rf-fit process; trace_s / fit_s: the fit's own split (artifact); "
+                   "growth: least-squares slope of log CPU seconds against log Gaussians (uniform tilings, "
+                   "1500 links) and against log links fitted (the size / 12 tiling)"}
+    args.out.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
