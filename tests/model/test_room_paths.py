@@ -27,8 +27,8 @@ K = 2 * math.pi / LAM
 METAL = complex(1.0, -math.inf)   # a perfect conductor (materials.fresnel)
 
 
-def _room(meshes, spacing=0.25):
-    """Surfels, patches and a provider for a list of (vertices, faces) meshes, one label each."""
+def _surfels_of(meshes, spacing):
+    """(geometry, labels [G], areas [G]) of a list of (vertices, faces) meshes, one label each."""
     vs, fs, ls, off = [], [], [], 0
     for i, (v, f) in enumerate(meshes):
         vs.append(v)
@@ -37,8 +37,13 @@ def _room(meshes, spacing=0.25):
         off += len(v)
     geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls))
     labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
-    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    return build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles"), make_provider("auto", geom)
+    return geom, labels, surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+
+
+def _room(meshes, spacing=0.25, extent="disks"):
+    """Surfels, patches and a provider for a list of (vertices, faces) meshes, one label each."""
+    geom, labels, areas = _surfels_of(meshes, spacing)
+    return build_patch_set(geom, areas, labels, coplanar_m=0.01, extent=extent), make_provider("auto", geom)
 
 
 def _field(paths, patches, eta_of_label, thickness_of_label=None, s=0.0):
@@ -100,10 +105,11 @@ def test_dielectric_wall_in_a_horizontal_plane_is_pure_te():
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("extent", ["disks", "tiles"])
 @pytest.mark.parametrize("spacing", [0.3, 0.12])
-def test_wall_between_antennas_applies_the_slab_transmission_once(spacing):
+def test_wall_between_antennas_applies_the_slab_transmission_once(spacing, extent):
     wall = plate_mesh((0.0, 0, 1.5), (0, 1, 0), (0, 0, 1), 6.0, 3.0)
-    patches, prov = _room([wall], spacing=spacing)
+    patches, prov = _room([wall], spacing=spacing, extent=extent)
     ang = np.radians([0.0, 20.0, 40.0])
     tx = np.stack([np.full(3, -2.0), np.zeros(3), np.full(3, 1.5)], 1)
     rx = np.stack([2.0 * np.cos(ang) * 0 + 2.0, 4.0 * np.tan(ang), np.full(3, 1.5)], 1)
@@ -122,10 +128,11 @@ def test_wall_between_antennas_applies_the_slab_transmission_once(spacing):
     assert np.all(np.abs(blocked) < 1e-6 * np.abs(_free(d)))
 
 
-def test_no_reflection_from_an_opening_in_the_wall():
+@pytest.mark.parametrize("extent", ["disks", "tiles"])
+def test_no_reflection_from_an_opening_in_the_wall(extent):
     left = plate_mesh((0.0, -2.0, 1.5), (0, 1, 0), (0, 0, 1), 2.0, 3.0)     # a wall with a 2 m gap in the middle
     right = plate_mesh((0.0, 2.0, 1.5), (0, 1, 0), (0, 0, 1), 2.0, 3.0)
-    patches, prov = _room([left, right], spacing=0.2)
+    patches, prov = _room([left, right], spacing=0.2, extent=extent)
     y = np.array([-2.0, 0.0, 2.0])
     tx = np.stack([np.full(3, 2.0), y, np.full(3, 1.5)], 1)
     rx = np.stack([np.full(3, 1.0), y, np.full(3, 1.5)], 1)
@@ -225,7 +232,7 @@ def test_a_coarse_wall_stays_one_patch_beside_finely_tiled_furniture():
                             for k in ("means", "log_scales", "rotations", "normals")))
     labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
     areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    patches = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles")
+    patches = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="disks")
     on_wall = np.unique(patches.surfel_patch[g["gaussians/labels"] == 0])
     assert len(on_wall) == 1
     assert patches.area[on_wall[0]] == pytest.approx(float(areas[labels == 0].sum()), rel=1e-9)
@@ -247,15 +254,7 @@ def test_tiled_patches_end_where_their_surfaces_end(spacing):
     top = plate_mesh((0.0, 0.0, 0.75), (1, 0, 0), (0, 1, 0), 1.2, 0.6)
     band = plate_mesh((0.0, 0.3, 0.735), (1, 0, 0), (0, 0, 1), 1.2, 0.03)
     wall = plate_mesh((0.0, 3.0, 1.5), (1, 0, 0), (0, 0, 1), 6.0, 3.0)
-    vs, fs, ls, off = [], [], [], 0
-    for i, (v, f) in enumerate([top, band, wall]):
-        vs.append(v)
-        fs.append(f + off)
-        ls.append(np.full(len(f), i))
-        off += len(v)
-    geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls))
-    labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
-    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    geom, labels, areas = _surfels_of([top, band, wall], spacing)
     tiles = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles")
     disks = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="disks")
     assert tiles.num == disks.num == 3
