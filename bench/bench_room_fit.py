@@ -37,10 +37,11 @@ from bench_rssi import FREQ, classroom_fields
 from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.physics.closed_forms import friis_path_gain
 from rfir_stages.geom import write_scene_artifact
+from rfir_stages.simulate import build_scene
 from rfir_stages.simulate.rssi import grid_positions
+from rfir_stages.simulate.settings import parse_settings
 
 TARGET_S = 300.0                      # issue 23: rf-fit of the classroom within 5 minutes
-BOUNDS = np.array([[0.0, 0.0, 0.0], [9.0, 7.0, 3.0]])
 # (spacing m, object cells): uniform tilings keep the patches and grow the Gaussians; object cells add
 # furniture patches as well.
 TILINGS = {"full": [(0.8, 0), (0.25, 0), (0.15, 0), (0.8, 12), (0.4, 24)], "quick": [(0.8, 0), (0.8, 12)]}
@@ -49,16 +50,17 @@ LINKS_TILING = (0.8, 12)              # the link counts are run on this tiling (
 
 
 def classroom_links(seed: int = 0) -> dict:
-    """The layout of `rfir simulate classroom` ([simulate.rssi]: 6 x 4 transmitters at 2.2 m, 22 x 20
-    receivers at 1.0 m) with free-space levels plus N(0, 3 dB): the fields of a measurements artifact."""
-    tx = grid_positions(BOUNDS, 6, 4, 2.2, 1.0)
-    rx = grid_positions(BOUNDS, 22, 20, 1.0, 0.4)
+    """The layout of `rfir simulate classroom` (its [simulate.rssi] settings: 6 x 4 transmitters at 2.2 m,
+    22 x 20 receivers at 1.0 m) with free-space levels plus N(0, 3 dB): the fields of a measurements artifact."""
+    s, bounds = parse_settings(None, scene="classroom"), build_scene("classroom").bounds
+    tx = grid_positions(bounds, *s.tx_grid, s.tx_height_m, s.tx_margin_m)
+    rx = grid_positions(bounds, *s.rx_grid, s.rx_height_m, s.rx_margin_m)
     t, r = np.repeat(tx, len(rx), 0), np.tile(rx, (len(tx), 1))
     rng = np.random.default_rng(seed)
     gain = 10 * np.log10(friis_path_gain(np.linalg.norm(r - t, axis=1), FREQ)) + rng.normal(0, 3.0, len(t))
     split = (rng.random(len(t)) < 0.2).astype(np.int64)
     return {"tx_pos": t, "rx_pos": r, "freq_hz": np.array([FREQ]), "path_gain_db": gain[:, None],
-            "split": split, "tx_id": np.repeat(np.arange(len(tx)), len(rx)), "scene_bounds": BOUNDS}
+            "split": split, "tx_id": np.repeat(np.arange(len(tx)), len(rx)), "scene_bounds": bounds}
 
 
 def run_fit(scene: Path, meas: Path, out: Path, fit_links: int) -> dict:

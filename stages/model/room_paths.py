@@ -123,32 +123,50 @@ def _labelled_planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, label
     return Patches(ids, np.concatenate(normal), np.concatenate(point), np.concatenate(area), members)
 
 
-def surfel_footprints(geom: FrozenGeometry, areas_m2: np.ndarray, idx: np.ndarray, u: np.ndarray, v: np.ndarray):
-    """Surfels idx as the rectangle cells of docs/physics.md 8.6 (surfels.footprint_cells: the covariance's
-    in-plane axes, sides in the ratio of the Gaussian's spreads, area the surfel's area share), on a patch with
-    axes u, v [3]: (unit cell axes [n, 2, 2] in (u, v) coordinates, half-sides [n, 2] m, half diagonal [n] m)."""
-    cells = footprint_cells(geom.log_scales[idx], geom.rotations[idx], geom.normals[idx],
-                            torch.as_tensor(areas_m2[idx], dtype=torch.float64)).numpy()      # [n, 2, 3]
-    half = np.linalg.norm(cells, axis=2)
-    axes = cells / half.clip(1e-300)[:, :, None]
-    return np.stack([axes @ u, axes @ v], 2), half, np.sqrt((half ** 2).sum(1))
+def _disk_occupancy(centres: np.ndarray, uv: np.ndarray, reach: np.ndarray, cell: float) -> np.ndarray:
+    """[C] bool: grid centres [C, 2] within FOOTPRINT_REACH sqrt(A) (reach [n]) + half a cell of one of their 4
+    nearest surfels (uv [n, 2])."""
+    from scipy.spatial import cKDTree
+
+    k = min(4, len(uv))
+    d, near = cKDTree(uv).query(centres, k=k)
+    d, near = d.reshape(len(centres), k), near.reshape(len(centres), k)
+    return (d <= reach[near] + 0.5 * cell).any(1)
+
+
+def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half: np.ndarray, shape: np.ndarray,
+                    closing_cells: int) -> np.ndarray:
+    """[C] bool: grid centres [C, 2] (a grid of `shape`) inside the rectangle (unit axes [n, 2, 2], half-sides
+    [n, 2] m, TILE_OVERLAP wider) of one of their 8 nearest surfels (uv [n, 2]), then closed with a disk of
+    closing_cells cells."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    k = min(8, len(uv))
+    near = cKDTree(uv).query(centres, k=k)[1].reshape(len(centres), k)
+    along = np.abs(np.einsum("cki,ckai->cka", centres[:, None, :] - uv[near], axes[near]))   # [C, k, 2] per axis
+    occupied = (along <= TILE_OVERLAP * half[near]).all(2).any(1).reshape(shape[0], shape[1])
+    r = closing_cells
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    padded = np.pad(occupied, r + 1)                                    # the closing must not eat the border
+    return ndimage.binary_closing(padded, structure=xx ** 2 + yy ** 2 <= r * r)[r + 1:-r - 1, r + 1:-r - 1].ravel()
 
 
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
                     coplanar_m: float, *, extent: str, max_cells: int = 40_000) -> PatchSet:
-    """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints: a
-    cell belongs to the patch when its centre lies in the footprint of one of its 8 nearest surfels
-    (extent "disks": FOOTPRINT_REACH; "tiles": surfel_footprints, then gaps closed; see PATCH_EXTENTS)."""
-    from scipy import ndimage
-    from scipy.spatial import cKDTree
-
+    """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints (see
+    PATCH_EXTENTS): "disks" (_disk_occupancy) or "tiles", the rectangle cells of docs/physics.md 8.6
+    (surfels.footprint_cells) with gaps closed (_tile_occupancy)."""
     if extent not in PATCH_EXTENTS:
         raise ValueError(f"patch extent {extent!r}: expected one of {', '.join(PATCH_EXTENTS)}")
-
     raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m)
     x = geom.means.numpy()
     a = areas_m2.detach().numpy()
     lab = None if labels is None else labels.numpy()
+    if extent == "tiles":     # every surfel's cell, once: [G, 2, 3] unit axes and half-sides [G, 2] m
+        rect = footprint_cells(geom.log_scales, geom.rotations, geom.normals, areas_m2.detach().double()).numpy()
+        rect_half = np.linalg.norm(rect, axis=2)
+        rect_axes = rect / rect_half.clip(1e-300)[:, :, None]
     normals, points, us, vs, label, grids, offsets, shapes, origins, cells = [], [], [], [], [], [], [], [], [], []
     offset = 0
     for p, idx in enumerate(raw.members):
@@ -158,31 +176,25 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
         v = np.cross(n, u)
         rel = x[idx] - raw.point[p]
         uv = np.stack([rel @ u, rel @ v], 1)
+        tile_m = float(np.median(np.sqrt(a[idx])))
         if extent == "tiles":
-            axes, half, reach = surfel_footprints(geom, a, idx, u, v)
+            half = rect_half[idx]
+            reach = np.sqrt((half ** 2).sum(1))
         else:
             reach = FOOTPRINT_REACH * np.sqrt(a[idx])
         lo = uv.min(0) - reach.max()
         hi = uv.max(0) + reach.max()
-        cell = max(0.25 * float(np.median(np.sqrt(a[idx]))), 1e-4)
+        cell = max(0.25 * tile_m, 1e-4)
         cell = max(cell, math.sqrt(float(np.prod(hi - lo)) / max_cells))
         shape = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
         ci, cj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
         centres = lo + (np.stack([ci.ravel(), cj.ravel()], 1) + 0.5) * cell
-        k = min(8 if extent == "tiles" else 4, len(idx))
-        d, near = cKDTree(uv).query(centres, k=k)
-        d, near = d.reshape(len(centres), k), near.reshape(len(centres), k)
         if extent == "tiles":
-            off = centres[:, None, :] - uv[near]                                      # [C, k, 2]
-            along = np.abs(np.einsum("cki,ckai->cka", off, axes[near]))                # [C, k, 2] on each axis
-            occupied = (along <= TILE_OVERLAP * half[near]).all(2).any(1)
-            r = max(int(round(TILE_CLOSING * float(np.median(np.sqrt(a[idx]))) / cell)), 1)
-            yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-            padded = np.pad(occupied.reshape(shape[0], shape[1]), r + 1)      # the closing must not eat the border
-            occupied = ndimage.binary_closing(padded, structure=xx ** 2 + yy ** 2 <= r * r)[r + 1:-r - 1,
-                                                                                            r + 1:-r - 1].ravel()
+            axes = np.stack([rect_axes[idx] @ u, rect_axes[idx] @ v], 2)               # [n, 2, 2] in (u, v)
+            occupied = _tile_occupancy(centres, uv, axes, half, shape,
+                                       max(int(round(TILE_CLOSING * tile_m / cell)), 1))
         else:
-            occupied = (d <= reach[near] + 0.5 * cell).any(1)
+            occupied = _disk_occupancy(centres, uv, reach, cell)
         normals.append(n)
         points.append(raw.point[p])
         us.append(u)
