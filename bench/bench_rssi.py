@@ -7,12 +7,11 @@
 Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes) and tiled as
 `rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12` tiles them; a 5-step fit of the
 room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
-- map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: every receiver's visibility
-  of the diffuse cells traced (what every map cost before receivers were kept; the cells each link needs,
-  with the room's walls, floor and ceiling in a BVH of their own: room_diffuse.CellVisibility), and
-  map_cold_cpu_s its CPU time; the paths are traced on a second thread meanwhile (RoomGeometry.links);
+- map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: the surfaces crossed from
+  every receiver to the diffuse cells it needs traced (room_diffuse.CellCrossings), and map_cold_cpu_s its
+  CPU time; the paths are traced on a second thread meanwhile (RoomGeometry.links);
 - map_new_tx_s: a map of the same receivers for a transmitter not seen before, the receivers kept from
-  an earlier map of the same model (RoomGeometry.cell_visibility);
+  an earlier map of the same model (RoomGeometry.cell_crossings);
 - default_map_s: `predict rssi --tx ... --grid` 's default map ([predict.rssi] grid) from a freshly
   loaded model, whose receivers rf-fit stored (rf_fit.room.map_visibility);
 - the second order's share: the same new-transmitter map with rf_fit.room.max_order = 1.
@@ -109,7 +108,7 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
         t, pred = timed(load_predictor, read_artifact(rf_path, "rf"))
         load.append(t)
         default.append(timed(pred.path_gain_db, np.broadcast_to(NEW_TX[0], grid.shape), grid)[0])
-        pred.room.cell_visibility.clear()                       # nothing kept: every receiver traced
+        pred.room.cell_crossings.clear()                       # nothing kept: every receiver traced
         c0 = time.process_time()
         cold.append(timed(pred.path_gain_db, tx_of(i), rx)[0])
         cold_cpu.append(time.process_time() - c0)

@@ -26,7 +26,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
-from .room_diffuse import CellVisibility, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
+from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
 from .room_paths import PatchSet, RoomPaths, build_patch_set, trace_room_paths
 from .surfels import surfel_areas
 
@@ -40,15 +40,13 @@ class RoomSettings:
     third_order_min_area_m2: float = 10.0
     coplanar_m: float = 0.01
     # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
-    patch_extent: str = "disks"
+    patch_extent: str = "tiles"
     diffuse: bool = True
     diffuse_cell_m: float = 0.7
-    # occluders this close to a diffuse cell are ignored: its own surface must not shadow it at grazing views
-    diffuse_margin_m: float = 0.1
     polarisation: str = "V"
+    # the RF opacity stored with the model (rf/opacity, what attribute maps show); the room's paths and
+    # diffuse legs are attenuated by the slab transmission of the surfaces they cross, not by opacity
     opacity: float = 0.9
-    margin_m: float = 0.0025
-    t_stop: float = 1e-4
     # the fit uses at most this many training links, evenly spaced (0: all): materials are a few
     # parameters each, and a fit step costs paths x interactions
     fit_links: int = 1500
@@ -58,7 +56,7 @@ class RoomSettings:
     # the materials' |Gamma(0)| ranges the links allow (identifiability.py): off by default in rooms,
     # where each of the materials x 336 grid points costs an evaluation of every fitted link's paths
     reflection_ranges: bool = False
-    # keep each receiver's visibility of the diffuse cells for the default radio map ([predict.rssi] grid)
+    # keep the surfaces crossed from each receiver of the default radio map ([predict.rssi] grid) to the diffuse cells
     # in the model: a map for a new transmitter then traces no receiver (a few MB, a few s of the fit)
     map_visibility: bool = True
 
@@ -85,22 +83,23 @@ class RoomGeometry:
         self.cells: DiffuseCells = diffuse_cells(geom.means.numpy(), self.areas.numpy(), self.patches,
                                                  self.material_of_patch, settings.diffuse_cell_m)
         self.provider = make_provider(occlusion, geom, alpha_min)
-        # each end's visibility of the diffuse cells, kept per point: a map's receivers serve every transmitter
-        self.cell_visibility = CellVisibility(self.cells, self.provider, settings.opacity, settings.diffuse_margin_m,
-                                              settings.t_stop)
+        # the surfaces crossed from each end to the diffuse cells, kept per point: a map's receivers serve every
+        # transmitter
+        self.cell_crossings = CellCrossings(self.cells, self.patches, self.provider)
 
     def geometry_key(self) -> str:
         """Fingerprint of the Gaussians (means, scales, rotations, normals)."""
         return geometry_key(self.geom)
 
-    def visibility_key(self) -> str:
-        """Fingerprint of what a point's visibility of the diffuse cells depends on: the Gaussians, the cells'
-        anchors, the tracing settings and the tracer. Stored rows are used only where it matches (an edit
-        that moves or deletes Gaussians leaves them unused)."""
+    def crossings_key(self) -> str:
+        """Fingerprint of what the surfaces crossed from a point to the diffuse cells depend on: the Gaussians,
+        the patches (each surfel's patch and each patch's extent), the cells' anchors and the tracer. Stored
+        rows are used only where it matches (an edit that moves or deletes Gaussians leaves them unused)."""
         h = hashlib.sha256(self.geometry_key().encode())
-        h.update(np.ascontiguousarray(self.cells.anchor, dtype=np.int64).tobytes())
-        s = self.settings
-        h.update(repr((s.opacity, s.diffuse_margin_m, s.t_stop, self.alpha_min, self.provider.name)).encode())
+        p = self.patches
+        for a in (p.surfel_patch, p.grid, p.grid_offset, p.grid_shape, p.grid_origin, p.cell_m, self.cells.anchor):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(repr((MAX_LEG_CROSSINGS, self.alpha_min, self.provider.name)).encode())
         return h.hexdigest()
 
     def links(self, tx_m, rx_m, freq_hz, progress=None) -> "RoomLinks":
@@ -118,13 +117,13 @@ class RoomGeometry:
 
         if not s.diffuse:
             return specular(paths())
-        # the paths are traced on a second thread while this one traces the diffuse cells' visibility: they share
+        # the paths are traced on a second thread while this one traces the legs to the diffuse cells: they share
         # only the read-only geometry, and most of each runs in numpy or the tracer, outside the GIL (torch's thread
         # count is changed on this thread alone)
         with ThreadPoolExecutor(1) as pool:
             pending = pool.submit(paths)
-            diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.num_materials, self.provider, s.opacity,
-                                    s.diffuse_margin_m, s.t_stop, visibility=self.cell_visibility)
+            diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.material_of_patch, self.num_materials,
+                                    self.cell_crossings)
             return specular(pending.result(), diffuse)
 
 
@@ -249,8 +248,8 @@ class RoomPredictor:
                                  float(attrs.get("render.alpha_min", 1e-3)), occlusion,
                                  areas_m2=model.areas_m2 if same else None)
         self.provider = self.room.provider
-        if attrs.get("map_visibility_key") == self.room.visibility_key() and "map_rx_m" in stored:
-            self.room.cell_visibility.keep(np.asarray(stored["map_rx_m"]), np.asarray(stored["map_cell_visibility"]))
+        if attrs.get("map_crossings_key") == self.room.crossings_key() and "map_rx_m" in stored:
+            self.room.cell_crossings.keep(np.asarray(stored["map_rx_m"]), np.asarray(stored["map_cell_crossings"]))
 
     def memory_estimate_bytes(self, num_links: int, chunk_links: int) -> int:
         return int(min(num_links, chunk_links) * self.BYTES_PER_LINK + num_links * 200)

@@ -6,10 +6,16 @@ The Lambertian term of section 8.8 for every link and every lit cell:
 
 Diffuse power varies slowly over a surface, so the surfels of each patch are grouped into cells of
 about `cell_m` (a voxel grid on the patch): each cell has the summed area, the area-weighted centre
-and the patch's normal, and its visibility V_c = V_tx V_rx is traced to the cell's surfel nearest that
-centre. |Gamma|^2 is the mean of |R_TE|^2 and |R_TM|^2 (the diffuse part has no definite
-polarisation). Everything but the materials is summed once into per-(link, material, angle node)
-weights, so a fit step costs M x materials x nodes.
+and the patch's normal. Its visibility V_c is that of the specular legs (room_paths): each surface
+crossed on the leg from either antenna to the cell's surfel nearest that centre (its anchor) applies
+its power transmission |T|^2 at the crossing angle, so a metal wall passes no diffuse power and a
+glass one most of it. |Gamma|^2 and |T|^2 are the means of the TE and TM values (the diffuse part
+has no definite polarisation).
+
+Everything but the materials is summed once: cells that both antennas see with nothing in between
+into per-(link, material, angle node) weights (a fit step costs M x materials x nodes), the others
+into weights per (link, material and angle node of the cell, surfaces crossed with their angles)
+(ObstructedCells), the crossing angles taken at the nearest of CROSSING_NODES.
 """
 from __future__ import annotations
 
@@ -19,24 +25,33 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rfir_stages.po.geometry import single_thread_torch
-from rfir_stages.rf_fit.occlusion import ShellSplitOcclusion, TracerOcclusion
+from .link_rows import renumber_links
+from .materials import C0, fresnel, slab_transmission
+from .room_paths import PatchSet, _dot, leg_crossings
 
-from .materials import C0, fresnel
-from .room_paths import PatchSet, _dot
-
-NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees; |Gamma|^2 is linear between them
+NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees of a cell's |Gamma|^2, linear between them
+# incidence-angle nodes 0, 1, ..., 90 degrees of a crossing's |T|^2, the nearest taken: the terms of one link
+# through the same surfaces at the same angles then share one product of |T|^2 (a fit step's cost)
+CROSSING_NODES = 91
+# surfaces a leg to a cell may cross (each costs at least a wall's transmission): a leg crossing more
+# carries no diffuse power
+MAX_LEG_CROSSINGS = 3
+# entries of a point's crossing row [C, MAX_LEG_CROSSINGS]: a patch index, or one of these
+NO_CROSSING, UNTRACED, BLOCKED = -1, -2, -3
 
 
 @dataclass
 class DiffuseCells:
-    """centre [C, 3], normal [C, 3], area [C] m^2, material [C] int64, anchor [C] surfel used for visibility."""
+    """centre [C, 3], normal [C, 3], area [C] m^2, material [C] int64, patch [C] int64, anchor [C] the surfel
+    the legs end on, anchor_m [C, 3] its position."""
 
     centre: np.ndarray
     normal: np.ndarray
     area: np.ndarray
     material: np.ndarray
+    patch: np.ndarray
     anchor: np.ndarray
+    anchor_m: np.ndarray
 
 
 def diffuse_cells(means: np.ndarray, areas_m2: np.ndarray, patches: PatchSet, material_of_patch: np.ndarray,
@@ -55,27 +70,74 @@ def diffuse_cells(means: np.ndarray, areas_m2: np.ndarray, patches: PatchSet, ma
     order = np.lexsort((dist, inv))
     first = order[np.unique(inv[order], return_index=True)[1]]
     patch = uniq[:, 0]
-    return DiffuseCells(centre, patches.normal[patch], area, material_of_patch[patch], first)
+    return DiffuseCells(centre, patches.normal[patch], area, material_of_patch[patch], patch, first, means[first])
+
+
+@dataclass
+class ObstructedCells:
+    """The diffuse terms whose legs cross surfaces, summed per (link, the cell's material and angle node,
+    the surfaces crossed).
+
+    link [K] int64; weight [K] the summed Lambertian factors without materials (each cell's share of its
+    two angle nodes); refl [K] int64 flat index material * NODES + node of the cells' |Gamma|^2 S^2;
+    combo [K] int64 row of crossings [U, W] int64: flat indices material * CROSSING_NODES + node of each
+    crossing's |T|^2, the extra material row num_materials (|T|^2 = 1) in unused slots."""
+
+    link: torch.Tensor
+    weight: torch.Tensor
+    refl: torch.Tensor
+    combo: torch.Tensor
+    crossings: torch.Tensor
+
+    def select_links(self, rows, num_links: int) -> "ObstructedCells":
+        """The terms of links `rows` (renumbered 0..len(rows)-1 in that order)."""
+        _, keep, new_link = renumber_links(self.link, num_links, rows)
+        return ObstructedCells(new_link, self.weight[keep], self.refl[keep], self.combo[keep], self.crossings)
 
 
 @dataclass
 class DiffuseTerms:
-    """weight [M, N, NODES]: sum over cells of material n of the geometric factor, spread on the nodes."""
+    """weight [M, N, NODES]: sum over the unobstructed cells of material n of the geometric factor, spread on
+    the nodes; obstructed: the other cells' terms; freq_hz [M]."""
 
     weight: torch.Tensor
     freq_hz: torch.Tensor
+    obstructed: ObstructedCells
+
+    @property
+    def num_links(self) -> int:
+        return int(self.weight.shape[0])
 
     def select_links(self, rows) -> "DiffuseTerms":
-        rows = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
-        return DiffuseTerms(self.weight[rows], self.freq_hz[rows])
+        r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
+        return DiffuseTerms(self.weight[r], self.freq_hz[r], self.obstructed.select_links(rows, self.num_links))
 
     def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
               scattering: torch.Tensor) -> torch.Tensor:
         """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (one frequency) or [N, M], thickness [N], S [N]."""
         g2 = diffuse_reflectance(eta_of_material, thickness_m, scattering, self.freq_hz)
-        if eta_of_material.shape[1] == 1:
-            return (self.weight * g2[None]).sum((1, 2))
-        return (self.weight * g2.permute(1, 0, 2)).sum((1, 2))
+        one_freq = eta_of_material.shape[1] == 1
+        p = (self.weight * g2[None]).sum((1, 2)) if one_freq else (self.weight * g2.permute(1, 0, 2)).sum((1, 2))
+        ob = self.obstructed
+        if len(ob.link) == 0:
+            return p
+        t2 = diffuse_transmittance(eta_of_material, thickness_m, self.freq_hz)
+        t2 = torch.cat([t2, torch.ones_like(t2[:1])])                     # the row of "no crossing"
+        if one_freq:
+            through = t2.reshape(-1)[ob.crossings].prod(1)[ob.combo]      # each combination's product once
+            term = ob.weight * g2.reshape(-1)[ob.refl] * through
+        else:   # [N, M, nodes]: each term at its link's frequency
+            m = self.num_links
+            r_at = ((ob.refl // NODES) * m + ob.link) * NODES + ob.refl % NODES
+            x = ob.crossings[ob.combo]
+            t_at = ((x // CROSSING_NODES) * m + ob.link[:, None]) * CROSSING_NODES + x % CROSSING_NODES
+            term = ob.weight * g2.reshape(-1)[r_at] * t2.reshape(-1)[t_at].prod(1)
+        return p.index_add(0, ob.link, term)
+
+
+def _angle_nodes(num: int = NODES) -> torch.Tensor:
+    """cos of num incidence angles evenly spaced over 0..90 degrees."""
+    return torch.cos(torch.deg2rad(torch.linspace(0.0, 90.0, num, dtype=torch.float64)))
 
 
 def diffuse_reflectance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None, scattering: torch.Tensor,
@@ -83,7 +145,7 @@ def diffuse_reflectance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor
     """|Gamma|^2 S^2 on the NODES incidence angles: [N, NODES] for eta [N, 1] (one frequency, freq_hz[0]) or
     [N, M, NODES] for eta [N, M] at the links' freq_hz [M]; |Gamma|^2 = (|R_TE|^2 + |R_TM|^2) / 2, S [N],
     thickness [N] m (None: half-spaces)."""
-    cos = torch.cos(torch.deg2rad(torch.linspace(0.0, 90.0, NODES, dtype=torch.float64)))
+    cos = _angle_nodes()
     if eta_of_material.shape[1] == 1:
         k0 = 2 * math.pi * freq_hz[:1] / C0
         th = None if thickness_m is None else thickness_m[:, None]
@@ -95,60 +157,67 @@ def diffuse_reflectance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor
     return 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None, None]
 
 
-class CellVisibility:
-    """Transmittance from points to every diffuse cell (to its anchor surfel), kept per point.
+def diffuse_transmittance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
+                          freq_hz: torch.Tensor) -> torch.Tensor:
+    """|T|^2 = (|T_TE|^2 + |T_TM|^2) / 2 of each material's slab on the CROSSING_NODES incidence angles:
+    [N, CROSSING_NODES] for eta [N, 1], [N, M, CROSSING_NODES] for eta [N, M]; 0 for half-spaces (thickness
+    None)."""
+    cos = _angle_nodes(CROSSING_NODES)
+    if eta_of_material.shape[1] == 1:
+        eta, cos, k0 = eta_of_material, cos[None], (2 * math.pi * freq_hz[:1] / C0)[None]
+        th = None if thickness_m is None else thickness_m[:, None]
+    else:
+        eta, cos, k0 = eta_of_material[:, :, None], cos[None, None], (2 * math.pi * freq_hz / C0)[None, :, None]
+        th = None if thickness_m is None else thickness_m[:, None, None]
+    if th is None:
+        return torch.zeros(torch.broadcast_shapes(eta.shape, cos.shape), dtype=torch.float64)
+    t_te, t_tm = slab_transmission(eta, cos, k0, th)
+    return 0.5 * (t_te.abs() ** 2 + t_tm.abs() ** 2)
 
-    It depends on the point and the geometry only, not on the other end of a link: a radio map's
-    receivers are traced once per model and every later transmitter reuses them (the largest part of
-    a map's cost on furniture-resolving surfels). Only the entries a call needs are traced (a cell
-    with the link's ends on opposite sides of its plane scatters nothing between them, whatever its
-    visibility); the others are traced when a later call needs them. Rows are kept up to max_bytes,
-    the oldest dropped first; points are keyed rounded to 1 nm.
 
-    Large batches are traced with the provider's shell split (rf_fit.occlusion.ShellSplitOcclusion:
-    the same transmittances to rounding, the room's walls, floor and ceiling traced only where a
-    segment comes near them), segment after segment to one cell from every point (rays with nearby
-    ends in turn walk the same part of the BVH)."""
+class CellCrossings:
+    """The surfaces crossed on the legs from points to every diffuse cell (to its anchor surfel), kept per point.
 
-    SPLIT_MIN_SEGMENTS = 20_000   # below this the shell split's set-up (two more BVHs) costs more than it saves
+    A point's row [C, MAX_LEG_CROSSINGS] int32 holds the patches each leg crosses (NO_CROSSING in unused
+    slots; BLOCKED: more than MAX_LEG_CROSSINGS; UNTRACED: not traced yet). It depends on the point and the
+    geometry only, not on the materials or the other end of a link: a radio map's receivers are traced once
+    per model and every later transmitter reuses them. Only the entries a call needs are traced (a cell with
+    the link's ends on opposite sides of its plane scatters nothing between them); the others are traced
+    when a later call needs them. Rows are kept up to max_bytes, the oldest dropped first; points are keyed
+    rounded to 1 nm. The crossings are found as for the specular legs (room_paths.leg_crossings)."""
 
-    def __init__(self, cells: DiffuseCells, provider, opacity: float, margin_m: float, t_stop: float,
-                 max_bytes: float = 256e6):
-        self.cells, self.provider = cells, provider
-        self.margin_m, self.t_stop = float(margin_m), float(t_stop)
-        self.op = torch.full((provider.geom.num,), float(opacity), dtype=torch.float64)
-        self.max_rows = max(1, int(max_bytes // max(1, 8 * len(cells.area))))
-        self._rows: dict[bytes, np.ndarray] = {}     # NaN: not traced yet
-        self._split = None
+    def __init__(self, cells: DiffuseCells, patches: PatchSet, provider, max_bytes: float = 256e6):
+        self.cells, self.patches, self.provider = cells, patches, provider
+        self.max_rows = max(1, int(max_bytes // max(1, 4 * MAX_LEG_CROSSINGS * len(cells.area))))
+        self._rows: dict[bytes, np.ndarray] = {}
 
-    def _provider_for(self, num_segments: int):
-        """The provider to trace num_segments segments with (the shell split built on first use)."""
-        provider = self.provider
-        # the split is measured on the CPU tracer (bench/bench_rssi.py); a GPU's tracer is left as it is
-        if (num_segments >= self.SPLIT_MIN_SEGMENTS and isinstance(provider, TracerOcclusion)
-                and provider.device.type == "cpu"):
-            if self._split is None:
-                with single_thread_torch():   # small tensor ops: thread hand-offs cost more than the work
-                    self._split = ShellSplitOcclusion(provider)
-            provider = self._split
-        return provider
-
-    def _segments(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        """V [Q] from points [Q, 3] to the anchors of cells [Q]."""
-        v = self._provider_for(len(cells)).segment_transmittance(
-            torch.as_tensor(points), torch.as_tensor(self.cells.anchor[cells]), self.margin_m, self.op, self.t_stop)
-        return v.numpy()
+    def _trace(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """Crossing rows [Q, MAX_LEG_CROSSINGS] of the legs points [Q, 3] -> anchors of cells [Q]."""
+        q = len(cells)
+        leg, patch, _ = leg_crossings(self.provider, self.patches, points, self.cells.anchor_m[cells],
+                                      np.full(q, -1), self.cells.patch[cells])
+        out = np.full((q, MAX_LEG_CROSSINGS), NO_CROSSING, dtype=np.int32)
+        count = np.bincount(leg, minlength=q)
+        order = np.argsort(leg, kind="stable")
+        leg, patch = leg[order], patch[order]
+        slot = np.arange(len(leg)) - np.repeat(np.cumsum(count) - count, count)
+        fits = slot < MAX_LEG_CROSSINGS
+        out[leg[fits], slot[fits]] = patch[fits]
+        out[count > MAX_LEG_CROSSINGS] = NO_CROSSING
+        out[count > MAX_LEG_CROSSINGS, 0] = BLOCKED
+        return out
 
     def __call__(self, points: np.ndarray, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(V [U, C] of the distinct points, index [N] of each point's row).
+        """(rows [U, C, MAX_LEG_CROSSINGS] int32 of the distinct points, index [N] of each point's row).
 
         need [N, C] bool: the entries each point needs (None: all); entries no point needs and not traced
-        before are 0 in V."""
+        before are UNTRACED."""
         c = len(self.cells.area)
         uniq, inv = np.unique(np.round(points, 9), axis=0, return_inverse=True)
         inv = inv.reshape(-1)
         keys = [u.tobytes() for u in uniq]
-        out = np.full((len(keys), c), np.nan)
+        out = np.full((len(keys), c, MAX_LEG_CROSSINGS), NO_CROSSING, dtype=np.int32)
+        out[:, :, 0] = UNTRACED
         new = []
         for i, k in enumerate(keys):
             row = self._rows.get(k)
@@ -156,13 +225,11 @@ class CellVisibility:
                 new.append(i)
             else:
                 out[i] = row
-        if need is None:
-            missing = np.isnan(out)
-        else:
-            missing = _rows_any(np.asarray(need, dtype=bool), inv, len(keys)) & np.isnan(out)
+        untraced = out[:, :, 0] == UNTRACED
+        missing = untraced if need is None else _rows_any(np.asarray(need, dtype=bool), inv, len(keys)) & untraced
         cell, row = np.nonzero(np.ascontiguousarray(missing.T))    # cell after cell, each from every point
         if len(cell):
-            out[row, cell] = self._segments(uniq[row], cell)
+            out[row, cell] = self._trace(uniq[row], cell)
         old = [i for i in np.flatnonzero(missing.any(1)) if keys[i] in self._rows]    # kept rows traced further
         self._rows.update((keys[i], out[i].copy()) for i in old)
         if new and len(new) <= self.max_rows:
@@ -171,7 +238,7 @@ class CellVisibility:
                 for k in [k for k in self._rows if k not in mine][:len(self._rows) // 2 + len(new)]:
                     del self._rows[k]
             self._rows.update((keys[i], out[i].copy()) for i in new)
-        return np.nan_to_num(out, nan=0.0), inv
+        return out, inv
 
     def __len__(self) -> int:
         """Points kept."""
@@ -181,9 +248,9 @@ class CellVisibility:
         self._rows.clear()
 
     def keep(self, points: np.ndarray, rows: np.ndarray) -> None:
-        """Keep rows V [U, C] of points [U, 3] traced elsewhere with the same geometry and settings (a model's
-        stored map receivers; RoomGeometry.visibility_key says when they apply)."""
-        for p, r in zip(np.round(np.asarray(points, np.float64), 9), np.asarray(rows, np.float64)):
+        """Keep rows [U, C, MAX_LEG_CROSSINGS] of points [U, 3] traced elsewhere with the same geometry (a model's
+        stored map receivers; RoomGeometry.crossings_key says when they apply)."""
+        for p, r in zip(np.round(np.asarray(points, np.float64), 9), np.asarray(rows, np.int32)):
             if len(self._rows) < self.max_rows:
                 self._rows[p.tobytes()] = r
 
@@ -197,6 +264,13 @@ def _rows_any(need: np.ndarray, inv: np.ndarray, num: int) -> np.ndarray:
     order = np.argsort(inv, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(inv[order]) != 0])
     return np.logical_or.reduceat(need[order], starts, axis=0)
+
+
+def _angle_node(cos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(node int64, frac): the incidence angle of |cos| between angle nodes node and node + 1."""
+    theta = np.arccos(np.clip(np.abs(cos), 0.0, 1.0)) / math.radians(90.0 / (NODES - 1))
+    node = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
+    return node, np.clip(theta - node, 0.0, 1.0)
 
 
 def _cell_factors(tx: np.ndarray, rx: np.ndarray, lam2: np.ndarray, cells: DiffuseCells):
@@ -214,42 +288,99 @@ def _cell_factors(tx: np.ndarray, rx: np.ndarray, lam2: np.ndarray, cells: Diffu
     lit = ci * co > 0                                                  # both ends on one side
     ci, co = np.abs(ci), np.abs(co)
     g = (cells.area[None] * ci * co * lam2[:, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)) * lit
-    theta = np.arccos(np.clip(ci, 0.0, 1.0)) / math.radians(90.0 / (NODES - 1))
-    node = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
-    return g, node, np.clip(theta - node, 0.0, 1.0)
+    node, frac = _angle_node(ci)
+    return g, node, frac
 
 
-def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells, num_materials: int,
-                  provider, opacity: float, margin_m: float, t_stop: float, link_chunk: int = 256,
-                  progress_task=None, visibility: CellVisibility | None = None) -> DiffuseTerms:
-    """The weights of DiffuseTerms for links tx_m, rx_m [M, 3] at freq_hz [M] (isotropic antennas).
+def _crossing_slots(points: np.ndarray, rows: np.ndarray, cells: np.ndarray, dc: DiffuseCells, patches: PatchSet,
+                    material_of_patch: np.ndarray, num_materials: int) -> np.ndarray:
+    """Flat |T|^2 indices material * CROSSING_NODES + nearest node [E, K] of the crossings rows [E, K] on the legs
+    points [E, 3] -> anchors of cells [E]; unused slots index the row num_materials (|T|^2 = 1)."""
+    d = dc.anchor_m[cells] - points
+    d /= np.linalg.norm(d, axis=1, keepdims=True).clip(1e-12)
+    used = rows >= 0
+    p = np.where(used, rows, 0)
+    cos = np.abs(_dot(d[:, None, :], patches.normal[p]))
+    node = np.rint(np.degrees(np.arccos(np.clip(cos, 0.0, 1.0))) * (CROSSING_NODES - 1) / 90.0).astype(np.int64)
+    return np.where(used, material_of_patch[p] * CROSSING_NODES + node, num_materials * CROSSING_NODES)
 
-    visibility: a CellVisibility of these cells, provider and settings to reuse (None: a fresh one)."""
+
+def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells,
+                  material_of_patch: np.ndarray, num_materials: int, crossings: CellCrossings, link_chunk: int = 256,
+                  progress_task=None) -> DiffuseTerms:
+    """The DiffuseTerms of links tx_m, rx_m [M, 3] at freq_hz [M] (isotropic antennas); crossings: a
+    CellCrossings of these cells (its kept rows are reused, new ones kept)."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
     m = len(tx)
-    if visibility is None:
-        visibility = CellVisibility(cells, provider, opacity, margin_m, t_stop)
-    # each end's visibility is needed only where the cell is lit (both ends on one side of its plane, the loop's
+    patches = crossings.patches
+    # each end's crossings are needed only where the cell is lit (both ends on one side of its plane, the loop's
     # test below): here from the ends' heights over the planes, with those within 1 nm of a plane kept (rounding
     # differs from the loop's), so every lit entry is traced
     offset = (cells.centre * cells.normal).sum(1)
     h_tx, h_rx = tx @ cells.normal.T - offset, rx @ cells.normal.T - offset                 # [M, C] m
     need = (h_tx * h_rx > 0) | (np.abs(h_tx) < 1e-9) | (np.abs(h_rx) < 1e-9)
-    v_tx, i_tx = visibility(tx, need)
+    x_tx, i_tx = crossings(tx, need)
+    x_rx, i_rx = crossings(rx, need)
     lam2 = (C0 / np.asarray(freq_hz, dtype=np.float64)) ** 2
-    v_rx, i_rx = visibility(rx, need)
     weight = np.zeros((m, num_materials, NODES))
     size = num_materials * NODES
+    links, shares, refls, crosses = [], [], [], []
     for lo in range(0, m, link_chunk):
         hi = min(m, lo + link_chunk)
         g, node, frac = _cell_factors(tx[lo:hi], rx[lo:hi], lam2[lo:hi], cells)
-        g = g * v_tx[i_tx[lo:hi]] * v_rx[i_rx[lo:hi]]
+        first_t, first_r = x_tx[i_tx[lo:hi], :, 0], x_rx[i_rx[lo:hi], :, 0]
+        clear = (first_t == NO_CROSSING) & (first_r == NO_CROSSING)
+        # BLOCKED (and UNTRACED, never lit) legs carry nothing
+        crossed = (first_t >= NO_CROSSING) & (first_r >= NO_CROSSING) & ~clear & (g > 0)
         b = hi - lo
+        gc = g * clear
         at = ((np.arange(b)[:, None] * num_materials + cells.material[None]) * NODES + node).ravel()
         # one pass in this order: the lower node's shares, then the upper node's (the sums of two index_add_)
-        weight[lo:hi] = np.bincount(np.concatenate([at, at + 1]), np.concatenate([(g * (1 - frac)).ravel(),
-                                    (g * frac).ravel()]), minlength=b * size).reshape(b, num_materials, NODES)
+        weight[lo:hi] = np.bincount(np.concatenate([at, at + 1]), np.concatenate([(gc * (1 - frac)).ravel(),
+                                    (gc * frac).ravel()]), minlength=b * size).reshape(b, num_materials, NODES)
+        bi, ci = np.nonzero(crossed)
+        if len(bi):
+            li = lo + bi
+            cross = np.concatenate([
+                _crossing_slots(tx[li], x_tx[i_tx[li], ci], ci, cells, patches, material_of_patch, num_materials),
+                _crossing_slots(rx[li], x_rx[i_rx[li], ci], ci, cells, patches, material_of_patch, num_materials)], 1)
+            refl = cells.material[ci] * NODES + node[bi, ci]
+            gi, fi = g[bi, ci], frac[bi, ci]
+            links.append(np.concatenate([li, li]))
+            shares.append(np.concatenate([gi * (1 - fi), gi * fi]))
+            refls.append(np.concatenate([refl, refl + 1]))
+            crosses.append(np.concatenate([cross, cross]))
         if progress_task is not None:
             progress_task.advance(hi - lo)
-    return DiffuseTerms(torch.from_numpy(weight), torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)))
+    obstructed = _obstructed(links, shares, refls, crosses, num_materials)
+    return DiffuseTerms(torch.from_numpy(weight), torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)), obstructed)
+
+
+def _obstructed(links: list, shares: list, refls: list, crosses: list, num_materials: int) -> ObstructedCells:
+    """ObstructedCells of terms link [E], share [E] (a cell's share of one angle node), refl [E] and crossings
+    [E, 2 K] given in chunks: the slots no term uses dropped, the terms with equal (link, refl, crossings)
+    summed."""
+    none = num_materials * CROSSING_NODES
+    if not links:
+        z = torch.zeros(0, dtype=torch.int64)
+        return ObstructedCells(z, z.double(), z, z, torch.full((1, 1), none, dtype=torch.int64))
+    link, share, refl, cross = (np.concatenate(x) for x in (links, shares, refls, crosses))
+    cross = np.sort(cross, axis=1)          # the product does not depend on the order: used slots first
+    width = max(1, int((cross != none).sum(1).max()))
+    cross = cross[:, :width]
+    # distinct rows of cross, a column at a time (np.unique(axis=0) sorts rows as records: many times slower)
+    combo = np.zeros(len(cross), np.int64)
+    for k in range(width):
+        _, combo = np.unique(combo * (none + 1) + cross[:, k], return_inverse=True)
+        combo = combo.reshape(-1)
+    first = np.full(int(combo.max()) + 1, -1)
+    first[combo[::-1]] = np.arange(len(combo))[::-1]
+    combos = cross[first]
+    rs = int(num_materials * NODES)
+    key = (link * len(combos) + combo) * rs + refl
+    keys, inv = np.unique(key, return_inverse=True)
+    weight = np.bincount(inv.reshape(-1), weights=share, minlength=len(keys))
+    t = lambda x: torch.from_numpy(np.ascontiguousarray(x))  # noqa: E731
+    return ObstructedCells(t(keys // rs // len(combos)), t(weight), t(keys % rs), t(keys // rs % len(combos)),
+                           t(combos))

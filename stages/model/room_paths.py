@@ -454,12 +454,9 @@ def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarra
         a, b = start[lo:hi], end[lo:hi]
         d = b - a
         length = np.linalg.norm(d, axis=1).clip(1e-12)
-        # a ray runs on past its leg's far end: aim a leg from an antenna to a surface at the surface, where
-        # little lies beyond (the hits inside the leg are the same either way: the window below is symmetric)
-        rev = (skip_a[lo:hi] >= 0) & (skip_b[lo:hi] < 0)
-        origin = np.where(rev[:, None], b, a)
-        unit = np.where(rev[:, None], -d, d) / length[:, None]
-        hits = provider.ray_hits(torch.as_tensor(origin).contiguous(), torch.as_tensor(unit).contiguous())
+        # the rays end where the leg's window below ends: the tracer walks no further
+        hits = provider.ray_hits(torch.as_tensor(a).contiguous(), torch.as_tensor(d / length[:, None]).contiguous(),
+                                 t_max=torch.as_tensor(length - LEG_MARGIN_M))
         q, g, t = hits.query.numpy(), hits.gaussian.numpy(), hits.t_m.numpy()
         keep = (t > LEG_MARGIN_M) & (t < length[q] - LEG_MARGIN_M)
         q, p = q[keep], patches.surfel_patch[g[keep]]

@@ -47,7 +47,7 @@ class OcclusionProvider(Protocol):
     name: str
 
     def ray_hits(self, origins: torch.Tensor, directions: torch.Tensor, opacity: torch.Tensor | None = None,
-                 t_stop: float = 0.0) -> HitTable: ...
+                 t_stop: float = 0.0, t_max: torch.Tensor | None = None) -> HitTable: ...
 
     def segment_transmittance(self, origins: torch.Tensor, target_ids: torch.Tensor, margin_m: float,
                               opacity: torch.Tensor, t_stop: float = 1e-4) -> torch.Tensor: ...
@@ -145,9 +145,11 @@ class BruteForceOcclusion:
         return self._run(o, d, torch.ones(len(o), dtype=torch.float64), target_ids)
 
     def ray_hits(self, origins: torch.Tensor, directions: torch.Tensor, opacity: torch.Tensor | None = None,
-                 t_stop: float = 0.0) -> HitTable:
-        """All hits (opacity and t_stop are accepted for interface parity; no early stop here)."""
-        return self._run(origins.double(), directions.double(), torch.full((len(origins),), float("inf")), None)
+                 t_stop: float = 0.0, t_max: torch.Tensor | None = None) -> HitTable:
+        """All hits before t_max [R] m (None: all; opacity and t_stop are accepted for interface parity; no early
+        stop here)."""
+        t_max = torch.full((len(origins),), float("inf")) if t_max is None else t_max.double()
+        return self._run(origins.double(), directions.double(), t_max, None)
 
     def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4) -> torch.Tensor:
         hits = self.segment_hits(origins, target_ids)
@@ -189,12 +191,14 @@ class TracerOcclusion:
         return HitTable(*(torch.cat([p[i] for p in parts]) for i in range(4)), n)
 
     def ray_hits(self, origins: torch.Tensor, directions: torch.Tensor, opacity: torch.Tensor | None = None,
-                 t_stop: float = 0.0) -> HitTable:
-        """Hits along rays; with `opacity` [G] and t_stop > 0 the list ends where T < t_stop."""
+                 t_stop: float = 0.0, t_max: torch.Tensor | None = None) -> HitTable:
+        """Hits along rays before t_max [R] m (None: all); with `opacity` [G] and t_stop > 0 the list ends where
+        T < t_stop."""
         op = None if opacity is None else self._dev(opacity)
 
         def part(a, b):
             res = self._rt.trace(self.scene, self._dev(origins[a:b]), self._dev(directions[a:b]),
+                                 t_max=math.inf if t_max is None else self._dev(t_max[a:b]),
                                  opacities=op, alpha_min=self.alpha_min, t_stop=t_stop if op is not None else 0.0,
                                  return_hits=True)
             return self._table(res, a)

@@ -170,12 +170,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if ranges is not None:
         data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
     t_map = time.time()
-    map_rows = map_visibility(room, geom) if settings.map_visibility and settings.diffuse else {}
+    map_rows = map_crossings(room, geom) if settings.map_visibility and settings.diffuse else {}
     if map_rows:
-        model_attrs["map_visibility_key"] = room.visibility_key()
-        progress.log(f"kept the default map's {len(map_rows['map_rx_m'])} receivers' visibility of "
-                     f"{map_rows['map_cell_visibility'].shape[1]} diffuse cells in the model "
-                     f"({map_rows['map_cell_visibility'].nbytes / 1e6:.1f} MB, {time.time() - t_map:.1f} s; "
+        model_attrs["map_crossings_key"] = room.crossings_key()
+        progress.log(f"kept the surfaces crossed from the default map's {len(map_rows['map_rx_m'])} receivers to "
+                     f"{map_rows['map_cell_crossings'].shape[1]} diffuse cells in the model "
+                     f"({map_rows['map_cell_crossings'].nbytes / 1e6:.1f} MB, {time.time() - t_map:.1f} s; "
                      "rf_fit.room.map_visibility)")
     training_attrs = {"loss": fit_cfg.loss, "iterations": fit_cfg.iterations, "lr": fit_cfg.lr, "seed": seed,
                       "train_mae_db": res.train_mae_db, "initial_mae_db": res.initial_mae_db,
@@ -218,10 +218,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                        + bounds)
 
 
-def map_visibility(room: RoomGeometry, geom) -> dict:
-    """{"map_rx_m": [U, 3], "map_cell_visibility": [U, C]}: each receiver of the default radio map of
-    `predict rssi` ([predict.rssi] grid over the Gaussians' floor plan) and its visibility of the diffuse
-    cells, which no transmitter changes (RoomPredictor keeps them)."""
+def map_crossings(room: RoomGeometry, geom) -> dict:
+    """{"map_rx_m": [U, 3], "map_cell_crossings": [U, C, K] int32}: each receiver of the default radio map of
+    `predict rssi` ([predict.rssi] grid over the Gaussians' floor plan) and the surfaces crossed on its legs
+    to the diffuse cells (room_diffuse.CellCrossings), which no transmitter changes (RoomPredictor keeps them)."""
     from rfir_stages.predict.rssi import rssi_defaults
     from rfir_stages.predict.rssi_checks import floor_grid
 
@@ -229,10 +229,10 @@ def map_visibility(room: RoomGeometry, geom) -> dict:
     height, step = rssi_defaults()["grid"]
     rx = floor_grid((means.min(0), means.max(0)), float(height), float(step))
     with torch.no_grad():
-        rows, index = room.cell_visibility(rx)
+        rows, index = room.cell_crossings(rx)
     points = np.empty((len(rows), 3))
-    points[index] = rx                     # the point of each distinct row (CellVisibility's own keying)
-    return {"map_rx_m": points, "map_cell_visibility": rows}
+    points[index] = rx                     # the point of each distinct row (CellCrossings' own keying)
+    return {"map_rx_m": points, "map_cell_crossings": rows}
 
 
 def material_rows(vals, names: list[str], freq_hz: float) -> list[dict]:

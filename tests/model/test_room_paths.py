@@ -192,7 +192,7 @@ def test_tabulated_coefficients_equal_the_exact_evaluation():
 
 
 def test_diffuse_weights_equal_the_direct_lambertian_sum():
-    from rfir_stages.model.room_diffuse import diffuse_cells, diffuse_terms
+    from rfir_stages.model.room_diffuse import CellCrossings, diffuse_cells, diffuse_terms
 
     floor = plate_mesh((0.0, 0.0, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 4.0)
     patches, prov = _room([floor], spacing=0.25)
@@ -202,7 +202,9 @@ def test_diffuse_weights_equal_the_direct_lambertian_sum():
     assert abs(cells.area.sum() - 16.0) < 0.8 and len(cells.area) >= 16     # surfel areas: within 5 % of the plate
     tx = np.array([[0.3, -0.2, 1.8], [-1.0, 1.0, 2.5]])
     rx = np.array([[1.2, 0.9, 1.0], [1.5, -1.5, 0.7]])
-    terms = diffuse_terms(tx, rx, np.full(2, F), cells, 1, prov, opacity=0.9, margin_m=0.1, t_stop=1e-4)
+    terms = diffuse_terms(tx, rx, np.full(2, F), cells, np.zeros(patches.num, np.int64), 1,
+                          CellCrossings(cells, patches, prov))
+    assert len(terms.obstructed.link) == 0                                  # nothing between antennas and floor
     eta = torch.tensor([[complex(5.24, -0.69)]], dtype=torch.complex128)
     got = terms.power(eta, torch.tensor([0.2]), torch.tensor([0.3], dtype=torch.float64)).numpy()
     want = []
@@ -214,6 +216,57 @@ def test_diffuse_weights_equal_the_direct_lambertian_sum():
         g2 = 0.5 * (np.abs(r_te.numpy()) ** 2 + np.abs(r_tm.numpy()) ** 2)
         want.append(np.sum(0.09 * g2 * cells.area * ci * co * LAM ** 2 / (16 * math.pi ** 3 * di ** 2 * do ** 2)))
     np.testing.assert_allclose(got, want, rtol=2e-3)
+
+
+@pytest.mark.parametrize("extent", ["disks", "tiles"])
+def test_diffuse_power_through_a_wall_carries_its_slab_transmission(extent):
+    """A floor lit through a wall from the transmitter's side: each cell's term is the unobstructed Lambertian
+    term times the wall's |T|^2 = (|T_TE|^2 + |T_TM|^2) / 2 at its leg's crossing angle (slab formula); a
+    metal wall passes no diffuse power; the transmission follows the wall's material during a fit."""
+    from rfir_stages.model.room_diffuse import CellCrossings, diffuse_cells, diffuse_terms
+
+    floor = plate_mesh((2.0, 0.0, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 4.0)
+    wall = plate_mesh((-0.5, 0.0, 1.5), (0, 1, 0), (0, 0, 1), 12.0, 7.0)
+    patches, prov = _room([floor, wall], spacing=0.25, extent=extent)
+    geom = prov.geom
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals).numpy()
+    mat = np.asarray(patches.label, np.int64)                   # floor 0, wall 1
+    cells = diffuse_cells(geom.means.numpy(), areas, patches, mat, 1.0)
+    tx = np.array([[-1.5, 0.3, 1.5], [-2.0, -1.0, 1.0]])
+    rx = np.array([[2.5, 1.0, 1.2], [1.0, -1.5, 0.8]])
+    terms = diffuse_terms(tx, rx, np.full(2, F), cells, mat, 2, CellCrossings(cells, patches, prov))
+    on_floor = cells.material == 0
+    assert float(terms.weight.sum()) == 0.0 and len(terms.obstructed.link) >= 2 * on_floor.sum()   # all behind it
+    s = torch.tensor([0.3, 0.0], dtype=torch.float64)
+    floor_eta, wall_eta, wall_th = complex(5.24, -0.69), complex(4.0, -0.3), 0.05
+    eta = torch.tensor([[floor_eta], [wall_eta]], dtype=torch.complex128)
+    th = torch.tensor([0.2, wall_th], dtype=torch.float64)
+    got = terms.power(eta, th, s).numpy()
+    want = []
+    for t, r in zip(tx, rx):
+        c = cells.centre[on_floor]
+        wi, wo = t - c, r - c
+        di, do = np.linalg.norm(wi, axis=1), np.linalg.norm(wo, axis=1)
+        ci, co = wi[:, 2] / di, wo[:, 2] / do
+        r_te, r_tm = fresnel(eta[0, 0], ci, K, 0.2)
+        g2 = 0.5 * (np.abs(r_te.numpy()) ** 2 + np.abs(r_tm.numpy()) ** 2)
+        leg = cells.anchor_m[on_floor] - t
+        cw = np.abs(leg[:, 0]) / np.linalg.norm(leg, axis=1)   # the wall's normal is x
+        t_te, t_tm = slab_transmission(torch.tensor(wall_eta), torch.as_tensor(cw), K, wall_th)
+        t2 = 0.5 * (np.abs(t_te.numpy()) ** 2 + np.abs(t_tm.numpy()) ** 2)
+        assert 0.3 < t2.min() and t2.max() < 0.95               # a real loss, not a block
+        lam = 0.09 * g2 * t2 * cells.area[on_floor] * ci * co * LAM ** 2 / (16 * math.pi ** 3 * di ** 2 * do ** 2)
+        want.append(lam.sum())
+    np.testing.assert_allclose(got, want, rtol=3e-3)
+    metal = torch.tensor([[floor_eta], [complex(1.0, -1e9)]], dtype=torch.complex128)
+    assert (terms.power(metal, th, s).numpy() < 1e-6 * np.asarray(want)).all()
+    wall_eps = torch.tensor(4.0, dtype=torch.float64, requires_grad=True)   # gradients reach the wall's material
+    p = terms.power(torch.stack([eta[0], torch.complex(wall_eps, torch.tensor(-0.3, dtype=torch.float64))[None]]),
+                    th, s).sum()
+    p.backward()
+    assert wall_eps.grad is not None and float(wall_eps.grad) != 0.0
+    sub = terms.select_links([1])                             # one link's entries, renumbered
+    np.testing.assert_allclose(sub.power(eta, th, s).numpy(), got[1:], rtol=1e-12)
 
 
 def test_a_coarse_wall_stays_one_patch_beside_finely_tiled_furniture():

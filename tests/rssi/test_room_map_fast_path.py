@@ -1,12 +1,12 @@
 """The room model's fast path for radio maps equals a per-link reference computation.
 
-A map traces every (link, patch sequence) at once and keeps each receiver's visibility of the
-diffuse cells for the next transmitter (room_paths.reflection_paths, room_diffuse.CellVisibility).
+A map traces every (link, patch sequence) at once and keeps the surfaces crossed from each receiver to
+the diffuse cells for the next transmitter (room_paths.reflection_paths, room_diffuse.CellCrossings).
 On the reduced room (a partition with a doorway, a table) both must give what a link traced alone on
 a fresh model gives, to 1e-9 relative: the reflection points from a plain per-link, per-sequence
 image method here, and the received power of a second transmitter's map against each link traced
-alone with nothing kept (with and without the shell split that large maps trace their receivers with;
-1e-9 relative in power is 4e-9 dB, the issue's budget for the fast path being 0.01 dB).
+alone with nothing kept (1e-9 relative in power is 4e-9 dB, the issue's budget for the fast path being
+0.01 dB).
 """
 import itertools
 
@@ -16,7 +16,7 @@ import torch
 
 from rfir_stages.model.physical import MaterialValues
 from rfir_stages.model.room import RoomLinks
-from rfir_stages.model.room_diffuse import CellVisibility, diffuse_terms
+from rfir_stages.model.room_diffuse import CellCrossings, diffuse_terms
 from rfir_stages.model.room_paths import reflection_paths, trace_room_paths
 
 from .helpers import ROOM, room_geometry
@@ -96,30 +96,26 @@ def _materials(n):
                           0.0, torch.full((n,), 0.3, dtype=torch.float64), torch.linspace(0.03, 0.2, n, dtype=torch.float64))
 
 
-class _FullRows(CellVisibility):
+class _FullRows(CellCrossings):
     """Every cell traced from every point, whatever a call needs (the reference for the fast path's rows)."""
 
     def __call__(self, points, need=None):
         return super().__call__(points)
 
 
-@pytest.mark.parametrize("split_min", [None, 0])
-def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_alone(room, split_min, monkeypatch):
-    """split_min 0: the map's receivers traced with the shell split (rf_fit.occlusion.ShellSplitOcclusion), as the
-    large maps are; the receivers' rows traced where the first map needs them, completed for the second."""
-    if split_min is not None:
-        monkeypatch.setattr(CellVisibility, "SPLIT_MIN_SEGMENTS", split_min)
-    room.cell_visibility.clear()
-    room.cell_visibility._split = None
+def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_alone(room):
+    """The receivers' rows traced where the first map needs them, completed for the second."""
+    room.cell_crossings.clear()
     rx = _grid()
     mats = _materials(room.num_materials)
     freq = np.full(len(rx), F)
     room.links(np.broadcast_to([1.0, 1.0, 2.0], rx.shape), rx, freq)             # a first map keeps the receivers
-    kept = len(room.cell_visibility)
+    kept = len(room.cell_crossings)
     tx_b = np.array([3.1, 2.2, 1.8])
-    fast = room.links(np.broadcast_to(tx_b, rx.shape), rx, freq).power(mats)[:, 0].numpy()
-    assert len(room.cell_visibility) == kept + 1                              # only the new transmitter traced
-    assert (room.cell_visibility._split is not None) == (split_min == 0)
+    fast_links = room.links(np.broadcast_to(tx_b, rx.shape), rx, freq)
+    fast = fast_links.power(mats)[:, 0].numpy()
+    assert len(room.cell_crossings) == kept + 1                               # only the new transmitter traced
+    assert len(fast_links.diffuse.obstructed.link) > 0                        # some cells lie behind the partition
     s = room.settings
     ref = []
     for r in rx:                                                                    # each link alone, nothing kept
@@ -127,9 +123,8 @@ def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_a
         paths = trace_room_paths(t1, r1, np.full(1, F), room.patches, room.provider, polarisation=s.polarisation,
                                  max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
                                  third_order_min_area_m2=s.third_order_min_area_m2)
-        full = _FullRows(room.cells, room.provider, s.opacity, s.diffuse_margin_m, s.t_stop)
-        diff = diffuse_terms(t1, r1, np.full(1, F), room.cells, room.num_materials, room.provider, s.opacity,
-                             s.diffuse_margin_m, s.t_stop, visibility=full)
+        full = _FullRows(room.cells, room.patches, room.provider)
+        diff = diffuse_terms(t1, r1, np.full(1, F), room.cells, room.material_of_patch, room.num_materials, full)
         one = RoomLinks(paths, diff, torch.as_tensor(room.material_of_patch), room.num_materials)
         ref.append(one.power(mats)[0, 0].item())
     ref = np.array(ref)
@@ -138,7 +133,7 @@ def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_a
 
 
 def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path, monkeypatch):
-    """rf-fit keeps the default map's receivers' visibility in the model; predicting with those rows equals
+    """rf-fit keeps the surfaces crossed from the default map's receivers in the model; predicting with those rows equals
     tracing them again, and a model whose Gaussians moved (an edit) does not use them. The model's stored
     surfel areas are used while its Gaussians are the fitted ones, and equal the areas computed again."""
     import rfir_stages.model.room as room_module
@@ -168,17 +163,17 @@ def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path, mo
                                   surfel_areas(g.means, g.log_scales, g.rotations, g.normals).numpy())
     means = pred.geom.means.numpy()
     rx = floor_grid((means.min(0), means.max(0)), *rssi_defaults()["grid"])
-    assert len(pred.room.cell_visibility) == len(rx)          # every map receiver kept
+    assert len(pred.room.cell_crossings) == len(rx)          # every map receiver kept
     tx = np.broadcast_to([3.1, 2.2, 1.8], rx.shape)
     kept = pred.path_gain_db(tx, rx)
-    assert len(pred.room.cell_visibility) == len(rx) + 1      # the transmitter alone was traced
-    pred.room.cell_visibility.clear()
+    assert len(pred.room.cell_crossings) == len(rx) + 1      # the transmitter alone was traced
+    pred.room.cell_crossings.clear()
     np.testing.assert_allclose(10 ** (kept / 10), 10 ** (pred.path_gain_db(tx, rx) / 10), rtol=1e-9, atol=0)
     data = dict(rf.data)
     data["gaussians/means"] = data["gaussians/means"] + np.array([0.0, 0.0, 1e-6])
     write_artifact(tmp_path / "moved.h5", "rf", data, attrs=rf.attrs, free=rf.free_for_write())
     moved = read_artifact(tmp_path / "moved.h5", "rf")
-    assert len(RoomPredictor(moved).room.cell_visibility) == 0
+    assert len(RoomPredictor(moved).room.cell_crossings) == 0
     with monkeypatch.context() as m, pytest.raises(TypeError):
         m.setattr(room_module, "surfel_areas", None)               # moved Gaussians: the areas are computed again
         RoomPredictor(moved)
