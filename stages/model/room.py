@@ -36,7 +36,7 @@ class RoomSettings:
     """[rf_fit.room] settings (configs/rf_fit.toml documents each)."""
 
     max_order: int = 2
-    higher_order_min_area_m2: float = 1.0
+    higher_order_min_area_m2: float = 0.3
     third_order_min_area_m2: float = 10.0
     coplanar_m: float = 0.01
     # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
@@ -237,6 +237,8 @@ class RoomPredictor:
         for f in dc_fields(RoomSettings):
             if f"room.{f.name}" in attrs:
                 kw[f.name] = type(getattr(RoomSettings, f.name))(attrs[f"room.{f.name}"])
+        # models that store no extent were fitted when every patch was made of disks
+        kw.setdefault("patch_extent", "disks")
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])

@@ -494,7 +494,7 @@ def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
 
 
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
-                     max_order: int = 2, higher_order_min_area_m2: float = 1.0, first_order_min_area_m2: float = 0.0,
+                     max_order: int = 2, higher_order_min_area_m2: float = 0.3, first_order_min_area_m2: float = 0.0,
                      third_order_min_area_m2: float = 10.0, tx_gain=None, rx_gain=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].
 

@@ -4,7 +4,7 @@ A provider answers two questions:
 - `segment_transmittance(origins [Q, 3], target_ids [Q], margin_m, opacity [G])`: V, the
   transmittance from each origin to the target Gaussian's mean (the target itself and the last
   margin_m excluded), with one RF opacity per Gaussian (docs/physics.md section 4.1);
-- `ray_hits(origins [R, 3], directions [R, 3] unit)`: a hit table of every Gaussian along each ray
+- `ray_hits(origins [R, 3], directions [R, 3] unit, t_max [R] m)`: a hit table of every Gaussian along each ray
   (traced with opacity 1 and t_stop 0: the superset of hits for any RF opacities a <= 1, since
   alpha = a G <= G), for the room model's walls and the RSSI checks.
 
@@ -18,11 +18,9 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
-import numpy as np
 import torch
 
-from rfir_cli.physics.gaussian_rf import covariance, quaternion_to_matrix
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_cli.physics.gaussian_rf import quaternion_to_matrix
 
 
 @dataclass(frozen=True)
@@ -230,108 +228,6 @@ def segment_rays(origins: torch.Tensor, ends: torch.Tensor, margin_m: float) -> 
     d = ends.double() - o
     length = d.norm(dim=-1).clamp(min=1e-12)
     return o, d, (1.0 - margin_m / length).clamp(min=0.0)
-
-
-class ShellSplitOcclusion:
-    """A TracerOcclusion's segments traced against two BVHs: the scene's shell (Gaussians whose whole bounding
-    ellipsoid lies within shell_m of a plane that bounds all the means, as a room's walls, floor, ceiling and
-    what is flush with them) and the interior (the rest).
-
-    V is a product of (1 - alpha) over the hits, so it is the interior's V times the shell's. A segment
-    whose two ends (its origin and the point where the margin starts) lie deeper inside than a plane's
-    slab (the deepest point of that plane's shell ellipsoids) cannot enter one of their ellipsoids (the
-    depth along a segment is between its ends'), so no shell Gaussian is accepted on it (a hit needs its
-    peak inside the kappa ellipsoid, the BVH's bound): such segments skip the shell. The interior's BVH
-    alone is faster to walk than the whole scene's (on the classroom of bench/bench_rssi.py, the diffuse
-    cells' 632k segments from 440 receivers: 0.65-0.8 of the CPU time; the shell's wide flat surfels
-    overlap much of the room). The answers equal TracerOcclusion.segment_transmittance's to rounding (the
-    factors are multiplied in another order), and below t_stop both are some value below t_stop (where
-    the trace stopped)."""
-
-    def __init__(self, provider: TracerOcclusion, shell_m: float = 0.05, max_planes: int = 32):
-        """shell_m: how deep inside its plane a shell Gaussian's ellipsoid may reach (the planes' slabs are at most
-        this thick; thicker takes more in the shell, and traces more segments against it). max_planes: the
-        candidate planes are the most common surfel normals (to 0.05), both ways."""
-        g = provider.geom
-        means = g.means.double().numpy()
-        kappa = math.sqrt(2.0 * math.log(1.0 / provider.alpha_min)) * 1.001      # the BVH's bound, widened
-        key = np.round(g.normals.double().numpy() * 20.0).astype(np.int64)
-        key = key[np.abs(key).sum(1) > 0]
-        # the rows as one integer each, in the same (lexicographic) order: np.unique of rows sorts far slower
-        lo = key.min() if len(key) else 0
-        span = (key.max() - lo + 1) if len(key) else 1
-        code, count = np.unique(((key[:, 0] - lo) * span + key[:, 1] - lo) * span + key[:, 2] - lo, return_counts=True)
-        dirs = np.stack([code // (span * span), code // span % span, code % span], 1) + lo
-        dirs = dirs[np.argsort(-count, kind="stable")[:max_planes]].astype(np.float64)
-        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        dirs = np.concatenate([dirs, -dirs])                                               # [U, 3]
-        proj = means @ dirs.T                                                              # [G, U]
-        support = proj.max(0)                                                              # the plane bounding all means
-        cov = covariance(g.log_scales.double(), g.rotations.double()).numpy()             # [G, 3, 3] m^2
-        reach = kappa * np.sqrt(np.maximum(np.einsum("ui,gij,uj->gu", dirs, cov, dirs), 0.0))
-        inner = support[None] - proj + reach                          # [G, U] depth of each ellipsoid's deepest point
-        on_plane = inner <= shell_m
-        shell = on_plane.any(1)
-        plane = np.argmax(on_plane, 1)                                                     # a plane per shell Gaussian
-        slab = np.full(len(dirs), -np.inf)
-        np.maximum.at(slab, plane[shell], inner[shell, plane[shell]])
-        used = np.isfinite(slab)                                                           # planes with a shell
-        self.dirs, self.support, self.slab = (torch.as_tensor(a[used]) for a in (dirs, support, slab))
-        self.provider, self.num_shell = provider, int(shell.sum())
-        self.parts = []
-        for keep in (~shell, shell):
-            idx = torch.as_tensor(np.flatnonzero(keep))
-            local = torch.full((g.num,), -1, dtype=torch.int64)
-            local[idx] = torch.arange(len(idx))
-            sub = FrozenGeometry(g.means[idx], g.log_scales[idx], g.rotations[idx], g.normals[idx])
-            self.parts.append((idx, local, TracerOcclusion(sub, provider.alpha_min, provider.chunk,
-                                                           str(provider.device)) if len(idx) else None))
-
-    def clear_of_shell(self, o: torch.Tensor, d: torch.Tensor, t_max: torch.Tensor) -> torch.Tensor:
-        """[Q] bool: segments o + t d, 0 <= t <= t_max, whose both ends lie deeper than every plane's slab (no
-        shell Gaussian can be hit on them)."""
-        clear = np.ones(len(o), dtype=bool)
-        depth = np.empty(len(o))
-        # coordinates as contiguous columns and in-place products: no temporaries [Q, 3] and no BLAS threads
-        # (a matrix-vector product per plane was most of this function's time on a busy CPU); along an axis
-        # (a room's walls, floor and ceiling) x . u is that coordinate, exactly
-        ends = [np.ascontiguousarray(x.T) for x in (o.numpy(), (o + t_max[:, None] * d).numpy())]
-        for u, h, e in zip(self.dirs.numpy(), self.support.numpy(), self.slab.numpy()):
-            axis = np.flatnonzero(u)
-            along = len(axis) == 1 and abs(u[axis[0]]) == 1.0
-            for x in ends:
-                if along and u[axis[0]] > 0:
-                    np.subtract(h, x[axis[0]], out=depth)
-                elif along:
-                    np.add(h, x[axis[0]], out=depth)
-                else:
-                    np.multiply(x[0], u[0], out=depth)
-                    depth += x[1] * u[1]
-                    depth += x[2] * u[2]
-                    np.subtract(h, depth, out=depth)
-                clear &= depth > e
-        return torch.as_tensor(clear)
-
-    def segment_transmittance(self, origins, target_ids, margin_m, opacity, t_stop=1e-4) -> torch.Tensor:
-        """V [Q] as TracerOcclusion.segment_transmittance (the class docstring says to what precision)."""
-        (i_in, local_in, inner), (i_sh, local_sh, shell) = self.parts
-        ids = target_ids.long()
-        out = torch.ones(len(ids), dtype=torch.float64)
-        with torch.no_grad():
-            for a in range(0, len(ids), self.provider.chunk):
-                b = min(len(ids), a + self.provider.chunk)
-                with single_thread_torch():   # small tensor ops: thread hand-offs cost more than the work
-                    o, d, t_max = segment_rays(origins[a:b], self.provider.geom.means[ids[a:b]], margin_m)
-                v = out[a:b]
-                if inner is not None:
-                    v[:] = inner.rays_transmittance(o, d, t_max, opacity[i_in], t_stop, local_in[ids[a:b]])
-                with single_thread_torch():
-                    # segments already below t_stop stay there whatever the shell adds: their trace stopped too
-                    rest = torch.nonzero(~self.clear_of_shell(o, d, t_max) & (v >= t_stop)).reshape(-1)
-                if shell is not None and len(rest):
-                    v[rest] *= shell.rays_transmittance(o[rest], d[rest], t_max[rest], opacity[i_sh], t_stop,
-                                                        local_sh[ids[a:b][rest]])
-        return out
 
 
 def make_provider(kind: str, geom: FrozenGeometry, alpha_min: float = 1e-3, device: str = "cpu") -> OcclusionProvider:

@@ -177,3 +177,8 @@ def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path, mo
     with monkeypatch.context() as m, pytest.raises(TypeError):
         m.setattr(room_module, "surfel_areas", None)               # moved Gaussians: the areas are computed again
         RoomPredictor(moved)
+    assert pred.room.settings.patch_extent == "tiles"
+    free = rf.free_for_write()
+    del free["model"]["@attrs"]["room.patch_extent"]                 # a model written before extents were stored
+    write_artifact(tmp_path / "old.h5", "rf", rf.data, attrs=rf.attrs, free=free)
+    assert RoomPredictor(read_artifact(tmp_path / "old.h5", "rf")).room.settings.patch_extent == "disks"
