@@ -369,14 +369,7 @@ def _obstructed(links: list, shares: list, refls: list, crosses: list, num_mater
     cross = np.sort(cross, axis=1)          # the product does not depend on the order: used slots first
     width = max(1, int((cross != none).sum(1).max()))
     cross = cross[:, :width]
-    # distinct rows of cross, a column at a time (np.unique(axis=0) sorts rows as records: many times slower)
-    combo = np.zeros(len(cross), np.int64)
-    for k in range(width):
-        _, combo = np.unique(combo * (none + 1) + cross[:, k], return_inverse=True)
-        combo = combo.reshape(-1)
-    first = np.full(int(combo.max()) + 1, -1)
-    first[combo[::-1]] = np.arange(len(combo))[::-1]
-    combos = cross[first]
+    combos, combo = _distinct_rows(cross, none + 1)
     rs = int(num_materials * NODES)
     key = (link * len(combos) + combo) * rs + refl
     keys, inv = np.unique(key, return_inverse=True)
@@ -384,3 +377,19 @@ def _obstructed(links: list, shares: list, refls: list, crosses: list, num_mater
     t = lambda x: torch.from_numpy(np.ascontiguousarray(x))  # noqa: E731
     return ObstructedCells(t(keys // rs // len(combos)), t(weight), t(keys % rs), t(keys // rs % len(combos)),
                            t(combos))
+
+
+def _distinct_rows(rows: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct rows [U, W], index [E] of each row's) of rows [E, W] of integers in 0..base-1: three columns
+    packed per int64 and one lexsort (np.unique(axis=0) sorts rows as records, many times slower)."""
+    keys = []
+    for lo in range(0, rows.shape[1], 3):
+        k = np.zeros(len(rows), np.int64)
+        for c in range(lo, min(lo + 3, rows.shape[1])):
+            k = k * base + rows[:, c]
+        keys.append(k)
+    order = np.lexsort(keys[::-1])
+    new = np.r_[True, np.any([np.diff(k[order]) != 0 for k in keys], axis=0)]
+    index = np.empty(len(rows), np.int64)
+    index[order] = np.cumsum(new) - 1
+    return rows[order[new]], index
