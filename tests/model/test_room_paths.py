@@ -265,6 +265,8 @@ def test_diffuse_power_through_a_wall_carries_its_slab_transmission(extent):
                     th, s).sum()
     p.backward()
     assert wall_eps.grad is not None and float(wall_eps.grad) != 0.0
+    per_link = terms.power(eta.expand(2, 2).contiguous(), th, s).numpy()   # eta per link (its frequency's)
+    np.testing.assert_allclose(per_link, got, rtol=1e-12)
     sub = terms.select_links([1])                             # one link's entries, renumbered
     np.testing.assert_allclose(sub.power(eta, th, s).numpy(), got[1:], rtol=1e-12)
 
