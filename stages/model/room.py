@@ -27,7 +27,8 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
 from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
-from .room_paths import PatchSet, RoomPaths, build_patch_set, trace_room_paths
+from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, THIRD_ORDER_MIN_AREA_M2, PatchSet, RoomPaths, build_patch_set,
+                         trace_room_paths)
 from .surfels import surfel_areas
 
 
@@ -36,8 +37,8 @@ class RoomSettings:
     """[rf_fit.room] settings (configs/rf_fit.toml documents each)."""
 
     max_order: int = 2
-    higher_order_min_area_m2: float = 0.3
-    third_order_min_area_m2: float = 10.0
+    higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2
+    third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2
     coplanar_m: float = 0.01
     # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
     patch_extent: str = "tiles"

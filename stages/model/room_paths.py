@@ -50,6 +50,10 @@ FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 
 TILE_CLOSING = 1.0
 TILE_OVERLAP = 1.1        # rectangles a tenth wider than the tile's: neighbours overlap where the tiles are triangles
 PATCH_EXTENTS = ("disks", "tiles")
+# second order off patches of at least this area (walls, floor, ceiling, desk tops), third and higher orders
+# off those of at least the other (the surfaces bounding a room); RoomSettings takes its defaults from here
+HIGHER_ORDER_MIN_AREA_M2 = 0.3
+THIRD_ORDER_MIN_AREA_M2 = 10.0
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -454,11 +458,12 @@ def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarra
         a, b = start[lo:hi], end[lo:hi]
         d = b - a
         length = np.linalg.norm(d, axis=1).clip(1e-12)
-        # the rays end where the leg's window below ends: the tracer walks no further
+        # hits this close to either end belong to the surfaces the leg starts or ends on: the rays end there
+        # (t_max), and the first LEG_MARGIN_M is dropped below
         hits = provider.ray_hits(torch.as_tensor(a).contiguous(), torch.as_tensor(d / length[:, None]).contiguous(),
                                  t_max=torch.as_tensor(length - LEG_MARGIN_M))
         q, g, t = hits.query.numpy(), hits.gaussian.numpy(), hits.t_m.numpy()
-        keep = (t > LEG_MARGIN_M) & (t < length[q] - LEG_MARGIN_M)
+        keep = t > LEG_MARGIN_M
         q, p = q[keep], patches.surfel_patch[g[keep]]
         keep = (p >= 0) & (p != skip_a[lo:hi][q]) & (p != skip_b[lo:hi][q])
         # distinct (leg, patch) pairs, by leg then patch: one crossing per surface however many surfels tile it
@@ -503,8 +508,9 @@ def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
 
 
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
-                     max_order: int = 2, higher_order_min_area_m2: float = 0.3, first_order_min_area_m2: float = 0.0,
-                     third_order_min_area_m2: float = 10.0, tx_gain=None, rx_gain=None) -> RoomPaths:
+                     max_order: int = 2, higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2,
+                     first_order_min_area_m2: float = 0.0, third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2,
+                     tx_gain=None, rx_gain=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].
 
     First-order reflections use every patch of at least first_order_min_area_m2, second order the

@@ -341,3 +341,17 @@ def test_an_unknown_patch_extent_is_refused():
     with pytest.raises(ConfigError, match="patch_extent"):
         room_config({"room": {"patch_extent": "hull"}})
     assert room_config({"room": {"patch_extent": "tiles"}})[0].patch_extent == "tiles"
+
+
+def test_room_settings_defaults_are_the_documented_config():
+    """RoomSettings (what code and tests use) and configs/rf_fit.toml's [rf_fit.room] (what the CLI reads and
+    documents) give every setting the same default."""
+    from dataclasses import fields
+
+    from rfir_cli.config import load_defaults
+    from rfir_stages.model.room import RoomSettings
+
+    table = {k: v for k, v in load_defaults()["rf_fit"]["room"].items() if k != "sharing"}
+    assert set(table) == {f.name for f in fields(RoomSettings)}
+    assert table == {f.name: getattr(RoomSettings(), f.name) for f in fields(RoomSettings)}
+
