@@ -113,7 +113,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches, "
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
-                 f"{settings.max_order}, diffuse {'on' if settings.diffuse else 'off'}, polarisation "
+                 f"{settings.max_order} (above 1 off patches of at least {settings.higher_order_min_area_m2:g} m^2), "
+                 f"diffuse {'on (through the slabs it crosses)' if settings.diffuse else 'off'}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "
                  + ("off" if settings.device_gains == "off" else

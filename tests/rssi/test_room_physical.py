@@ -30,6 +30,7 @@ def fitted(tmp_path_factory):
     r = CliRunner().invoke(app, [*PHYSICAL, "rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(d / "rf.h5")])
     assert r.exit_code == 0, r.output
     assert "physical room model" in r.output and "partition" in r.output     # assumptions and materials printed
+    assert "patch extents tiles" in r.output and "at least 0.3 m^2" in r.output    # the defaults that set the paths
     return d
 
 
