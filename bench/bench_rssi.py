@@ -14,7 +14,7 @@ room model on free-space data for two transmitters gives an `rf` artifact. Then,
   an earlier map of the same model (RoomGeometry.cell_crossings);
 - default_map_s: `predict rssi --tx ... --grid` 's default map ([predict.rssi] grid) from a freshly
   loaded model, whose receivers rf-fit stored (rf_fit.room.map_visibility);
-- the second order's share: the same new-transmitter map with rf_fit.room.max_order = 1.
+- the higher orders' share: the same new-transmitter map with rf_fit.room.max_order = 1.
 The budget in the issue: 2 s on the 2-core CPU. Prints the timings, the load average they ran under,
 and writes bench/rssi.json.
 """
@@ -122,7 +122,7 @@ def _time_maps(rf_path: Path, rx: np.ndarray, repeats: int) -> dict:
     return {"num_points": len(rx), "default_map_points": len(grid), "load_time_s": med(load),
             "map_cold_s": med(cold), "map_cold_cpu_s": med(cold_cpu), "map_new_tx_s": med(new_tx),
             "map_new_tx_first_order_s": med(first_order),
-            "second_order_share_s": med(new_tx) - med(first_order), "default_map_s": med(default),
+            "higher_order_share_s": med(new_tx) - med(first_order), "default_map_s": med(default),
             "finite": finite, "budget_s": 2.0, "repeats": repeats, "load_average_1min": os.getloadavg()[0],
             "note": "medians; map times: RoomPredictor.path_gain_db alone; load_time_s: read rf.h5, patches, "
                     "cells and the BVH; python and torch start-up not included; map_cold_cpu_s: the process's CPU "

@@ -27,7 +27,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
 from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
-from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, THIRD_ORDER_MIN_AREA_M2, PatchSet, RoomPaths, build_patch_set,
+from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2, PatchSet, RoomPaths, build_patch_set,
                          trace_room_paths)
 from .surfels import surfel_areas
 
@@ -36,7 +36,7 @@ from .surfels import surfel_areas
 class RoomSettings:
     """[rf_fit.room] settings (configs/rf_fit.toml documents each)."""
 
-    max_order: int = 2
+    max_order: int = MAX_ORDER
     higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2
     third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2
     coplanar_m: float = 0.01

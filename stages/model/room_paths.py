@@ -50,10 +50,12 @@ FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 
 TILE_CLOSING = 1.0
 TILE_OVERLAP = 1.1        # rectangles a tenth wider than the tile's: neighbours overlap where the tiles are triangles
 PATCH_EXTENTS = ("disks", "tiles")
-# second order off patches of at least this area (walls, floor, ceiling, desk tops), third and higher orders
-# off those of at least the other (the surfaces bounding a room); RoomSettings takes its defaults from here
+# reflections up to MAX_ORDER; second order off patches of at least HIGHER_ORDER_MIN_AREA_M2 (walls, floor,
+# ceiling, desk tops), third and higher orders off those of at least THIRD_ORDER_MIN_AREA_M2 (the surfaces that
+# bound a room, whiteboards, windows, doors, large tables); RoomSettings takes its defaults from here
+MAX_ORDER = 3
 HIGHER_ORDER_MIN_AREA_M2 = 0.3
-THIRD_ORDER_MIN_AREA_M2 = 10.0
+THIRD_ORDER_MIN_AREA_M2 = 1.0
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -422,24 +424,35 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
     within = np.arange(len(row)) - np.repeat(np.cumsum(rep) - rep, rep)
     links = by_source[(np.cumsum(count) - count)[source][row] + within]
     if len(row):
-        j = seq[row, -1]
-        keep = side_last[row] * (_dot(rx[links], cn[j]) - offset[j]) > 0.5 * min_m ** 2
+        # each receiver's offset from each candidate plane once ([M, K]), gathered per pair
+        rx_side = rx @ cn.T - offset
+        keep = side_last[row] * rx_side[links, seq[row, -1]] > 0.5 * min_m ** 2
         row, links = row[keep], links[keep]
-    seq = seq[row]
-    images = [im[row] for im in images]
+    # backwards from the receiver; what depends on the row alone (its planes, the images' offsets from them) is
+    # computed once per row and gathered for the (row, link) pairs still in play
     pts = []
     x = rx[links]
     for k in range(order - 1, -1, -1):
         if links.size == 0:
             break
-        p = cand[seq[:, k]]
-        ok = _dot(x - pnt[p], nrm[p]) * _dot(images[k] - pnt[p], nrm[p]) > min_m ** 2
-        c = _plane_cross(images[k + 1], x, pnt[p], nrm[p])
-        ok &= patches.contains(p, c)
-        links, seq, x = links[ok], seq[ok], c[ok]
-        images = [im[ok] for im in images]
+        p_row = cand[seq[:, k]]
+        n_row, q_row = nrm[p_row], pnt[p_row]
+        pre_side = _dot(images[k] - q_row, n_row)              # the pre-image's side of the plane, per row
+        img_side = _dot(images[k + 1] - q_row, n_row)          # the image's, per row
+        n_, q_ = n_row[row], q_row[row]
+        x_side = _dot(x - q_, n_)
+        ok = x_side * pre_side[row] > min_m ** 2
+        row, links, x, x_side = row[ok], links[ok], x[ok], x_side[ok]
+        pts = [q[ok] for q in pts]
+        a = images[k + 1][row]
+        da = img_side[row]
+        f = da / np.where(np.abs(da - x_side) > 1e-15, da - x_side, 1e-15)
+        c = a + f[:, None] * (x - a)                           # where the leg image -> x crosses the plane
+        ok = patches.contains(p_row[row], c)
+        row, links, x = row[ok], links[ok], c[ok]
         pts = [q[ok] for q in pts]
         pts.insert(0, x)
+    seq = seq[row]
     if links.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, order), np.int64), np.zeros((0, order, 3))
     srt = np.lexsort([links] + [seq[:, k] for k in range(order - 1, -1, -1)])
@@ -508,7 +521,7 @@ def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
 
 
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
-                     max_order: int = 2, higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2,
+                     max_order: int = MAX_ORDER, higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2,
                      first_order_min_area_m2: float = 0.0, third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2,
                      tx_gain=None, rx_gain=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].

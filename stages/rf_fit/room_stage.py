@@ -57,6 +57,17 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     return settings, fit_cfg, sharing
 
 
+def _higher_orders(settings: RoomSettings) -> str:
+    """Which patches the reflections above the first use, as rf-fit prints it."""
+    if settings.max_order < 2:
+        return "every patch"
+    out = f"order 2 off patches of at least {settings.higher_order_min_area_m2:g} m^2"
+    if settings.max_order >= 3:
+        out += f", order{' 3' if settings.max_order == 3 else 's 3 and up'} off patches of at least " \
+               f"{settings.third_order_min_area_m2:g} m^2"
+    return out
+
+
 def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], str]:
     """(material of each Gaussian [G], material names, the sharing used)."""
     labels = scene.get("gaussians/labels")
@@ -113,7 +124,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches, "
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
-                 f"{settings.max_order} (above 1 off patches of at least {settings.higher_order_min_area_m2:g} m^2), "
+                 f"{settings.max_order} ({_higher_orders(settings)}), "
                  f"diffuse {'on (through the slabs it crosses)' if settings.diffuse else 'off'}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "

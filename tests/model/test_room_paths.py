@@ -6,7 +6,9 @@
 - a wall between the antennas: the direct path is attenuated by the slab formula T(theta), once,
   whatever the number of Gaussians tiling the wall; a metal wall blocks it;
 - a window opening: no reflection where the wall has no surfels;
-- a metal corner: the second-order path of the image method, length and amplitude.
+- a metal corner: the second-order path of the image method, length and amplitude;
+- a metal corner cube: the third-order path of an independent image-method enumeration, its ordering, length
+  and amplitude (the free-space field at the image distance).
 """
 import math
 
@@ -164,6 +166,66 @@ def test_metal_corner_second_order_path():
                       paths.e_rx, paths.kind, paths.patch, paths.cos, paths.s, paths.p_in, paths.p_out)), paths.freq_hz)
     got = sub.field(eta, None, torch.zeros(patches.num, dtype=torch.float64)).numpy()[0]
     np.testing.assert_allclose(got, _free(d), rtol=1e-9)
+
+
+def _corner_cube_triple_paths(tx, rx, size):
+    """Independent image method for three metal plates on x = 0, y = 0, z = 0 (each covering [0, size]^2 of
+    its plane): the reflection sequences (axis order) whose three points lie on their plates, in order."""
+    import itertools
+
+    found = []
+    for seq in itertools.permutations(range(3)):
+        images = [np.array(tx, float)]
+        for ax in seq:
+            im = images[-1].copy()
+            im[ax] = -im[ax]
+            images.append(im)
+        pts, end, ok = [], np.array(rx, float), True
+        for level in (2, 1, 0):                       # backwards from the receiver
+            ax, im = seq[level], images[level + 1]
+            f = end[ax] / (end[ax] - im[ax])          # where end -> image crosses the plane
+            p = end + f * (im - end)
+            ok &= bool(0.0 < f < 1.0 and p.min() >= -1e-9 and p.max() <= size)
+            pts.append(p)
+            end = p
+        if ok:
+            found.append((seq, np.linalg.norm(np.array(rx) - images[-1])))
+    return found
+
+
+def test_metal_corner_cube_third_order_paths():
+    size = 4.0
+    plates = [plate_mesh((0.0, size / 2, size / 2), (0, 1, 0), (0, 0, 1), size, size),    # x = 0
+              plate_mesh((size / 2, 0.0, size / 2), (1, 0, 0), (0, 0, 1), size, size),    # y = 0
+              plate_mesh((size / 2, size / 2, 0.0), (1, 0, 0), (0, 1, 0), size, size)]    # z = 0
+    patches, prov = _room(plates, spacing=0.25, extent="tiles")
+    tx = np.array([[1.5, 1.5, 1.5], [1.5, 1.5, 1.5]])
+    rx = np.array([[2.5, 1.2, 0.8], [1.0, 1.2, 2.0]])
+    paths = trace_room_paths(tx, rx, np.full(2, F), patches, prov, polarisation="V", max_order=3,
+                             higher_order_min_area_m2=1.0, third_order_min_area_m2=1.0)
+    lab = torch.as_tensor(patches.label)
+    eta = torch.full((3, 1), METAL, dtype=torch.complex128)[lab]
+    for k in range(2):
+        # a corner cube has one valid ordering per link; the image of every ordering is -tx
+        (seq, d), = _corner_cube_triple_paths(tx[k], rx[k], size)
+        three = ((paths.order == 3) & (paths.link == k)).numpy()
+        assert three.sum() == 1
+        q = int(np.flatnonzero(three)[0])
+        assert tuple(patches.label[paths.patch[q, paths.kind[q] == 1].numpy()]) == seq
+        np.testing.assert_allclose(paths.length_m.numpy()[q], d, rtol=1e-12)
+        # a perfect conductor maps E -> -(I - 2 n n^T) E at each plate; over three orthogonal plates the product
+        # is the identity and the ray leaves reversed, so e_R . E = 1 for V: the free-space field at the image
+        # distance
+        sel = torch.tensor([q])
+        sub = type(paths)(1, torch.zeros(1, dtype=torch.int64), *(t[sel] for t in (
+            paths.length_m, paths.gain, paths.order, paths.e_tx, paths.e_rx, paths.kind, paths.patch, paths.cos,
+            paths.s, paths.p_in, paths.p_out)), paths.freq_hz[k:k + 1])
+        got = sub.field(eta, None, torch.zeros(patches.num, dtype=torch.float64)).numpy()[0]
+        np.testing.assert_allclose(got, _free(d), rtol=1e-9)
+    # third order only off patches of at least third_order_min_area_m2
+    none = trace_room_paths(tx, rx, np.array([F]), patches, prov, max_order=3, higher_order_min_area_m2=1.0,
+                            third_order_min_area_m2=size * size + 1.0)
+    assert not (none.order == 3).any()
 
 
 def test_tabulated_coefficients_equal_the_exact_evaluation():

@@ -30,7 +30,9 @@ def fitted(tmp_path_factory):
     r = CliRunner().invoke(app, [*PHYSICAL, "rf-fit", str(d / "scene.h5"), str(d / "meas.h5"), "-o", str(d / "rf.h5")])
     assert r.exit_code == 0, r.output
     assert "physical room model" in r.output and "partition" in r.output     # assumptions and materials printed
-    assert "patch extents tiles" in r.output and "at least 0.3 m^2" in r.output    # the defaults that set the paths
+    # the defaults that set the paths
+    assert "patch extents tiles" in r.output and "reflections up to order 3" in r.output
+    assert "order 2 off patches of at least 0.3 m^2, order 3 off patches of at least 1 m^2" in r.output
     return d
 
 
