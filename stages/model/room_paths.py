@@ -363,14 +363,6 @@ class RoomPaths:
 # ---------------------------------------------------------------------------------------------------
 # tracing the paths
 # ---------------------------------------------------------------------------------------------------
-def _plane_cross(a: np.ndarray, b: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Points [N, 3] where segments a -> b cross the planes (point, normal) [N, 3] each."""
-    da = _dot(a - point, normal)
-    db = _dot(b - point, normal)
-    f = da / np.where(np.abs(da - db) > 1e-15, da - db, 1e-15)
-    return a + f[:, None] * (b - a)
-
-
 def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np.ndarray, order: int,
                      min_m: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Specular paths Tx -> patch_1 -> ... -> patch_order -> Rx over sequences of `cand` (no patch twice in a
