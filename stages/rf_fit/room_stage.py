@@ -59,6 +59,8 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
 
 def _higher_orders(settings: RoomSettings) -> str:
     """Which patches the reflections above the first use, as rf-fit prints it."""
+    if settings.max_order < 1:
+        return "none"
     if settings.max_order < 2:
         return "every patch"
     out = f"order 2 off patches of at least {settings.higher_order_min_area_m2:g} m^2"
