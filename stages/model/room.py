@@ -27,8 +27,8 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
 from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
-from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2, PatchSet, RoomPaths, build_patch_set,
-                         trace_room_paths)
+from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, STORED_MAX_INTERACTIONS,
+                         THIRD_ORDER_MIN_AREA_M2, PatchSet, RoomPaths, build_patch_set, trace_room_paths)
 from .surfels import surfel_areas
 
 
@@ -39,6 +39,8 @@ class RoomSettings:
     max_order: int = MAX_ORDER
     higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2
     third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2
+    # interactions per path at most, reflections and surfaces crossed alike (room_paths.MAX_INTERACTIONS)
+    max_interactions: int = MAX_INTERACTIONS
     coplanar_m: float = 0.01
     # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
     patch_extent: str = "tiles"
@@ -110,7 +112,8 @@ class RoomGeometry:
         def paths() -> RoomPaths:
             return trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
                                     max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
-                                    third_order_min_area_m2=s.third_order_min_area_m2)
+                                    third_order_min_area_m2=s.third_order_min_area_m2,
+                                    max_interactions=s.max_interactions)
 
         def specular(p: RoomPaths, diffuse: DiffuseTerms | None = None) -> RoomLinks:
             with single_thread_torch():   # small tensor ops: on a shared CPU thread hand-offs cost more than the work
@@ -240,6 +243,7 @@ class RoomPredictor:
                 kw[f.name] = type(getattr(RoomSettings, f.name))(attrs[f"room.{f.name}"])
         # models that store no extent were fitted when every patch was made of disks
         kw.setdefault("patch_extent", "disks")
+        kw.setdefault("max_interactions", STORED_MAX_INTERACTIONS)
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])

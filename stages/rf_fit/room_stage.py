@@ -46,6 +46,9 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     settings = RoomSettings(**{k: type(getattr(RoomSettings, k))(v) for k, v in table.items()})
     if settings.polarisation not in ("V", "H") or settings.max_order < 0:
         raise ConfigError("rf_fit.room: polarisation must be 'V' or 'H' and max_order >= 0")
+    if settings.max_interactions < settings.max_order:
+        raise ConfigError(f"rf_fit.room.max_interactions = {settings.max_interactions} is below max_order = "
+                          f"{settings.max_order}: paths of {settings.max_order} reflections would all be dropped")
     if settings.patch_extent not in PATCH_EXTENTS:
         raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
                           f"{', '.join(PATCH_EXTENTS)}")
@@ -126,7 +129,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches, "
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
-                 f"{settings.max_order} ({_higher_orders(settings)}), "
+                 f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
+                 "interactions per path (reflections and surfaces crossed), "
                  f"diffuse {'on (through the slabs it crosses)' if settings.diffuse else 'off'}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "

@@ -7,6 +7,8 @@
   whatever the number of Gaussians tiling the wall; a metal wall blocks it;
 - a window opening: no reflection where the wall has no surfels;
 - a metal corner: the second-order path of the image method, length and amplitude;
+- a direct path through three partitions and a floor reflection through them: kept or dropped by the number of
+  interactions (reflections plus surfaces crossed) a path may have;
 - a metal corner cube: the third-order path of an independent image-method enumeration, its ordering, length
   and amplitude (the free-space field at the image distance).
 """
@@ -142,6 +144,19 @@ def test_no_reflection_from_an_opening_in_the_wall(extent):
     hit = np.zeros(3, int)
     np.add.at(hit, paths.link[paths.order == 1].numpy(), 1)
     assert hit.tolist() == [1, 0, 1]
+
+
+def test_paths_with_more_interactions_than_allowed_are_dropped():
+    floor = plate_mesh((0.0, 0.0, 0.0), (1, 0, 0), (0, 1, 0), 30.0, 30.0)
+    walls = [plate_mesh((x, 0.0, 1.5), (0, 1, 0), (0, 0, 1), 6.0, 3.0) for x in (-1.0, 0.0, 1.0)]
+    patches, prov = _room([floor, *walls], spacing=0.5)
+    tx, rx = np.array([[-2.0, 0.0, 1.5]]), np.array([[2.0, 0.0, 1.0]])
+    # the direct path crosses the three partitions (3 interactions); the floor reflection crosses them too (4)
+    kept = {}
+    for n in (2, 3, 4, 8):
+        paths = trace_room_paths(tx, rx, np.array([F]), patches, prov, max_order=1, max_interactions=n)
+        kept[n] = sorted(zip(paths.order.tolist(), (paths.kind > 0).sum(1).tolist()))
+    assert kept == {2: [], 3: [(0, 3)], 4: [(0, 3), (1, 4)], 8: [(0, 3), (1, 4)]}
 
 
 def test_metal_corner_second_order_path():

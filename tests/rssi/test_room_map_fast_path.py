@@ -122,7 +122,8 @@ def test_a_second_transmitters_map_with_kept_receivers_equals_each_link_traced_a
         t1, r1 = tx_b[None], r[None]
         paths = trace_room_paths(t1, r1, np.full(1, F), room.patches, room.provider, polarisation=s.polarisation,
                                  max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
-                                 third_order_min_area_m2=s.third_order_min_area_m2)
+                                 third_order_min_area_m2=s.third_order_min_area_m2,
+                                 max_interactions=s.max_interactions)
         full = _FullRows(room.cells, room.patches, room.provider)
         diff = diffuse_terms(t1, r1, np.full(1, F), room.cells, room.material_of_patch, room.num_materials, full)
         one = RoomLinks(paths, diff, torch.as_tensor(room.material_of_patch), room.num_materials)
