@@ -27,8 +27,8 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
 from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
-from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, STORED_MAX_INTERACTIONS,
-                         THIRD_ORDER_MIN_AREA_M2, PatchSet, RoomPaths, build_patch_set, trace_room_paths)
+from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2,
+                         PatchSet, RoomPaths, build_patch_set, trace_room_paths)
 from .surfels import surfel_areas
 
 
@@ -243,7 +243,6 @@ class RoomPredictor:
                 kw[f.name] = type(getattr(RoomSettings, f.name))(attrs[f"room.{f.name}"])
         # models that store no extent were fitted when every patch was made of disks
         kw.setdefault("patch_extent", "disks")
-        kw.setdefault("max_interactions", STORED_MAX_INTERACTIONS)
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])

@@ -40,14 +40,12 @@ from .materials import C0, fresnel, slab_transmission
 from .second_order import Patches, mirror_points, planar_patches
 from .surfels import footprint_cells
 
-# paths with more interactions than this, reflections and surfaces crossed counted alike (a ray tracer's depth,
-# Sionna RT's max_depth), are dropped. 3: on the classroom the specular paths of at most three interactions follow
-# Sionna's depth-3 solve closer than all paths up to eight do (0.93 against 1.11 dB link by link with the true
-# materials), the fit's training error is lower and a fit step costs 60 % of the paths (docs/rssi.md,
-# "Interactions per path"); RoomSettings takes its default from here
-MAX_INTERACTIONS = 3
-# models that store no max_interactions were fitted when paths of up to eight interactions were kept
-STORED_MAX_INTERACTIONS = 8
+# paths with more interactions than this, reflections and surfaces crossed counted alike (a ray tracer's depth;
+# Sionna RT's max_depth counts them so), are dropped. 8 keeps what thin furniture lets through (a floor reflection
+# under a desk crosses the top's two faces: five interactions); 3, the simulator's depth, follows its paths closer
+# and cuts a fit's cost by 40 % at the same training error, but the classroom's metal whiteboard is then fitted at
+# |Gamma| 0.83 (docs/rssi.md, "Interactions per path"); RoomSettings takes its default from here
+MAX_INTERACTIONS = 8
 LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
 FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
 # "tiles": a surfel covers its rectangle cell (docs/physics.md 8.6: its Gaussian's in-plane axes, sides in the
