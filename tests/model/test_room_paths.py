@@ -420,6 +420,15 @@ def test_an_unknown_patch_extent_is_refused():
     assert room_config({"room": {"patch_extent": "tiles"}})[0].patch_extent == "tiles"
 
 
+def test_fewer_interactions_than_reflections_are_refused():
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit.room_stage import room_config
+
+    with pytest.raises(ConfigError, match="max_interactions = 2 is below max_order = 3"):
+        room_config({"room": {"max_order": 3, "max_interactions": 2}})
+    assert room_config({"room": {"max_order": 3, "max_interactions": 3}})[0].max_interactions == 3
+
+
 def test_room_settings_defaults_are_the_documented_config():
     """RoomSettings (what code and tests use) and configs/rf_fit.toml's [rf_fit.room] (what the CLI reads and
     documents) give every setting the same default."""
