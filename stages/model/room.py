@@ -26,6 +26,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
+from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
 from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2,
                          PatchSet, RoomPaths, build_patch_set, trace_room_paths)
@@ -42,6 +43,9 @@ class RoomSettings:
     # interactions per path at most, reflections and surfaces crossed alike (room_paths.MAX_INTERACTIONS)
     max_interactions: int = MAX_INTERACTIONS
     coplanar_m: float = 0.01
+    # adjacent patches merged while the plane of their union holds each to this many times the Gaussians' scatter
+    # about their local planes (plane_merge; exact surfels have none and merge nothing; 0: off)
+    merge_scatter_factor: float = SCATTER_FACTOR
     # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
     patch_extent: str = "tiles"
     diffuse: bool = True
@@ -76,7 +80,8 @@ class RoomGeometry:
         self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) if areas_m2 is None \
             else torch.as_tensor(areas_m2, dtype=torch.float64)
         self.patches: PatchSet = build_patch_set(geom, self.areas, labels, settings.coplanar_m,
-                                                    extent=settings.patch_extent)
+                                                    extent=settings.patch_extent,
+                                                    merge_scatter_factor=settings.merge_scatter_factor)
         mat = np.asarray(material_of_gaussian, dtype=np.int64)
         # a patch lies within one label, so its surfels share one material: take the first
         first = np.full(self.patches.num, -1)
@@ -243,6 +248,8 @@ class RoomPredictor:
                 kw[f.name] = type(getattr(RoomSettings, f.name))(attrs[f"room.{f.name}"])
         # models that store no extent were fitted when every patch was made of disks
         kw.setdefault("patch_extent", "disks")
+        # and those that store no merge factor, when patches were joined neighbour by neighbour only
+        kw.setdefault("merge_scatter_factor", 0.0)
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])

@@ -89,6 +89,7 @@ class PatchSet:
     grid_shape: np.ndarray
     grid_origin: np.ndarray
     cell_m: np.ndarray
+    merge_tol_m: float = 0.0    # RMS offset to which adjacent patches were merged (plane_merge; 0: not merged)
 
     @property
     def num(self) -> int:
@@ -109,29 +110,33 @@ class PatchSet:
 
 
 def _labelled_planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
-                             coplanar_m: float) -> Patches:
-    """`planar_patches` of each label's surfels on their own, merged (every surfel in one patch).
+                             coplanar_m: float, merge_scatter_factor: float) -> Patches:
+    """`planar_patches` of each label's surfels on their own, merged (every surfel in one patch); the merge
+    tolerance kept is the largest of the labels'.
 
     planar_patches joins neighbours within a radius set by the median surfel size; objects tiled at
     different spacings (fine furniture, coarse walls) would otherwise share one radius, and the coarse
     walls' surfels, farther apart than the fine median, would fall apart into many small patches."""
     if labels is None:
-        return planar_patches(geom, areas_m2, None, min_patch_area_m2=0.0, coplanar_m=coplanar_m)
+        return planar_patches(geom, areas_m2, None, min_patch_area_m2=0.0, coplanar_m=coplanar_m,
+                              merge_scatter_factor=merge_scatter_factor)
     lab = labels.numpy()
     ids = np.full(geom.num, -1)
     normal, point, area, members = [], [], [], []
-    count = 0
+    count, tol = 0, 0.0
     for value in np.unique(lab):
         idx = np.flatnonzero(lab == value)
         sub = SimpleNamespace(means=geom.means[idx], normals=geom.normals[idx], num=len(idx))
-        part = planar_patches(sub, areas_m2[idx], None, min_patch_area_m2=0.0, coplanar_m=coplanar_m)
+        part = planar_patches(sub, areas_m2[idx], None, min_patch_area_m2=0.0, coplanar_m=coplanar_m,
+                              merge_scatter_factor=merge_scatter_factor)
+        tol = max(tol, part.merge_tol_m)
         ids[idx] = np.where(part.id >= 0, part.id + count, -1)
         count += len(part.area)
         normal.append(part.normal)
         point.append(part.point)
         area.append(part.area)
         members += [idx[m] for m in part.members]
-    return Patches(ids, np.concatenate(normal), np.concatenate(point), np.concatenate(area), members)
+    return Patches(ids, np.concatenate(normal), np.concatenate(point), np.concatenate(area), members, merge_tol_m=tol)
 
 
 def _disk_occupancy(centres: np.ndarray, uv: np.ndarray, reach: np.ndarray, cell: float) -> np.ndarray:
@@ -164,13 +169,15 @@ def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half:
 
 
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
-                    coplanar_m: float, *, extent: str, max_cells: int = 40_000) -> PatchSet:
-    """Every surfel in one patch (singletons included); extents rasterised from the surfel footprints (see
-    PATCH_EXTENTS): "disks" (_disk_occupancy) or "tiles", the rectangle cells of docs/physics.md 8.6
-    (surfels.footprint_cells) with gaps closed (_tile_occupancy)."""
+                    coplanar_m: float, *, extent: str, merge_scatter_factor: float = 0.0,
+                    max_cells: int = 40_000) -> PatchSet:
+    """Every surfel in one patch (singletons included); neighbours joined within coplanar_m, then adjacent
+    patches merged to merge_scatter_factor times the Gaussians' scatter (plane_merge; 0: not merged);
+    extents rasterised from the surfel footprints (see PATCH_EXTENTS): "disks" (_disk_occupancy) or "tiles",
+    the rectangle cells of docs/physics.md 8.6 (surfels.footprint_cells) with gaps closed (_tile_occupancy)."""
     if extent not in PATCH_EXTENTS:
         raise ValueError(f"patch extent {extent!r}: expected one of {', '.join(PATCH_EXTENTS)}")
-    raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m)
+    raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m, merge_scatter_factor)
     x = geom.means.numpy()
     a = areas_m2.detach().numpy()
     lab = None if labels is None else labels.numpy()
@@ -221,7 +228,7 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
                     np.asarray(vs).reshape(-1, 3), raw.area, np.asarray(label, dtype=np.int64), raw.id,
                     np.concatenate(grids) if grids else np.zeros(0, bool), np.asarray(offsets, dtype=np.int64),
                     np.asarray(shapes, dtype=np.int64).reshape(-1, 2), np.asarray(origins).reshape(-1, 2),
-                    np.asarray(cells))
+                    np.asarray(cells), raw.merge_tol_m)
 
 
 def polarisation_vectors(k: np.ndarray, pol: str) -> np.ndarray:

@@ -51,6 +51,7 @@ from rfir_stages.rf_fit.render import LinkSet
 from .edges import patch_coverage_of
 from .link_rows import renumber_links
 from .materials import C0
+from .plane_merge import merge_coplanar, offset_scatter_m
 from .surfels import COPLANAR_M, covariance, footprint_factor
 
 PARALLEL_COS = 0.98     # normals this close, offsets along them below COPLANAR_M: one plane (such patches form no dihedral)
@@ -73,13 +74,18 @@ class Patches:
     members: list
     coverage: dict = field(default_factory=dict)
     corners: object = None      # third_order's candidate corners and reflectors, kept once found
+    merge_tol_m: float = 0.0    # the RMS offset to which adjacent patches were merged (0: not merged; plane_merge)
 
 
 def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None = None,
                    min_patch_area_m2: float = 2e-3, join_factor: float = 1.6,
-                   coplanar_m: float = COPLANAR_M) -> Patches:
+                   coplanar_m: float = COPLANAR_M, merge_scatter_factor: float = 0.0) -> Patches:
     """Group surfels into planar patches (union-find over neighbour pairs on one plane, one label);
-    coplanar_m: the largest offset along the normal between neighbours of one plane."""
+    coplanar_m: the largest offset along the normal between neighbours of one plane. merge_scatter_factor > 0:
+    where that many times the Gaussians' scatter about their local planes exceeds coplanar_m (Gaussians from
+    photos), planes are fitted instead: surfels merged into patches while the plane of each union holds them
+    to that RMS offset (plane_merge; the tolerance is kept in Patches.merge_tol_m, 0 when neighbours were
+    joined)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -93,14 +99,23 @@ def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.T
     radius = join_factor * 2.0 * float(np.median(np.sqrt(a)))
     pairs = cKDTree(x).query_pairs(radius, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
-    same = np.abs((n[i] * n[j]).sum(1)) >= PARALLEL_COS
-    same &= np.abs((n[i] * (x[j] - x[i])).sum(1)) < coplanar_m
+    parallel = np.abs((n[i] * n[j]).sum(1)) >= PARALLEL_COS
     if labels is not None:
         lab = labels.numpy()
-        same &= lab[i] == lab[j]
-    i, j = i[same], j[same]
-    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(g, g))
-    _, comp = connected_components(graph, directed=False)
+        one_label = lab[i] == lab[j]
+        i, j, parallel = i[one_label], j[one_label], parallel[one_label]
+    merge_tol_m = 0.0
+    if merge_scatter_factor > 0:
+        merge_tol_m = merge_scatter_factor * offset_scatter_m(x, i, j, (n[i] * n[j]).sum(1) >= PARALLEL_COS)
+    if merge_tol_m > coplanar_m:
+        # scattered wider than neighbours can be joined by: one stray pair would join two surfaces, and the
+        # neighbour offsets of one surface exceed coplanar_m; every Gaussian starts alone and planes are fitted
+        comp = merge_coplanar(np.arange(g), x, n, a, i, j, PARALLEL_COS, merge_tol_m)
+    else:
+        merge_tol_m = 0.0
+        same = parallel & (np.abs((n[i] * (x[j] - x[i])).sum(1)) < coplanar_m)
+        graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(g, g))
+        _, comp = connected_components(graph, directed=False)
     ids = np.full(g, -1)
     normals, points, areas, members = [], [], [], []
     for c in np.unique(comp):
@@ -117,7 +132,7 @@ def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.T
         areas.append(area)
         members.append(idx)
     return Patches(ids, np.asarray(normals).reshape(-1, 3), np.asarray(points).reshape(-1, 3), np.asarray(areas),
-                   members)
+                   members, merge_tol_m=merge_tol_m)
 
 
 @dataclass

@@ -126,7 +126,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     t0 = time.time()
     room = RoomGeometry(geom, None if labels is None else torch.as_tensor(np.asarray(labels, dtype=np.int64)),
                         material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
-    progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches, "
+    tol = room.patches.merge_tol_m
+    planes = (f"planes fitted to an RMS offset of at most {tol * 100:.2g} cm, {settings.merge_scatter_factor:g} x the "
+              f"Gaussians' scatter of {tol / settings.merge_scatter_factor * 100:.2g} cm about their planes" if tol > 0
+              else f"neighbours within {settings.coplanar_m:g} m of one plane joined")
+    progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches "
+                 f"({planes}), "
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
