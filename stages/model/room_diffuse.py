@@ -36,6 +36,8 @@ CROSSING_NODES = 91
 # surfaces a leg to a cell may cross (each costs at least a wall's transmission): a leg crossing more
 # carries no diffuse power
 MAX_LEG_CROSSINGS = 3
+# patches smaller than this share of a cell's area (cell_m^2) pool their cells by material, facing and voxel
+SMALL_PATCH_SHARE = 0.25
 # entries of a point's crossing row [C, MAX_LEG_CROSSINGS]: a patch index, or one of these
 NO_CROSSING, UNTRACED, BLOCKED = -1, -2, -3
 
@@ -56,21 +58,35 @@ class DiffuseCells:
 
 def diffuse_cells(means: np.ndarray, areas_m2: np.ndarray, patches: PatchSet, material_of_patch: np.ndarray,
                   cell_m: float) -> DiffuseCells:
-    """Group each patch's surfels into cells of about cell_m (a voxel grid)."""
+    """Group each patch's surfels into cells of about cell_m (a voxel grid). Patches smaller than
+    SMALL_PATCH_SHARE of a cell (cell_m^2) share cells with the other small patches of their material that face
+    the same way (the dominant axis of the normal and its sign) in the voxel: diffuse power is summed over a
+    cell's area whichever small patches carry it, and Gaussians off every plane (from photos: thousands of
+    one-Gaussian patches) would otherwise each be a cell of their own. Such a cell's normal is the area-weighted
+    mean of its patches'; its patch (the one its legs start on) is its anchor's."""
     p = patches.surfel_patch
     vox = np.floor(means / cell_m).astype(np.int64)
-    key = np.concatenate([p[:, None], vox], 1)
-    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    n = patches.normal
+    axis = np.abs(n).argmax(1)
+    facing = 2 * axis + (n[np.arange(len(n)), axis] < 0)
+    small = patches.area < SMALL_PATCH_SHARE * cell_m ** 2
+    owner = np.where(small, -1 - (material_of_patch * 6 + facing), np.arange(patches.num))[p]
+    key = np.concatenate([owner[:, None], vox], 1)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
-    c = len(uniq)
+    c = int(inv.max()) + 1 if len(inv) else 0
     area = np.bincount(inv, weights=areas_m2, minlength=c)
     centre = np.stack([np.bincount(inv, weights=areas_m2 * means[:, i], minlength=c) for i in range(3)], 1)
     centre /= np.maximum(area, 1e-30)[:, None]
     dist = np.linalg.norm(means - centre[inv], axis=1)
     order = np.lexsort((dist, inv))
     first = order[np.unique(inv[order], return_index=True)[1]]
-    patch = uniq[:, 0]
-    return DiffuseCells(centre, patches.normal[patch], area, material_of_patch[patch], patch, first, means[first])
+    patch = p[first]
+    # sign-aligned with the anchor's patch (one facing per cell: the signs agree but for rounding at 45 degrees)
+    sign = np.where(_dot(n[p], n[patch[inv]]) < 0, -1.0, 1.0)
+    normal = np.stack([np.bincount(inv, weights=areas_m2 * sign * n[p, i], minlength=c) for i in range(3)], 1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    return DiffuseCells(centre, normal, area, material_of_patch[patch], patch, first, means[first])
 
 
 @dataclass

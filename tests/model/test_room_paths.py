@@ -295,6 +295,32 @@ def test_diffuse_weights_equal_the_direct_lambertian_sum():
     np.testing.assert_allclose(got, want, rtol=2e-3)
 
 
+def test_small_patches_pool_their_diffuse_cells():
+    """Patches smaller than SMALL_PATCH_SHARE of a cell share cells by material, facing and voxel (scattered
+    Gaussians off every plane would each be a cell); a large patch keeps its own; area is kept either way."""
+    from rfir_stages.model.room_diffuse import SMALL_PATCH_SHARE, diffuse_cells
+
+    floor = plate_mesh((1.0, 1.0, 0.0), (1, 0, 0), (0, 1, 0), 1.9, 1.9)              # inside the voxel [0, 2)^3
+    tiles = [plate_mesh((x, y, 1.0 + 0.1 * k), (1, 0, 0), (0, 1, 0), 0.2, 0.2)       # 0.04 m^2 each, the same voxel
+             for k, (x, y) in enumerate([(0.4, 0.4), (1.0, 0.4), (0.4, 1.0), (1.0, 1.0)])]
+    patches, prov = _room([floor] + tiles, spacing=0.1)
+    geom = prov.geom
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals).numpy()
+    assert patches.num == 5 and sorted(patches.area)[-2] < SMALL_PATCH_SHARE * 2.0 ** 2
+    mat = np.zeros(patches.num, np.int64)
+    cells = diffuse_cells(geom.means.numpy(), areas, patches, mat, 2.0)
+    big = int(np.argmax(patches.area))
+    small = patches.surfel_patch != big
+    assert np.isclose(cells.area.sum(), areas.sum())
+    assert len(cells.area) == 2                                  # the floor's cell and one for the four tiles
+    pooled = int(np.flatnonzero(cells.patch != big)[0])
+    assert np.isclose(cells.area[pooled], areas[small].sum())
+    assert np.allclose(cells.centre[pooled], (areas[small, None] * geom.means.numpy()[small]).sum(0) / areas[small].sum())
+    assert abs(cells.normal[pooled] @ patches.normal[big]) > 0.999
+    mat[patches.surfel_patch[np.flatnonzero(small)[0]]] = 1      # another material: a cell of its own
+    assert len(diffuse_cells(geom.means.numpy(), areas, patches, mat, 2.0).area) == 3
+
+
 @pytest.mark.parametrize("extent", ["disks", "tiles"])
 def test_diffuse_power_through_a_wall_carries_its_slab_transmission(extent):
     """A floor lit through a wall from the transmitter's side: each cell's term is the unobstructed Lambertian
