@@ -43,8 +43,8 @@ class RoomSettings:
     # interactions per path at most, reflections and surfaces crossed alike (room_paths.MAX_INTERACTIONS)
     max_interactions: int = MAX_INTERACTIONS
     coplanar_m: float = 0.01
-    # adjacent patches merged while the plane of their union holds each to this many times the Gaussians' scatter
-    # about their local planes (plane_merge; exact surfels have none and merge nothing; 0: off)
+    # Gaussians scattered about their planes by more than coplanar_m / this are grouped by plane fit to this many times
+    # their scatter (plane_merge; exact surfels have none and are joined at coplanar_m; 0: never)
     merge_scatter_factor: float = SCATTER_FACTOR
     # where a patch ends (room_paths.PATCH_EXTENTS): "disks" around each surfel, or "tiles", its own tile
     patch_extent: str = "tiles"

@@ -89,7 +89,7 @@ class PatchSet:
     grid_shape: np.ndarray
     grid_origin: np.ndarray
     cell_m: np.ndarray
-    merge_tol_m: float = 0.0    # RMS offset to which adjacent patches were merged (plane_merge; 0: not merged)
+    merge_tol_m: float = 0.0    # RMS offset of the fitted planes (plane_merge; 0: neighbours were joined)
 
     @property
     def num(self) -> int:
@@ -171,8 +171,8 @@ def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half:
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
                     coplanar_m: float, *, extent: str, merge_scatter_factor: float = 0.0,
                     max_cells: int = 40_000) -> PatchSet:
-    """Every surfel in one patch (singletons included); neighbours joined within coplanar_m, then adjacent
-    patches merged to merge_scatter_factor times the Gaussians' scatter (plane_merge; 0: not merged);
+    """Every surfel in one patch (singletons included): neighbours joined within coplanar_m, or planes fitted to
+    merge_scatter_factor times the Gaussians' scatter where that is wider (plane_merge; 0: never);
     extents rasterised from the surfel footprints (see PATCH_EXTENTS): "disks" (_disk_occupancy) or "tiles",
     the rectangle cells of docs/physics.md 8.6 (surfels.footprint_cells) with gaps closed (_tile_occupancy)."""
     if extent not in PATCH_EXTENTS:

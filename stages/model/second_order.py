@@ -74,7 +74,7 @@ class Patches:
     members: list
     coverage: dict = field(default_factory=dict)
     corners: object = None      # third_order's candidate corners and reflectors, kept once found
-    merge_tol_m: float = 0.0    # the RMS offset to which adjacent patches were merged (0: not merged; plane_merge)
+    merge_tol_m: float = 0.0    # RMS offset of the fitted planes (plane_merge; 0: neighbours were joined)
 
 
 def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None = None,

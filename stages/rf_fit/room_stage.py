@@ -73,6 +73,15 @@ def _higher_orders(settings: RoomSettings) -> str:
     return out
 
 
+def patch_grouping(settings: RoomSettings, merge_tol_m: float) -> str:
+    """How the Gaussians were grouped into planar patches, as rf-fit prints it (merge_tol_m: PatchSet's)."""
+    if merge_tol_m > 0:
+        return (f"planes fitted to an RMS offset of at most {merge_tol_m * 100:.2g} cm, "
+                f"{settings.merge_scatter_factor:g} x the Gaussians' scatter of "
+                f"{merge_tol_m / settings.merge_scatter_factor * 100:.2g} cm about their planes")
+    return f"neighbours within {settings.coplanar_m:g} m of one plane joined"
+
+
 def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], str]:
     """(material of each Gaussian [G], material names, the sharing used)."""
     labels = scene.get("gaussians/labels")
@@ -126,12 +135,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     t0 = time.time()
     room = RoomGeometry(geom, None if labels is None else torch.as_tensor(np.asarray(labels, dtype=np.int64)),
                         material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
-    tol = room.patches.merge_tol_m
-    planes = (f"planes fitted to an RMS offset of at most {tol * 100:.2g} cm, {settings.merge_scatter_factor:g} x the "
-              f"Gaussians' scatter of {tol / settings.merge_scatter_factor * 100:.2g} cm about their planes" if tol > 0
-              else f"neighbours within {settings.coplanar_m:g} m of one plane joined")
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches "
-                 f"({planes}), "
+                 f"({patch_grouping(settings, room.patches.merge_tol_m)}), "
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "

@@ -112,3 +112,20 @@ def test_merge_needs_a_shared_neighbour_pair():
     # coplanar but never neighbours: left apart; one pair between them: merged
     assert list(merge_coplanar(comp, x, n, np.ones(4), np.array([0]), np.array([1]), PARALLEL_COS, 0.01)) == [0, 0, 1, 1]
     assert len(set(merge_coplanar(comp, x, n, np.ones(4), np.array([1]), np.array([2]), PARALLEL_COS, 0.01))) == 1
+
+
+def test_rf_fit_says_how_patches_were_grouped():
+    from rfir_stages.model.room import RoomSettings
+    from rfir_stages.rf_fit.room_stage import patch_grouping
+
+    rng = np.random.default_rng(4)
+    x, n, a = _wall(rng, size=(2.0, 2.0), sigma=0.015)
+    merged = planar_patches(_geom(x, n), torch.as_tensor(a), min_patch_area_m2=0.0, coplanar_m=0.01,
+                            merge_scatter_factor=RoomSettings().merge_scatter_factor)
+    words = patch_grouping(RoomSettings(), merged.merge_tol_m)
+    import re
+
+    m = re.fullmatch(r"planes fitted to an RMS offset of at most ([\d.]+) cm, 2 x the Gaussians' scatter of ([\d.]+) "
+                     r"cm about their planes", words)
+    assert m and float(m[2]) == pytest.approx(1.5, rel=0.15) and float(m[1]) == pytest.approx(2 * float(m[2]), abs=0.15)
+    assert patch_grouping(RoomSettings(), 0.0) == "neighbours within 0.01 m of one plane joined"
