@@ -24,6 +24,7 @@ from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index, reflection_ranges
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
+from rfir_stages.model.room_diffuse import SMALL_PATCH_SHARE
 from rfir_stages.model.room_paths import PATCH_EXTENTS
 
 from .physical_stage import attach_ranges, bound_warnings, range_words
@@ -80,6 +81,15 @@ def patch_grouping(settings: RoomSettings, merge_tol_m: float) -> str:
                 f"{settings.merge_scatter_factor:g} x the Gaussians' scatter of "
                 f"{merge_tol_m / settings.merge_scatter_factor * 100:.2g} cm about their planes")
     return f"neighbours within {settings.coplanar_m:g} m of one plane joined"
+
+
+def diffuse_words(settings: RoomSettings, num_cells: int) -> str:
+    """The diffuse term's cells, as rf-fit prints it."""
+    if not settings.diffuse:
+        return "off"
+    pooled = SMALL_PATCH_SHARE * settings.diffuse_cell_m ** 2
+    return (f"on ({num_cells} cells of about {settings.diffuse_cell_m:g} m, patches under {pooled:.2g} m^2 pooled "
+            "by material, facing and voxel; through the slabs it crosses)")
 
 
 def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], str]:
@@ -141,7 +151,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
                  "interactions per path (reflections and surfaces crossed), "
-                 f"diffuse {'on (through the slabs it crosses)' if settings.diffuse else 'off'}, polarisation "
+                 f"diffuse {diffuse_words(settings, room.cells.area.size)}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "
                  + ("off" if settings.device_gains == "off" else

@@ -5,6 +5,7 @@ image with coefficient -0.4): the fitted model must predict the held-out links b
 log-distance model, and the partition's fitted material must cost about the 8 dB the data hold."""
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -35,6 +36,8 @@ def fitted(tmp_path_factory):
     assert "order 2 off patches of at least 0.3 m^2, order 3 off patches of at least 1 m^2" in r.output
     assert "at most 8 interactions per path (reflections and surfaces crossed)" in r.output
     assert "planar patches (neighbours within 0.01 m of one plane joined)" in r.output    # exact surfels: no plane fit
+    assert re.search(r"diffuse on \(\d+ cells of about 0.7 m, patches under 0.12 m\^2 pooled by material, facing and "
+                     r"voxel; through the slabs it crosses\)", r.output)
     return d
 
 
