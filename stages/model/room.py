@@ -27,7 +27,8 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from .materials import C0, fresnel, slab_transmission
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
-from .room_diffuse import MAX_LEG_CROSSINGS, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells, diffuse_terms
+from .room_diffuse import (MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells,
+                           diffuse_terms)
 from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2,
                          PatchSet, RoomPaths, build_patch_set, trace_room_paths)
 from .surfels import surfel_areas
@@ -50,6 +51,8 @@ class RoomSettings:
     patch_extent: str = "tiles"
     diffuse: bool = True
     diffuse_cell_m: float = 0.7
+    # patches smaller than this share of a diffuse cell pool their cells by material, facing and voxel (room_diffuse)
+    small_patch_share: float = SMALL_PATCH_SHARE
     polarisation: str = "V"
     # the RF opacity stored with the model (rf/opacity, what attribute maps show); the room's paths and
     # diffuse legs are attenuated by the slab transmission of the surfaces they cross, not by opacity
@@ -89,7 +92,8 @@ class RoomGeometry:
         self.material_of_patch = mat[first]
         self.num_materials = int(mat.max()) + 1 if mat.size else 1
         self.cells: DiffuseCells = diffuse_cells(geom.means.numpy(), self.areas.numpy(), self.patches,
-                                                 self.material_of_patch, settings.diffuse_cell_m)
+                                                 self.material_of_patch, settings.diffuse_cell_m,
+                                                 settings.small_patch_share)
         self.provider = make_provider(occlusion, geom, alpha_min)
         # the surfaces crossed from each end to the diffuse cells, kept per point: a map's receivers serve every
         # transmitter
@@ -250,6 +254,8 @@ class RoomPredictor:
         kw.setdefault("patch_extent", "disks")
         # and those that store no merge factor, when patches were joined neighbour by neighbour only
         kw.setdefault("merge_scatter_factor", 0.0)
+        # and a cell per patch, when they store no pooling share
+        kw.setdefault("small_patch_share", 0.0)
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])

@@ -37,6 +37,7 @@ CROSSING_NODES = 91
 # carries no diffuse power
 MAX_LEG_CROSSINGS = 3
 # patches smaller than this share of a cell's area (cell_m^2) pool their cells by material, facing and voxel
+# (RoomSettings takes its default from here)
 SMALL_PATCH_SHARE = 0.25
 # entries of a point's crossing row [C, MAX_LEG_CROSSINGS]: a patch index, or one of these
 NO_CROSSING, UNTRACED, BLOCKED = -1, -2, -3
@@ -57,9 +58,9 @@ class DiffuseCells:
 
 
 def diffuse_cells(means: np.ndarray, areas_m2: np.ndarray, patches: PatchSet, material_of_patch: np.ndarray,
-                  cell_m: float) -> DiffuseCells:
+                  cell_m: float, small_patch_share: float = SMALL_PATCH_SHARE) -> DiffuseCells:
     """Group each patch's surfels into cells of about cell_m (a voxel grid). Patches smaller than
-    SMALL_PATCH_SHARE of a cell (cell_m^2) share cells with the other small patches of their material that face
+    small_patch_share of a cell (cell_m^2; 0: none) share cells with the other small patches of their material that face
     the same way (the dominant axis of the normal and its sign) in the voxel: diffuse power is summed over a
     cell's area whichever small patches carry it, and Gaussians off every plane (from photos: thousands of
     one-Gaussian patches) would otherwise each be a cell of their own. Such a cell's normal is the area-weighted
@@ -69,7 +70,7 @@ def diffuse_cells(means: np.ndarray, areas_m2: np.ndarray, patches: PatchSet, ma
     n = patches.normal
     axis = np.abs(n).argmax(1)
     facing = 2 * axis + (n[np.arange(len(n)), axis] < 0)
-    small = patches.area < SMALL_PATCH_SHARE * cell_m ** 2
+    small = patches.area < small_patch_share * cell_m ** 2
     owner = np.where(small, -1 - (material_of_patch * 6 + facing), np.arange(patches.num))[p]
     key = np.concatenate([owner[:, None], vox], 1)
     _, inv = np.unique(key, axis=0, return_inverse=True)

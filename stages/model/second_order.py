@@ -99,14 +99,15 @@ def planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.T
     radius = join_factor * 2.0 * float(np.median(np.sqrt(a)))
     pairs = cKDTree(x).query_pairs(radius, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
-    parallel = np.abs((n[i] * n[j]).sum(1)) >= PARALLEL_COS
     if labels is not None:
         lab = labels.numpy()
         one_label = lab[i] == lab[j]
-        i, j, parallel = i[one_label], j[one_label], parallel[one_label]
+        i, j = i[one_label], j[one_label]
+    cos = (n[i] * n[j]).sum(1)
+    parallel = np.abs(cos) >= PARALLEL_COS
     merge_tol_m = 0.0
-    if merge_scatter_factor > 0:
-        merge_tol_m = merge_scatter_factor * offset_scatter_m(x, i, j, (n[i] * n[j]).sum(1) >= PARALLEL_COS)
+    if merge_scatter_factor > 0:     # the scatter about local planes from same-facing neighbours (plane_merge)
+        merge_tol_m = merge_scatter_factor * offset_scatter_m(x, i, j, cos >= PARALLEL_COS)
     if merge_tol_m > coplanar_m:
         # scattered wider than neighbours can be joined by: one stray pair would join two surfaces, and the
         # neighbour offsets of one surface exceed coplanar_m; every Gaussian starts alone and planes are fitted

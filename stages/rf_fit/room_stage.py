@@ -24,7 +24,6 @@ from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index, reflection_ranges
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
-from rfir_stages.model.room_diffuse import SMALL_PATCH_SHARE
 from rfir_stages.model.room_paths import PATCH_EXTENTS
 
 from .physical_stage import attach_ranges, bound_warnings, range_words
@@ -50,6 +49,8 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     if settings.max_interactions < settings.max_order:
         raise ConfigError(f"rf_fit.room.max_interactions = {settings.max_interactions} is below max_order = "
                           f"{settings.max_order}: paths of {settings.max_order} reflections would all be dropped")
+    if settings.small_patch_share < 0 or settings.merge_scatter_factor < 0:
+        raise ConfigError("rf_fit.room: small_patch_share and merge_scatter_factor must be >= 0")
     if settings.patch_extent not in PATCH_EXTENTS:
         raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
                           f"{', '.join(PATCH_EXTENTS)}")
@@ -87,9 +88,10 @@ def diffuse_words(settings: RoomSettings, num_cells: int) -> str:
     """The diffuse term's cells, as rf-fit prints it."""
     if not settings.diffuse:
         return "off"
-    pooled = SMALL_PATCH_SHARE * settings.diffuse_cell_m ** 2
-    return (f"on ({num_cells} cells of about {settings.diffuse_cell_m:g} m, patches under {pooled:.2g} m^2 pooled "
-            "by material, facing and voxel; through the slabs it crosses)")
+    pooled = settings.small_patch_share * settings.diffuse_cell_m ** 2
+    pooling = (f"patches under {pooled:.2g} m^2 pooled by material, facing and voxel" if pooled > 0
+               else "a cell per patch and voxel")
+    return f"on ({num_cells} cells of about {settings.diffuse_cell_m:g} m, {pooling}; through the slabs it crosses)"
 
 
 def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], str]:

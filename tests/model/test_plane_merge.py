@@ -129,3 +129,7 @@ def test_rf_fit_says_how_patches_were_grouped():
                      r"cm about their planes", words)
     assert m and float(m[2]) == pytest.approx(1.5, rel=0.15) and float(m[1]) == pytest.approx(2 * float(m[2]), abs=0.15)
     assert patch_grouping(RoomSettings(), 0.0) == "neighbours within 0.01 m of one plane joined"
+    from rfir_stages.rf_fit.room_stage import diffuse_words
+
+    assert "patches under 0.12 m^2 pooled" in diffuse_words(RoomSettings(), 10)
+    assert "a cell per patch and voxel" in diffuse_words(RoomSettings(small_patch_share=0.0), 10)

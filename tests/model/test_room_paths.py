@@ -319,6 +319,7 @@ def test_small_patches_pool_their_diffuse_cells():
     assert abs(cells.normal[pooled] @ patches.normal[big]) > 0.999
     mat[patches.surfel_patch[np.flatnonzero(small)[0]]] = 1      # another material: a cell of its own
     assert len(diffuse_cells(geom.means.numpy(), areas, patches, mat, 2.0).area) == 3
+    assert len(diffuse_cells(geom.means.numpy(), areas, patches, mat, 2.0, 0.0).area) == 5   # off: a cell per patch
 
 
 @pytest.mark.parametrize("extent", ["disks", "tiles"])
