@@ -46,6 +46,7 @@ import numpy as np
 
 from rfir_cli.errors import ConfigError, InputFileError, RfirError
 
+from .rssi import clear_of_objects
 from .scenes import SceneSpec, build_scene, write_ply
 
 STREAMS = ("plan", "tx_gain", "rx_gain", "tx_boresight", "rx_boresight", "fading", "splits")
@@ -110,16 +111,6 @@ def random_directions(rng: np.random.Generator, n: int) -> np.ndarray:
     """[n, 3] unit vectors uniform on the sphere."""
     v = rng.normal(size=(n, 3))
     return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def clear_of_objects(spec: SceneSpec, points_m: np.ndarray, clearance_m: float) -> np.ndarray:
-    """[N] bool: the point lies outside every object's bounding box grown by clearance_m."""
-    pts = np.asarray(points_m, np.float64)
-    ok = np.ones(len(pts), dtype=bool)
-    for o in spec.objects:
-        lo, hi = o.vertices.min(0) - clearance_m, o.vertices.max(0) + clearance_m
-        ok &= ~np.all((pts >= lo) & (pts <= hi), axis=1)
-    return ok
 
 
 def floorplan_mesh(spec: SceneSpec, rng: np.random.Generator, error_std_m: float):

@@ -1,8 +1,9 @@
 """RSSI in a room (task "rssi"): T transmitters x R receivers, omni antennas.
 
 Layout (the paper's design, 24 Tx x 440 Rx): transmitters on a 6 x 4 grid at `tx_height_m`,
-receivers on a 22 x 20 grid at `rx_height_m`, both inset `margin_m` from the walls. One Sionna
-solve per transmitter with every receiver as a target, at each frequency.
+receivers on a 22 x 20 grid at `rx_height_m`, both inset `margin_m` from the walls; grid points
+within `clearance_m` of an object's bounding box (inside a fridge, against a wardrobe) are dropped. One
+Sionna solve per transmitter with every receiver as a target, at each frequency.
 """
 from __future__ import annotations
 
@@ -19,6 +20,17 @@ def grid_positions(bounds, nx: int, ny: int, z: float, margin_m: float) -> np.nd
     ys = np.linspace(lo[1] + margin_m, hi[1] - margin_m, int(ny))
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     return np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, float(z))], 1)
+
+
+def clear_of_objects(spec, points_m: np.ndarray, clearance_m: float) -> np.ndarray:
+    """[N] bool: the point (points_m [N, 3], m) lies outside every object's bounding box grown by
+    clearance_m (spec: a SceneSpec)."""
+    pts = np.asarray(points_m, np.float64)
+    ok = np.ones(len(pts), dtype=bool)
+    for o in spec.objects:
+        lo, hi = o.vertices.min(0) - clearance_m, o.vertices.max(0) + clearance_m
+        ok &= ~np.all((pts >= lo) & (pts <= hi), axis=1)
+    return ok
 
 
 def simulate_rssi(scene, tx_pos, rx_pos, freqs_hz, physics: PhysicsEffects, progress, label: str,

@@ -83,6 +83,7 @@ class SimulateSettings:
     rx_height_m: float = 1.0
     tx_margin_m: float = 1.0
     rx_margin_m: float = 0.4
+    clearance_m: float = 0.05
     test_fraction: float = 0.2
     rssi_samples_per_src: int = 30000
     rssi_max_paths: int = 2000000
@@ -129,7 +130,7 @@ def _defaults() -> dict:
     return load_defaults().get("simulate", {})
 
 
-RSSI_KEYS = {"freqs_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m",
+RSSI_KEYS = {"freqs_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m", "clearance_m",
              "test_fraction", "samples_per_src", "max_num_paths_per_src"}
 
 
@@ -183,6 +184,7 @@ def parse_settings(config: dict | None, quick: bool | None = None, scene: str | 
             tx_grid=[int(v) for v in rs.get("tx_grid", [6, 4])], rx_grid=[int(v) for v in rs.get("rx_grid", [22, 20])],
             tx_height_m=float(rs.get("tx_height_m", 2.2)), rx_height_m=float(rs.get("rx_height_m", 1.0)),
             tx_margin_m=float(rs.get("tx_margin_m", 1.0)), rx_margin_m=float(rs.get("rx_margin_m", 0.4)),
+            clearance_m=float(rs.get("clearance_m", 0.05)),
             test_fraction=float(rs.get("test_fraction", 0.2)),
             rssi_samples_per_src=int(rs.get("samples_per_src", 30000)),
             rssi_max_paths=int(rs.get("max_num_paths_per_src", 2000000)),
@@ -240,6 +242,8 @@ def _validate(s: SimulateSettings) -> None:
         bad("rssi.tx_grid and rssi.rx_grid must be two positive integers")
     if not 0.0 <= s.test_fraction < 1.0:
         bad("rssi.test_fraction must be in [0, 1)")
+    if s.clearance_m < 0:
+        bad("rssi.clearance_m must be >= 0")
     if s.wideband_num_freqs < 1 or s.wideband_num_anchors < 1:
         bad("wideband.num_freqs and num_anchors must be >= 1")
     if s.measurement.noise_db < 0:

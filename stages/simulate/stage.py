@@ -35,6 +35,7 @@ class SimulateResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     backends: dict[str, str] = field(default_factory=dict)  # task -> solver ("sionna", "po")
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what was assumed or dropped, one line each
 
 
 def default_tasks(spec: SceneSpec) -> list[str]:
@@ -101,7 +102,8 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
         for task in tasks:
             t0 = time.time()
             path = out / artifact_name(task, tasks)
-            n_links, n_f = _radio_task(task, spec, radio, settings, path, config_toml, progress, out / "radio")
+            n_links, n_f = _radio_task(task, spec, radio, settings, path, config_toml, progress, out / "radio",
+                                     result.notes)
             result.measurements[task] = path
             result.links[task] = n_links
             result.freqs[task] = n_f
@@ -124,7 +126,8 @@ def _photos(spec, out, settings, result, progress) -> None:
     result.images = len(rendered.image_paths)
 
 
-def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, config_toml: str, progress, folder):
+def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, config_toml: str, progress, folder,
+                notes: list[str]):
     from rfir_cli.artifacts import write_artifact
     from rfir_cli.provenance import Provenance
 
@@ -132,7 +135,7 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
     started = time.time()
     backend = "sionna" if task == "rssi" else settings.rcs_backend
     if task == "rssi":
-        data, sim_attrs = _rssi(spec, radio, settings, progress)
+        data, sim_attrs = _rssi(spec, radio, settings, progress, notes)
     elif backend == "po":
         data, sim_attrs = _rcs_po(task, spec, settings, progress)
     else:
@@ -192,11 +195,32 @@ def _flat_attrs(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def _rssi(spec, radio, s: SimulateSettings, progress):
-    from .rssi import grid_positions, simulate_rssi
+def rssi_grids(spec, s: SimulateSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Transmitter [T, 3] and receiver [R, 3] grid positions (m) of the rssi task, and for each a [T] / [R]
+    bool: the point keeps clearance_m from every object's bounding box (not inside furniture or against it)."""
+    from .rssi import clear_of_objects, grid_positions
 
-    tx = grid_positions(spec.bounds, *s.tx_grid, s.tx_height_m, s.tx_margin_m)
-    rx = grid_positions(spec.bounds, *s.rx_grid, s.rx_height_m, s.rx_margin_m)
+    out = []
+    for what, grid, height, margin in (("transmitter", s.tx_grid, s.tx_height_m, s.tx_margin_m),
+                                       ("receiver", s.rx_grid, s.rx_height_m, s.rx_margin_m)):
+        pts = grid_positions(spec.bounds, *grid, height, margin)
+        clear = clear_of_objects(spec, pts, s.clearance_m)
+        if not clear.any():
+            raise ConfigError(f"simulate.rssi: every {what} grid point lies within clearance_m = {s.clearance_m:g} m "
+                              f"of an object of scene {spec.name!r}")
+        out += [pts, clear]
+    return out[0], out[2], out[1], out[3]
+
+
+def _rssi(spec, radio, s: SimulateSettings, progress, notes: list[str]):
+    """(measurement fields, simulator attributes) of the rssi task; appends to notes what it dropped.
+
+    The whole grids are solved and the split drawn over all their links before the points without
+    clearance are dropped: the links kept are exactly those of a solve without the clearance (Sionna's
+    sampling depends on the set of receivers), with the same split."""
+    from .rssi import simulate_rssi
+
+    tx, rx, tx_clear, rx_clear = rssi_grids(spec, s)
     freqs = np.asarray(s.rssi_freqs_hz, float)
     channel, power, tx_id, rx_id, n_paths, cap_hits = simulate_rssi(radio, tx, rx, freqs, s.physics_for("rssi"), progress,
                                                           f"RSSI {len(tx)} Tx x {len(rx)} Rx")
@@ -205,11 +229,21 @@ def _rssi(spec, radio, s: SimulateSettings, progress):
     split = np.zeros(n, np.int64)
     test = rng.permutation(n)[: int(round(s.test_fraction * n))]
     split[test] = 1
+    keep = tx_clear[tx_id] & rx_clear[rx_id]
+    for what, clear in (("transmitter", tx_clear), ("receiver", rx_clear)):
+        if not clear.all():
+            notes.append(f"dropped {int((~clear).sum())} of {len(clear)} {what} grid points within "
+                         f"{s.clearance_m:g} m of an object's bounding box (inside furniture or against it)")
+    channel, power, n_paths, split = channel[keep], power[keep], n_paths[keep], split[keep]
+    tx_id = (np.cumsum(tx_clear) - 1)[tx_id[keep]]                      # ids of the kept points, 0..T'-1
+    rx_id = (np.cumsum(rx_clear) - 1)[rx_id[keep]]
+    tx, rx = tx[tx_clear], rx[rx_clear]
     data = {"tx_pos": tx[tx_id], "rx_pos": rx[rx_id], "freq_hz": freqs, "channel": channel, "_power": power,
             "tx_id": tx_id.astype(np.int64), "rx_id": rx_id.astype(np.int64), "split": split}
     attrs = {"backend": "sionna-rt", "antenna_tx": "omni (isotropic, V-pol)", "antenna_rx": "omni (isotropic, V-pol)",
              "split_protocol": f"random {1 - s.test_fraction:.0%}/{s.test_fraction:.0%}, seed {s.seed}",
-             "split_seed": int(s.seed), "num_tx": len(tx), "num_rx": len(rx), "num_paths": n_paths,
+             "split_seed": int(s.seed), "num_tx": len(tx), "num_rx": len(rx), "clearance_m": float(s.clearance_m),
+             "num_paths": n_paths,
              "paths_cap_hits": int(cap_hits), "num_solves": int(len(tx) * len(freqs))}
     return data, attrs
 

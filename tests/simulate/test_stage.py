@@ -85,3 +85,19 @@ def test_unknown_scene_is_a_config_error(tmp_path):
 
     with pytest.raises(ConfigError, match="unknown scene"):
         run("spaceship", tmp_path, _config(), quick=True)
+
+
+def test_rssi_flat_drops_grid_points_inside_furniture(tmp_path):
+    """Receivers of the grid inside the fridge or the bookshelf are not simulated into the file: the rows
+    kept are Tx-major with consecutive ids, keep their random split, and the run says what it dropped."""
+    cfg = _config(photos=False, rssi={"scenes": {"flat": {"tx_grid": [1, 1], "rx_grid": [5, 4]}}},
+                  physics={"diffuse": False})
+    res = run("flat", tmp_path, cfg, quick=False)
+    d = read_artifact(res.measurements["rssi"], "measurements").data
+    assert d["path_gain_db"].shape == (18, 1)                      # 20 grid points, 2 inside furniture
+    assert d["rx_id"].tolist() == list(range(18)) and d["tx_id"].max() == 0
+    rx = np.asarray(d["rx_pos"])
+    assert not any(np.allclose(p, (0.3, 4.5667, 1.0), atol=1e-3) for p in rx)   # inside the fridge
+    assert res.notes == ["dropped 2 of 20 receiver grid points within 0.05 m of an object's bounding box "
+                         "(inside furniture or against it)"]
+    assert (d["path_gain_db"] > -120).all()

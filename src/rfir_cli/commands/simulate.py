@@ -70,5 +70,7 @@ def _report(result) -> None:
     console.print(table)
     if result.backends:
         console.print("solver: " + ", ".join(f"{t} {b}" for t, b in result.backends.items()), highlight=False)
+    for n in result.notes:
+        console.print(n, highlight=False)
     for w in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
