@@ -69,32 +69,55 @@ def _enclosed(geom: FrozenGeometry, pts: torch.Tensor) -> torch.Tensor:
     return inside
 
 
-def check_positions(geom: FrozenGeometry, points_m: np.ndarray, where: str, min_clearance_m: float) -> None:
-    """Refuse antennas inside the geometry: closer than min_clearance_m to a Gaussian's mean, or
-    enclosed by outward-facing surfels (see _enclosed)."""
+def _surface_distance(geom: FrozenGeometry, pts: torch.Tensor) -> torch.Tensor:
+    """[P] m: each point's distance to the nearest Gaussian's disc (its offset along the normal where the
+    point lies within the Gaussian's reach in its plane, its distance to the mean elsewhere): a point
+    on a wall between two Gaussians' means is on the wall."""
+    means, normals = geom.means, geom.normals
+    reach2 = (2.0 * torch.exp(geom.log_scales).max(-1).values) ** 2           # [G]
+    out = []
+    for i in range(0, len(pts), 128):
+        diff = pts[i:i + 128, None] - means[None]                              # [p, G, 3]
+        off = (diff * normals[None]).sum(-1).abs()
+        d2 = (diff * diff).sum(-1)
+        on_disc = d2 - off * off < reach2[None]
+        out.append(torch.where(on_disc, off, d2.sqrt()).min(1).values)
+    return torch.cat(out) if out else torch.zeros(0, dtype=pts.dtype)
+
+
+def positions_inside(geom: FrozenGeometry, points_m: np.ndarray, min_clearance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """([N] bool, [N] m) for points_m [N, 3] m: the point lies inside the geometry (closer than
+    min_clearance_m to a Gaussian's disc, see _surface_distance, or enclosed by outward-facing surfels,
+    see _enclosed), and its distance to the nearest Gaussian's disc."""
     means = geom.means
     pts = torch.as_tensor(np.asarray(points_m, dtype=np.float64))
-    pts = torch.unique(pts, dim=0)
-    nearest = torch.cat([torch.cdist(pts[i:i + 512], means).min(1).values for i in range(0, len(pts), 512)])
-    bad = torch.nonzero(nearest < min_clearance_m).flatten()
-    if bad.numel():
-        i = int(bad[0])
-        raise InputFileError(f"{bad.numel()} antenna position(s) lie inside the geometry (e.g. "
-                             f"{np.round(pts[i].numpy(), 3).tolist()} m, {float(nearest[i]) * 100:.1f} cm from "
-                             f"a Gaussian; need >= {min_clearance_m * 100:.0f} cm)", path=where)
+    uniq, inverse = torch.unique(pts, dim=0, return_inverse=True)
+    nearest = _surface_distance(geom, uniq)
+    inside = nearest < min_clearance_m
     # a point beyond every mean along some axis meets nothing that way, so it cannot be enclosed
     lo, hi = means.min(0).values, means.max(0).values
-    within = ((pts >= lo) & (pts <= hi)).all(-1)
-    enclosed = torch.zeros(len(pts), dtype=torch.bool)
-    cand = within.nonzero()[:, 0]
+    cand = (((uniq >= lo) & (uniq <= hi)).all(-1) & ~inside).nonzero()[:, 0]
     step = max(1, 2_000_000 // max(geom.num, 1))
     for i in range(0, len(cand), step):
-        enclosed[cand[i:i + step]] = _enclosed(geom, pts[cand[i:i + step]])
-    if bool(enclosed.any()):
-        i = int(torch.nonzero(enclosed)[0])
-        raise InputFileError(f"{int(enclosed.sum())} antenna position(s) lie inside the geometry (e.g. "
-                             f"{np.round(pts[i].numpy(), 3).tolist()} m is enclosed by the object's surface)",
-                             path=where)
+        inside[cand[i:i + step]] = _enclosed(geom, uniq[cand[i:i + step]])
+    return inside[inverse].numpy(), nearest[inverse].numpy()
+
+
+def inside_words(points_m: np.ndarray, inside: np.ndarray, nearest_m: np.ndarray, min_clearance_m: float) -> str:
+    """'N antenna position(s) lie inside the geometry (e.g. ...)' for the points flagged by positions_inside."""
+    pts = np.asarray(points_m, np.float64)
+    uniq = np.unique(pts[inside], axis=0)
+    i = int(np.flatnonzero(inside)[0])
+    why = (f"{nearest_m[i] * 100:.1f} cm from a Gaussian's surface; need >= {min_clearance_m * 100:.0f} cm"
+           if nearest_m[i] < min_clearance_m else "enclosed by the object's surface")
+    return f"{len(uniq)} antenna position(s) lie inside the geometry (e.g. {np.round(pts[i], 3).tolist()} m, {why})"
+
+
+def check_positions(geom: FrozenGeometry, points_m: np.ndarray, where: str, min_clearance_m: float) -> None:
+    """Refuse antennas inside the geometry (positions_inside)."""
+    inside, nearest = positions_inside(geom, points_m, min_clearance_m)
+    if inside.any():
+        raise InputFileError(inside_words(points_m, inside, nearest, min_clearance_m), path=where)
 
 
 def check_overlap(geom: FrozenGeometry, meas, where: str) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 from rfir_cli.errors import ConfigError, InputFileError, StageError
 from rfir_cli.progress import NullProgress
 
-from .links import check_overlap, check_positions, geometry_from_artifact
+from .links import check_overlap, geometry_from_artifact, inside_words, positions_inside
 from .rssi_split import rssi_settings, training_rows
 
 
@@ -48,11 +48,29 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     max_links = int(config.get("max_links", 0))
     if max_links and len(rows) > max_links:
         rows = rows[np.linspace(0, len(rows) - 1, max_links).round().astype(int)]
+    rows = _rows_clear_of_geometry(geom, meas, rows, where, float(config.get("min_clearance_m", 0.02)), progress)
     tx, rx = np.asarray(meas["tx_pos"])[rows], np.asarray(meas["rx_pos"])[rows]
-    check_positions(geom, np.concatenate([tx, rx]), where, float(config.get("min_clearance_m", 0.02)))
     target_db = np.asarray(meas["path_gain_db"], np.float64)[rows, col]
     if not np.isfinite(target_db).all():
         raise InputFileError("path_gain_db has non-finite training values", path=measurements_path)
     return run_room(scene, meas, geom, rows, held, tx, rx, float(freqs[col]), target_db, scene_path,
                     measurements_path, out_path, config, render_cfg, cfg, seed=seed, config_toml=config_toml,
                     progress=progress, t_start=t_start)
+
+
+def _rows_clear_of_geometry(geom, meas, rows: np.ndarray, where: str, min_clearance_m: float, progress) -> np.ndarray:
+    """The training rows whose two antennas lie outside the geometry; the others are left out with a
+    warning that names them (a measured position against a desk or a wall), and a file whose every
+    training antenna lies inside is refused (the geometry or the file is wrong)."""
+    tx, rx = np.asarray(meas["tx_pos"])[rows], np.asarray(meas["rx_pos"])[rows]
+    pts = np.concatenate([tx, rx])
+    inside, nearest = positions_inside(geom, pts, min_clearance_m)
+    if not inside.any():
+        return rows
+    bad_row = inside[:len(rows)] | inside[len(rows):]
+    words = inside_words(pts, inside, nearest, min_clearance_m)
+    if bad_row.all():
+        raise InputFileError(words, path=where)
+    progress.log(f"warning: {where}: {words}: their {int(bad_row.sum())} of {len(rows)} training links are "
+                 "left out")
+    return rows[~bad_row]

@@ -102,3 +102,36 @@ def test_re_materialing_the_partition_changes_what_crosses_it(fitted, tmp_path):
     assert np.mean(after[cross] - before[cross]) < -10.0          # a metal partition blocks the direct path
     assert np.mean(np.abs(after[~cross] - before[~cross])) < 3.0   # links on one side keep their level
 
+
+
+def test_training_antennas_inside_the_geometry_are_left_out_and_named(tmp_path):
+    """A receiver standing in the partition: its training links are left out with a warning that names
+    the position; the fit goes on with the rest. A file whose every antenna is inside is refused."""
+    import h5py
+
+    from .helpers import PART_X
+
+    write_scene(tmp_path / "scene.h5", spacing_m=0.3)
+    write_measurements(tmp_path / "meas.h5")
+    with h5py.File(tmp_path / "meas.h5", "r+") as f:
+        rx = f["rx_pos"][:]
+        rx_id = f["rx_id"][:]
+        rx[rx_id == 0] = (PART_X, 0.9, 1.0)                         # in the partition's plane, off its doorway
+        f["rx_pos"][:] = rx
+        n_left_out = int(((rx_id == 0) & (f["split"][:] == 0)).sum())
+        n_train = int((f["split"][:] == 0).sum())
+    fast = ["--set", "rf_fit.physical.iterations=5", "--set", "rf_fit.physical.start_iterations=2"]
+    r = CliRunner().invoke(app, [*fast, "rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"),
+                                 "-o", str(tmp_path / "rf.h5")])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())
+    assert (f"1 antenna position(s) lie inside the geometry (e.g. [{PART_X}, 0.9, 1.0] m" in out
+            and f"their {n_left_out} of {n_train} training links are left out" in out), out
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert len(rf.free["training"]["train_rows"]) == n_train - n_left_out
+
+    with h5py.File(tmp_path / "meas.h5", "r+") as f:
+        f["rx_pos"][:] = np.tile([PART_X, 0.9, 1.0], (len(rx), 1))
+    r = CliRunner().invoke(app, [*fast, "rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"),
+                                 "-o", str(tmp_path / "rf2.h5")])
+    assert r.exit_code == 2 and "inside the geometry" in r.output and not (tmp_path / "rf2.h5").exists()
