@@ -76,6 +76,12 @@ def material_key(name: str) -> str:
     return key
 
 
+def abs2(z: torch.Tensor) -> torch.Tensor:
+    """|z|^2 of a complex tensor as re^2 + im^2, with a finite gradient everywhere: abs() has none at 0,
+    and returns NaN for a coefficient that has underflowed (a metal slab's transmission)."""
+    return z.real ** 2 + z.imag ** 2
+
+
 def permittivity(eps_r, sigma_s_per_m, freq_hz) -> torch.Tensor:
     """Complex relative permittivity eta = eps_r - j sigma / (eps_0 2 pi f), broadcast; complex128."""
     omega = 2.0 * math.pi * _f64(freq_hz)

@@ -44,7 +44,7 @@ from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider, lit_stop
 from rfir_stages.rf_fit.render import LinkSet
 
-from .materials import C0, co_polar_reflection, fresnel, permittivity
+from .materials import C0, abs2, co_polar_reflection, fresnel, permittivity
 from .link_rows import renumber_links
 from .edges import EdgeTerms, aggregate_edges, edge_field, edge_reflection, edge_terms, patch_edges
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
@@ -393,7 +393,7 @@ def scattered_power(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
     surfel_factor [G] complex: each surfel's specular term times (1 + surfel_factor) (the per-Gaussian
     residual of residual.py; None: the physical model alone)."""
     field, diffuse = scattered_field(pairs, material_of_gaussian, mats, freq_hz, surfel_factor)
-    return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
+    return (abs2(field) + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
 
 
 def specular_terms(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats: MaterialValues,
@@ -443,7 +443,7 @@ def scattered_field(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mat
     # G_T G_R V^2 S^2 |Gamma|^2 A cos_i cos_o lambda^2 / (16 pi^3 d_i^2 d_o^2) = base^2 S^2 |Gamma|^2 cos_i cos_o
     # lambda^2 / (pi A)
     diff_terms = (base**2 * s**2 * pairs.cos_i * pairs.cos_o / (math.pi * pairs.area))[:, None] \
-        * gamma.abs() ** 2 * lam[None] ** 2
+        * abs2(gamma) * lam[None] ** 2
     diffuse = torch.zeros((pairs.num_links, f.numel()), dtype=torch.float64).index_add(0, pairs.link, diff_terms)
     return field, diffuse
 
@@ -653,9 +653,9 @@ class AggregatedPairs:
         if self.edges is not None:
             field = field + torch.einsum("mnk,nk->mk", self.edges, edge_reflection(mats, f))
         # diffuse: |te R_TE - (1 - te) R_TM|^2 = te^2 |R_TE|^2 + (1-te)^2 |R_TM|^2 - 2 te (1-te) Re(R_TE R_TM*)
-        moments = torch.stack([r_te.abs() ** 2, r_tm.abs() ** 2, -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
+        moments = torch.stack([abs2(r_te), abs2(r_tm), -2.0 * (r_te * r_tm.conj()).real], -1)   # [N, J, K, 3]
         # sum over (material, node, moment) as one [M, N J 3] x [N J 3, K] product (batched tiny products are slow)
         moments = (moments * (mats.scattering**2)[:, None, None, None]).permute(0, 1, 3, 2)   # [N, J, 3, K]
         lam2 = (C0 / f) ** 2
         diffuse = (self.diffuse.reshape(self.diffuse.shape[0], -1) @ moments.reshape(-1, f.numel())) * lam2[None]
-        return (field.abs() ** 2 + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
+        return (abs2(field) + diffuse) * 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)

@@ -45,6 +45,7 @@ import torch
 
 from rfir_stages.po.geometry import single_thread_torch
 
+from .materials import abs2
 from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms
 
 FORMS = ("auto", "smooth", "blend", "gaussian", "off")
@@ -396,7 +397,7 @@ class _SurfelResidual:
 
     def db(self, r: torch.Tensor, floor: float) -> torch.Tensor:
         extra = torch.zeros_like(self.field0).index_add(0, self.link, self.terms * r[self.gauss][:, None])
-        return 10 * torch.log10(((self.field0 + extra).abs() ** 2 + self.diffuse0) * self.gain + floor)
+        return 10 * torch.log10((abs2(self.field0 + extra) + self.diffuse0) * self.gain + floor)
 
     def fit(self, target_db: np.ndarray, rows: np.ndarray, lam: float, cfg: ResidualConfig) -> torch.Tensor:
         """r [G] complex minimising the dB MSE on `rows` + lam sum |r|^2 / (rows x frequencies)."""

@@ -24,7 +24,7 @@ import torch
 from rfir_stages.po.geometry import single_thread_torch
 from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 
-from .materials import C0, fresnel, slab_transmission
+from .materials import C0, abs2, fresnel, slab_transmission
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import (MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells,
@@ -222,7 +222,7 @@ class RoomLinks:
         """Received power [M, 1] W (P_T = 1 W): g (|field|^2 + P_diff)."""
         field, diff = self.components(mats)
         g = 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
-        return (g * (field.abs() ** 2 + diff))[:, None]
+        return (g * (abs2(field) + diff))[:, None]
 
 
 class RoomPredictor:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from .link_rows import renumber_links
-from .materials import C0, fresnel, slab_transmission
+from .materials import C0, abs2, fresnel, slab_transmission
 from .room_paths import PatchSet, _dot, leg_crossings
 
 NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees of a cell's |Gamma|^2, linear between them
@@ -167,11 +167,11 @@ def diffuse_reflectance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor
         k0 = 2 * math.pi * freq_hz[:1] / C0
         th = None if thickness_m is None else thickness_m[:, None]
         r_te, r_tm = fresnel(eta_of_material, cos[None], k0[None], th)                    # [N, NODES]
-        return 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None]
+        return 0.5 * (abs2(r_te) + abs2(r_tm)) * (scattering ** 2)[:, None]
     k0 = 2 * math.pi * freq_hz / C0                                                          # [M]
     th = None if thickness_m is None else thickness_m[:, None, None]
     r_te, r_tm = fresnel(eta_of_material[:, :, None], cos[None, None], k0[None, :, None], th)  # [N, M, NODES]
-    return 0.5 * (r_te.abs() ** 2 + r_tm.abs() ** 2) * (scattering ** 2)[:, None, None]
+    return 0.5 * (abs2(r_te) + abs2(r_tm)) * (scattering ** 2)[:, None, None]
 
 
 def diffuse_transmittance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
@@ -189,7 +189,7 @@ def diffuse_transmittance(eta_of_material: torch.Tensor, thickness_m: torch.Tens
     if th is None:
         return torch.zeros(torch.broadcast_shapes(eta.shape, cos.shape), dtype=torch.float64)
     t_te, t_tm = slab_transmission(eta, cos, k0, th)
-    return 0.5 * (t_te.abs() ** 2 + t_tm.abs() ** 2)
+    return 0.5 * (abs2(t_te) + abs2(t_tm))
 
 
 class CellCrossings:

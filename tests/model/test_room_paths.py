@@ -468,3 +468,30 @@ def test_room_settings_defaults_are_the_documented_config():
     assert set(table) == {f.name for f in fields(RoomSettings)}
     assert table == {f.name: getattr(RoomSettings(), f.name) for f in fields(RoomSettings)}
 
+
+
+def test_a_metal_slab_gives_finite_gradients_in_the_diffuse_transmittance():
+    """A metal's slab transmission underflows; |T|^2 taken with abs() then has a NaN gradient, which in a
+    fit turns every material's parameters into NaN at the next step (the metal start of the optimiser)."""
+    from rfir_stages.model.physical import MaterialParams
+    from rfir_stages.model.room_diffuse import diffuse_transmittance
+
+    params = MaterialParams(2, eps_r=1.5, sigma_1ghz=1e6, scattering=0.1, thickness_m=0.005)   # underflows to denormals
+    params.set_values(0, eps_r=4.0, sigma_1ghz=0.05, thickness_m=0.1)
+    freq = torch.tensor([F], dtype=torch.float64)
+    vals = params.values()
+    t2 = diffuse_transmittance(vals.eta(freq), vals.thickness_m, freq)
+    assert float(t2[1].max()) < 1e-100 and float(t2[0].max()) > 0.05     # metal blocks, the dielectric not
+    t2.sum().backward()
+    for t in (params.t_eps, params.t_sig, params.t_th):
+        assert torch.isfinite(t.grad).all()
+    assert (params.t_eps.grad[0] != 0)
+
+
+def test_abs2_equals_the_squared_modulus():
+    from rfir_stages.model.materials import abs2
+
+    z = torch.tensor([3 + 4j, 0j, 1e-170 + 1e-170j, 1e-310 + 0j, -2j], dtype=torch.complex128, requires_grad=True)
+    np.testing.assert_allclose(abs2(z).detach().numpy(), np.abs(z.detach().numpy()) ** 2, rtol=1e-12)
+    abs2(z).sum().backward()
+    assert torch.isfinite(torch.view_as_real(z.grad)).all()
