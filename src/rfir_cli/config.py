@@ -58,8 +58,16 @@ def _merge(base: dict, update: dict, origin: str, prefix: str = "") -> None:
             base[key] = _coerce(base[key], value, dotted, origin)
 
 
+# keys whose default is "auto" and whose value may be a number instead
+AUTO_OR_NUMBER = frozenset({"rf_fit.room.max_interactions", "simulate.po.max_facet_edge_m",
+                            "simulate.po.shadow_refine_m", "simulate.po.sbr_spacing_m"})
+
+
 def _coerce(default, value, dotted: str, origin: str):
-    """Check `value` against the type of the default (ints are accepted where floats are)."""
+    """Check `value` against the type of the default (ints are accepted where floats are; the keys of
+    AUTO_OR_NUMBER take "auto" or a number, which their stage checks)."""
+    if dotted in AUTO_OR_NUMBER and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return value
     if isinstance(default, bool) or isinstance(value, bool):
         if isinstance(default, bool) and isinstance(value, bool):
             return value

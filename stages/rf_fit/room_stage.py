@@ -33,9 +33,30 @@ SHARINGS = ("auto", "class", "label", "segment", "global")
 FIT_KEYS = ("iterations", "start_iterations", "lr", "fit_gain", "half_space", "sigma_exponent")
 
 
-def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
-    """(room settings, fit settings, sharing) from the [rf_fit] table ([rf_fit.room] and [rf_fit.physical])."""
+def simulated_depth(meas) -> int | None:
+    """The interactions per path the measurements were simulated to (the simulator's physics.max_depth,
+    recorded in the file's simulator attributes), or None for data that record none (measured data)."""
+    free = getattr(meas, "free", None) or {}
+    depth = (free.get("simulator@attrs") or {}).get("physics.max_depth")
+    return None if depth is None else int(depth)
+
+
+def room_config(config: dict, depth: int | None = None) -> tuple[RoomSettings, PhysicalFitConfig, str]:
+    """(room settings, fit settings, sharing) from the [rf_fit] table ([rf_fit.room] and [rf_fit.physical]).
+
+    max_interactions = "auto" (the default): `depth`, the interactions per path the measurements were
+    simulated to (simulated_depth), where they record one (max_order is lowered to it if above), else
+    room_paths.MAX_INTERACTIONS; interactions_words says which."""
     table = dict(config.get("room", {}) or {})
+    interactions = table.pop("max_interactions", "auto")
+    if interactions == "auto":
+        if depth is not None:
+            table["max_interactions"] = depth
+            table["max_order"] = min(int(table.get("max_order", RoomSettings.max_order)), depth)
+    elif isinstance(interactions, bool) or not isinstance(interactions, int):
+        raise ConfigError(f"rf_fit.room.max_interactions = {interactions!r}: expected \"auto\" or a whole number")
+    else:
+        table["max_interactions"] = interactions
     sharing = str(table.pop("sharing", "auto"))
     if sharing not in SHARINGS:
         raise ConfigError(f"rf_fit.room.sharing = {sharing!r}: expected one of {', '.join(SHARINGS)}")
@@ -60,6 +81,15 @@ def room_config(config: dict) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     phys = dict(config.get("physical", {}) or {})
     fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys})
     return settings, fit_cfg, sharing
+
+
+def interactions_words(config: dict, depth: int | None) -> str:
+    """Where rf-fit's interactions per path come from, as it prints it after the number."""
+    if (config.get("room", {}) or {}).get("max_interactions", "auto") != "auto":
+        return "rf_fit.room.max_interactions"
+    if depth is None:
+        return "auto: the measurements record no simulator depth"
+    return "auto: the depth the measurements were simulated to, physics.max_depth"
 
 
 def _higher_orders(settings: RoomSettings) -> str:
@@ -136,7 +166,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     """Trace, fit and write; returns stage.RfFitResult."""
     from .stage import RfFitResult
 
-    settings, fit_cfg, sharing = room_config(config)
+    depth = simulated_depth(meas)
+    settings, fit_cfg, sharing = room_config(config, depth)
     if settings.device_gains != "off" and not fit_cfg.fit_gain:
         # the gains' prior is zero-mean: without a system gain the common level of the data would go into
         # the gains of the devices the fit saw, and an unseen device would miss it
@@ -152,7 +183,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
-                 "interactions per path (reflections and surfaces crossed), "
+                 f"interactions per path (reflections and surfaces crossed; {interactions_words(config, depth)}), "
                  f"diffuse {diffuse_words(settings, room.cells.area.size)}, polarisation "
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "

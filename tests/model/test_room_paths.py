@@ -464,9 +464,41 @@ def test_room_settings_defaults_are_the_documented_config():
     from rfir_cli.config import load_defaults
     from rfir_stages.model.room import RoomSettings
 
+    from rfir_stages.rf_fit.room_stage import room_config
+
     table = {k: v for k, v in load_defaults()["rf_fit"]["room"].items() if k != "sharing"}
     assert set(table) == {f.name for f in fields(RoomSettings)}
-    assert table == {f.name: getattr(RoomSettings(), f.name) for f in fields(RoomSettings)}
+    assert table["max_interactions"] == "auto"            # data that record no simulator depth: the default
+    parsed = room_config({"room": table})[0]
+    assert {f.name: getattr(parsed, f.name) for f in fields(RoomSettings)} == \
+        {f.name: getattr(RoomSettings(), f.name) for f in fields(RoomSettings)}
+
+
+def test_auto_interactions_follow_the_simulated_depth():
+    """max_interactions = "auto": the depth the file says the measurements were simulated to (max_order lowered
+    to it if above); measured data (no simulator attributes) keep room_paths.MAX_INTERACTIONS; a number is
+    taken as given; anything else is refused."""
+    from types import SimpleNamespace
+
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.model.room_paths import MAX_INTERACTIONS
+    from rfir_stages.rf_fit.room_stage import interactions_words, room_config, simulated_depth
+
+    simulated = SimpleNamespace(free={"simulator@attrs": {"physics.max_depth": np.int64(3)}})
+    measured = SimpleNamespace(free={})
+    assert simulated_depth(simulated) == 3 and simulated_depth(measured) is None
+    auto = {"room": {"max_interactions": "auto"}}
+    s = room_config(auto, simulated_depth(simulated))[0]
+    assert (s.max_interactions, s.max_order) == (3, 3)
+    s = room_config(auto, 2)[0]
+    assert (s.max_interactions, s.max_order) == (2, 2)
+    assert room_config(auto, None)[0].max_interactions == MAX_INTERACTIONS
+    assert room_config({"room": {"max_interactions": 8}}, 3)[0].max_interactions == 8
+    assert "simulated to" in interactions_words(auto, 3) and "record no simulator depth" in interactions_words(auto, None)
+    assert interactions_words({"room": {"max_interactions": 5}}, 3) == "rf_fit.room.max_interactions"
+    for bad in ("eight", 2.5, True):
+        with pytest.raises(ConfigError, match="max_interactions"):
+            room_config({"room": {"max_interactions": bad}})
 
 
 

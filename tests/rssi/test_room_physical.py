@@ -34,7 +34,9 @@ def fitted(tmp_path_factory):
     # the defaults that set the paths
     assert "patch extents tiles" in r.output and "reflections up to order 3" in r.output
     assert "order 2 off patches of at least 0.3 m^2, order 3 off patches of at least 1 m^2" in r.output
-    assert "at most 8 interactions per path (reflections and surfaces crossed)" in r.output
+    out = " ".join(r.output.split())
+    assert ("at most 8 interactions per path (reflections and surfaces crossed; auto: the measurements record no "
+            "simulator depth)") in out
     assert "planar patches (neighbours within 0.01 m of one plane joined)" in r.output    # exact surfels: no plane fit
     assert re.search(r"diffuse on \(\d+ cells of about 0.7 m, patches under 0.12 m\^2 pooled by material, facing and "
                      r"voxel; through the slabs it crosses\)", r.output)
