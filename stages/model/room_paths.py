@@ -46,6 +46,8 @@ from .surfels import footprint_cells
 # and cuts a fit's cost by 40 % at the same training error, but the classroom's metal whiteboard is then fitted at
 # |Gamma| 0.83 (docs/rssi.md, "Interactions per path"); RoomSettings takes its default from here
 MAX_INTERACTIONS = 8
+# (image row, link) pairs of reflection_paths evaluated at once (memory: about 200 bytes each)
+PAIR_CHUNK = 250_000
 LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
 FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
 # "tiles": a surfel covers its rectangle cell (docs/physics.md 8.6: its Gaussian's in-plane axes, sides in the
@@ -420,29 +422,53 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
         if source.size == 0:
             break
     # every link of each row's transmitter with its receiver on the image's side of the last plane (screened with
-    # half the margin, decided exactly below)
+    # half the margin, decided exactly below), in chunks of rows of at most PAIR_CHUNK (row, link) pairs: third
+    # order off a few dozen large patches is tens of millions of pairs (a flat of four rooms), held at once 10 GB
+    if source.size == 0:
+        return np.zeros(0, np.int64), np.zeros((0, order), np.int64), np.zeros((0, order, 3))
     by_source = np.argsort(link_source, kind="stable")                   # the links of each transmitter in turn
     count = np.bincount(link_source, minlength=len(sources))
-    rep = count[source]
-    row = np.repeat(np.arange(len(source)), rep)
+    first_link = np.cumsum(count) - count
+    rep_all = count[source]
+    rx_side = rx @ cn.T - offset                                           # [M, K], gathered per pair
+    # what depends on the row alone (its planes, the images' offsets from them), once per row and reflection
+    per_row = []
+    for k in range(order):
+        p_row = cand[seq[:, k]]
+        n_row, q_row = nrm[p_row], pnt[p_row]
+        per_row.append((p_row, n_row, q_row, _dot(images[k] - q_row, n_row), _dot(images[k + 1] - q_row, n_row)))
+    chunk_of_row = (np.cumsum(rep_all) - rep_all) // PAIR_CHUNK          # by the pairs before the row: contiguous
+    starts = np.flatnonzero(np.diff(chunk_of_row, prepend=-1))
+    out = [_paths_of_rows(np.arange(r0, r1), rep_all, first_link, source, by_source, side_last, rx, rx_side, seq,
+                          images, per_row, patches, order, min_m)
+           for r0, r1 in zip(starts, np.append(starts[1:], len(source)))]
+    out = [o for o in out if o[0].size]
+    if not out:
+        return np.zeros(0, np.int64), np.zeros((0, order), np.int64), np.zeros((0, order, 3))
+    links = np.concatenate([o[0] for o in out])
+    seq = np.concatenate([o[1] for o in out])
+    pts = np.concatenate([o[2] for o in out])
+    srt = np.lexsort([links] + [seq[:, k] for k in range(order - 1, -1, -1)])
+    return links[srt], cand[seq[srt]], pts[srt]
+
+
+def _paths_of_rows(rows, rep_all, first_link, source, by_source, side_last, rx, rx_side, seq, images, per_row,
+                   patches: PatchSet, order: int, min_m: float):
+    """(link [N], sequence of candidate indices [N, order], reflection points [N, order, 3]) of the rows
+    (transmitter, sequence) `rows` of reflection_paths, each with every link of its transmitter."""
+    rep = rep_all[rows]
+    row = np.repeat(rows, rep)
     within = np.arange(len(row)) - np.repeat(np.cumsum(rep) - rep, rep)
-    links = by_source[(np.cumsum(count) - count)[source][row] + within]
-    if len(row):
-        # each receiver's offset from each candidate plane once ([M, K]), gathered per pair
-        rx_side = rx @ cn.T - offset
-        keep = side_last[row] * rx_side[links, seq[row, -1]] > 0.5 * min_m ** 2
-        row, links = row[keep], links[keep]
-    # backwards from the receiver; what depends on the row alone (its planes, the images' offsets from them) is
-    # computed once per row and gathered for the (row, link) pairs still in play
+    links = by_source[first_link[source[row]] + within]
+    keep = side_last[row] * rx_side[links, seq[row, -1]] > 0.5 * min_m ** 2
+    row, links = row[keep], links[keep]
+    # backwards from the receiver, for the (row, link) pairs still in play
     pts = []
     x = rx[links]
     for k in range(order - 1, -1, -1):
         if links.size == 0:
             break
-        p_row = cand[seq[:, k]]
-        n_row, q_row = nrm[p_row], pnt[p_row]
-        pre_side = _dot(images[k] - q_row, n_row)              # the pre-image's side of the plane, per row
-        img_side = _dot(images[k + 1] - q_row, n_row)          # the image's, per row
+        p_row, n_row, q_row, pre_side, img_side = per_row[k]
         n_, q_ = n_row[row], q_row[row]
         x_side = _dot(x - q_, n_)
         ok = x_side * pre_side[row] > min_m ** 2
@@ -456,11 +482,9 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
         row, links, x = row[ok], links[ok], c[ok]
         pts = [q[ok] for q in pts]
         pts.insert(0, x)
-    seq = seq[row]
     if links.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, order), np.int64), np.zeros((0, order, 3))
-    srt = np.lexsort([links] + [seq[:, k] for k in range(order - 1, -1, -1)])
-    return links[srt], cand[seq[srt]], np.stack(pts, 1)[srt]
+    return links, seq[row], np.stack(pts, 1)
 
 
 def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarray, skip_a: np.ndarray,

@@ -527,3 +527,31 @@ def test_abs2_equals_the_squared_modulus():
     np.testing.assert_allclose(abs2(z).detach().numpy(), np.abs(z.detach().numpy()) ** 2, rtol=1e-12)
     abs2(z).sum().backward()
     assert torch.isfinite(torch.view_as_real(z.grad)).all()
+
+
+def test_reflection_paths_in_chunks_of_pairs_equal_one_pass(monkeypatch):
+    """reflection_paths evaluates its (image row, link) pairs in chunks of PAIR_CHUNK (memory): any chunk size
+    gives the same paths, in the same order, up to the third order in a closed box."""
+    from rfir_stages.model import room_paths
+    from rfir_stages.model.room_paths import reflection_paths
+
+    walls = [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
+             plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
+             plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
+             plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
+             plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
+             plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5)]
+    patches, _ = _room(walls, spacing=0.5)
+    rng = np.random.default_rng(1)
+    tx = np.repeat(rng.uniform([0.5, 0.5, 0.5], [3.5, 2.5, 2.0], (3, 3)), 20, axis=0)   # 3 transmitters x 20 links
+    rx = rng.uniform([0.5, 0.5, 0.5], [3.5, 2.5, 2.0], (60, 3))
+    cand = np.arange(patches.num)
+    for order in (1, 2, 3):
+        monkeypatch.setattr(room_paths, "PAIR_CHUNK", 10**9)
+        whole = reflection_paths(tx, rx, patches, cand, order)
+        monkeypatch.setattr(room_paths, "PAIR_CHUNK", 7)
+        chunked = reflection_paths(tx, rx, patches, cand, order)
+        assert len(whole[0]) > 0
+        for a, b in zip(whole, chunked):
+            np.testing.assert_array_equal(a, b)
+    assert len(whole[0]) >= 60                   # third order in a box: paths for (nearly) every link
