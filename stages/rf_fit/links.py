@@ -47,12 +47,17 @@ def make_links(tx_m, rx_m, freq_hz, centre: torch.Tensor, task: str) -> LinkSet:
     return LinkSet(tx, rx, torch.as_tensor(np.asarray(freq_hz, dtype=np.float64)), tx_axis, rx_axis)
 
 
+def _reach2(geom: FrozenGeometry) -> torch.Tensor:
+    """[G] m^2: the squared reach of each Gaussian in its plane (twice its largest scale)."""
+    return (2.0 * torch.exp(geom.log_scales).max(-1).values) ** 2
+
+
 def _enclosed(geom: FrozenGeometry, pts: torch.Tensor) -> torch.Tensor:
     """[P] bool: along all six axis directions the first surfel met faces away from the point,
     i.e. the point is inside a closed surface whose normals point outward (a room's walls face
     into the room, so antennas inside a room are not 'inside')."""
     means, normals = geom.means, geom.normals
-    reach2 = (2.0 * torch.exp(geom.log_scales).max(-1).values) ** 2           # [G]
+    reach2 = _reach2(geom)
     inside = torch.ones(len(pts), dtype=torch.bool)
     diff = means[None] - pts[:, None]                                         # [P, G, 3]
     sq = diff * diff
@@ -74,7 +79,7 @@ def _surface_distance(geom: FrozenGeometry, pts: torch.Tensor) -> torch.Tensor:
     point lies within the Gaussian's reach in its plane, its distance to the mean elsewhere): a point
     on a wall between two Gaussians' means is on the wall."""
     means, normals = geom.means, geom.normals
-    reach2 = (2.0 * torch.exp(geom.log_scales).max(-1).values) ** 2           # [G]
+    reach2 = _reach2(geom)
     out = []
     for i in range(0, len(pts), 128):
         diff = pts[i:i + 128, None] - means[None]                              # [p, G, 3]
