@@ -56,3 +56,11 @@ def test_bad_files_and_recipes(config_dir, tmp_path):
 def test_bare_words_become_strings():
     assert parse_override("a.b=hello") == {"a": {"b": "hello"}}
     assert parse_override("a.b.c=3") == {"a": {"b": {"c": 3}}}
+
+
+def test_auto_or_number_keys_take_a_number_and_others_keep_their_type():
+    c = resolve_config(None, ["simulate.po.max_facet_edge_m=0.01", "rf_fit.room.max_interactions=3"])
+    assert c["simulate"]["po"]["max_facet_edge_m"] == 0.01 and c["rf_fit"]["room"]["max_interactions"] == 3
+    assert resolve_config(None, [])["rf_fit"]["room"]["max_interactions"] == "auto"
+    with pytest.raises(ConfigError, match="must be str"):
+        resolve_config(None, ["rf_fit.antenna=3"])
