@@ -108,7 +108,9 @@ def main() -> None:
         meas = args.measurements
         if meas is None:
             meas = d / "meas.h5"
-            write_artifact(meas, "measurements", classroom_links(), attrs={"task": "rssi", "scene": "classroom"})
+            # synthetic levels from ideal devices: no device gains fitted (rf_fit.room.device_gains = "auto")
+            write_artifact(meas, "measurements", classroom_links(), attrs={"task": "rssi", "scene": "classroom"},
+                           free={"simulator": {"@attrs": {"simulator": "bench_room_fit synthetic levels"}}})
         runs = [(t, 1500) for t in TILINGS[size]] + [(LINKS_TILING, n) for n in LINKS[size] if n != 1500]
         for (spacing, cells), fit_links in runs:
             scene = d / f"scene_{spacing:g}_{cells}.h5"

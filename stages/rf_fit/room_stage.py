@@ -41,13 +41,25 @@ def simulated_depth(meas) -> int | None:
     return None if depth is None else int(depth)
 
 
-def room_config(config: dict, depth: int | None = None) -> tuple[RoomSettings, PhysicalFitConfig, str]:
+def ideal_devices(meas) -> bool:
+    """True for rfir simulate's own data (the file records its simulator, and no measured-like transform
+    added device gains, patterns and fading to them): every device is ideal, with no gain of its own."""
+    attrs = (getattr(meas, "free", None) or {}).get("simulator@attrs")
+    return attrs is not None and "measured_like" not in attrs
+
+
+def room_config(config: dict, depth: int | None = None, ideal: bool = True
+                ) -> tuple[RoomSettings, PhysicalFitConfig, str]:
     """(room settings, fit settings, sharing) from the [rf_fit] table ([rf_fit.room] and [rf_fit.physical]).
 
     max_interactions = "auto" (the default): `depth`, the interactions per path the measurements were
     simulated to (simulated_depth), where they record one (max_order is lowered to it if above), else
-    room_paths.MAX_INTERACTIONS; interactions_words says which."""
+    room_paths.MAX_INTERACTIONS; interactions_words says which. device_gains = "auto" (the default): "off"
+    for data from ideal devices (`ideal`, from ideal_devices), else "both" (measured data: every radio has
+    its own gain); device_words says which."""
     table = dict(config.get("room", {}) or {})
+    if table.get("device_gains", "auto") == "auto":
+        table["device_gains"] = "off" if ideal else "both"
     interactions = table.pop("max_interactions", "auto")
     if interactions == "auto":
         if depth is not None:
@@ -76,7 +88,7 @@ def room_config(config: dict, depth: int | None = None) -> tuple[RoomSettings, P
         raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
                           f"{', '.join(PATCH_EXTENTS)}")
     if settings.device_gains not in DEVICE_CHOICES or not settings.device_gain_prior_db > 0:
-        raise ConfigError(f"rf_fit.room: device_gains must be one of {', '.join(DEVICE_CHOICES)} and "
+        raise ConfigError(f"rf_fit.room: device_gains must be \"auto\" or one of {', '.join(DEVICE_CHOICES)} and "
                           "device_gain_prior_db > 0")
     phys = dict(config.get("physical", {}) or {})
     fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys})
@@ -90,6 +102,14 @@ def interactions_words(config: dict, depth: int | None) -> str:
     if depth is None:
         return "auto: the measurements record no simulator depth"
     return "auto: the depth the measurements were simulated to, physics.max_depth"
+
+
+def device_words(config: dict, ideal: bool) -> str:
+    """Where rf-fit's device gains come from, as it prints it after them."""
+    if (config.get("room", {}) or {}).get("device_gains", "auto") != "auto":
+        return "rf_fit.room.device_gains"
+    return ("auto: simulated with ideal devices" if ideal else
+            "auto: measured data, or simulated data given device gains; rf_fit.room.device_gains = \"off\" for none")
 
 
 def _higher_orders(settings: RoomSettings) -> str:
@@ -166,8 +186,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     """Trace, fit and write; returns stage.RfFitResult."""
     from .stage import RfFitResult
 
-    depth = simulated_depth(meas)
-    settings, fit_cfg, sharing = room_config(config, depth)
+    depth, ideal = simulated_depth(meas), ideal_devices(meas)
+    settings, fit_cfg, sharing = room_config(config, depth, ideal)
     if settings.device_gains != "off" and not fit_cfg.fit_gain:
         # the gains' prior is zero-mean: without a system gain the common level of the data would go into
         # the gains of the devices the fit saw, and an unseen device would miss it
@@ -188,7 +208,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "
                  + ("off" if settings.device_gains == "off" else
-                    f"per {settings.device_gains} (prior {settings.device_gain_prior_db:g} dB)"))
+                    f"per {settings.device_gains} (prior {settings.device_gain_prior_db:g} dB)")
+                 + f" ({device_words(config, ideal)})")
     fit = np.arange(len(tx))
     if settings.device_gains != "off" and 0 < settings.fit_links < len(tx):
         # every device's gain needs its own links: a subsample leaves a few per device

@@ -95,8 +95,9 @@ def links(n_tx=(2, 2), n_rx=(6, 5), tx_z=2.0, rx_z=1.0):
     return tx, rx, tx_id, rx_id
 
 
-def write_measurements(path, freq_hz=2.4e9, seed=0, tx_gain_db=None, rx_gain_db=None, **kw):
-    """Measurements of `links(**kw)`; tx_gain_db [T] / rx_gain_db [R]: device gains added (dB)."""
+def write_measurements(path, freq_hz=2.4e9, seed=0, tx_gain_db=None, rx_gain_db=None, simulated=True, **kw):
+    """Measurements of `links(**kw)`; tx_gain_db [T] / rx_gain_db [R]: device gains added (dB); simulated:
+    the file records a simulator (ideal devices), else none, as measured data."""
     tx, rx, tx_id, rx_id = links(**kw)
     t, r = tx[tx_id], rx[rx_id]
     gain = reference_gain_db(t, r, freq_hz)
@@ -109,4 +110,6 @@ def write_measurements(path, freq_hz=2.4e9, seed=0, tx_gain_db=None, rx_gain_db=
     data = {"tx_pos": t, "rx_pos": r, "freq_hz": np.array([freq_hz]), "path_gain_db": gain[:, None],
             "tx_id": tx_id, "rx_id": rx_id, "split": split,
             "scene_bounds": np.array([[0.0, 0.0, 0.0], list(ROOM)])}
-    return write_artifact(path, "measurements", data, attrs={"task": "rssi", "scene": "testroom"})
+    # the reference model's own levels: ideal devices, as rfir simulate's (rf-fit's device_gains = "auto")
+    return write_artifact(path, "measurements", data, attrs={"task": "rssi", "scene": "testroom"},
+                          free={"simulator": {"@attrs": {"simulator": "tests reference model"}}} if simulated else None)
