@@ -170,7 +170,7 @@ def main() -> None:
     all_m, all_s, report = [], [], {}
     with tempfile.TemporaryDirectory() as tmp:
         scene = load_radio_scene(spec, Path(tmp), f)
-        for t, text in enumerate(args.tx):
+        for text in args.tx:
             tx = np.array([float(v) for v in text.split(",")])
             s = sionna_paths(scene, tx, rx, f, args.depth, args.samples)
             m = model_paths(tx, rx, f, patches, provider, args.depth, eta, thickness, label_names)
