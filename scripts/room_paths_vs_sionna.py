@@ -1,7 +1,7 @@
 """The room model's specular paths against Sionna RT's on a scene `rfir simulate` builds, link by link.
 
     python scripts/room_paths_vs_sionna.py SCENE.h5 --scene flat --tx 2,2,2.2 --tx 7,5.5,2.2 [--depth 3]
-        [--grid 0.6] [--rx-height 1.0] [--samples 1000000] [--json OUT.json]
+        [--grid 0.6] [--rx-height 1.0] [--samples 1000000] [--max-paths 10000000] [--diffuse S] [--json OUT.json]
 
 SCENE.h5: surfels of the scene's true mesh (`rfir mesh-gaussians SIM/meshes/flat_gt.ply -o SCENE.h5 ...`,
 labels naming the simulator's objects). Both sides get the simulator's own materials (ITU-R P.2040 law and
@@ -34,12 +34,12 @@ from rfir_stages.model.materials import itu_law, permittivity
 from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
-from rfir_stages.simulate.radio_scene import load_radio_scene, set_devices
+from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene, set_devices
 from rfir_stages.simulate.rssi import clear_of_objects
 from rfir_stages.simulate.scenes import build_scene
 from rfir_stages.simulate.solve import PhysicsEffects
 
-SPECULAR, REFRACTION = 1, 4        # sionna.rt.InteractionType values
+SPECULAR, DIFFUSE, REFRACTION = 1, 2, 4        # sionna.rt.InteractionType values
 CLEARANCE_M = 0.05
 
 
@@ -63,14 +63,16 @@ def kind_of(seq: tuple) -> str:
     return "+".join(sorted({s.split(":", 1)[1].rstrip("0123456789").rstrip("_") for s in seq})) or "direct"
 
 
-def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int) -> list[dict]:
-    """Per receiver {interaction sequence: power} of Sionna's specular / refracted paths, and the coherent power."""
+def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int, max_paths: int, diffuse: bool = False) -> list[dict]:
+    """Per receiver {interaction sequence: power} of Sionna's specular / refracted paths, and their coherent power
+    (diffuse: solved with diffuse reflection on, as rfir simulate does, and its diffuse paths left out)."""
     import sionna.rt as rt
 
     set_devices(scene, tx[None], rx)
     solver = rt.PathSolver()
     solver.loop_mode = "evaluated"
-    phys = PhysicsEffects(max_depth=depth, diffuse=False, refraction=True, samples_per_src=samples, combine="coherent")
+    phys = PhysicsEffects(max_depth=depth, diffuse=diffuse, refraction=True, samples_per_src=samples,
+                          max_num_paths_per_src=max_paths, combine="coherent")
     paths = solver(scene, **phys.solver_kwargs(los=True))
     a = (np.asarray(paths.a[0].numpy()) + 1j * np.asarray(paths.a[1].numpy()))[:, 0, 0, 0, :]
     tau = np.asarray(paths.tau.numpy())[:, 0, :]
@@ -83,6 +85,8 @@ def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int) -> list[d
         seqs: dict = collections.defaultdict(float)
         field = 0j
         for p in np.flatnonzero(valid[r]):
+            if np.any(inter[:, r, p] == DIFFUSE):
+                continue
             seq = tuple(("R" if inter[k, r, p] == SPECULAR else "T") + ":" + names.get(int(objs[k, r, p]), "?")
                         for k in range(depth) if inter[k, r, p] in (SPECULAR, REFRACTION))
             seqs[seq] += float(abs(a[r, p])) ** 2
@@ -91,11 +95,12 @@ def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int) -> list[d
     return out
 
 
-def model_paths(tx, rx, freq_hz, patches, provider, depth: int, eta, thickness, names) -> list[dict]:
-    """The same per receiver for the room model with the true materials (eta, thickness per patch)."""
+def model_paths(tx, rx, freq_hz, patches, provider, depth: int, eta, thickness, names, s: float = 0.0) -> list[dict]:
+    """The same per receiver for the room model with the true materials (eta, thickness per patch; scattering
+    coefficient s of every material)."""
     p = trace_room_paths(np.repeat(tx[None], len(rx), 0), rx, np.full(len(rx), freq_hz), patches, provider,
                          polarisation="V", max_order=min(depth, 3), max_interactions=depth)
-    zero_s = torch.zeros(patches.num, dtype=torch.float64)
+    zero_s = torch.full((patches.num,), float(s), dtype=torch.float64)
     total = p.field(eta, thickness, zero_s).numpy()
     per = replace(p, link=torch.arange(p.num), num_links=p.num, freq_hz=p.freq_hz[p.link])  # one "link" per path
     power = np.abs(per.field(eta, thickness, zero_s).numpy()) ** 2
@@ -147,6 +152,11 @@ def main() -> None:
     ap.add_argument("--rx-height", type=float, default=1.0)
     ap.add_argument("--freq-hz", type=float, default=2.4e9)
     ap.add_argument("--samples", type=int, default=1_000_000)
+    ap.add_argument("--max-paths", type=int, default=10_000_000, help="Sionna's max_num_paths_per_src")
+    ap.add_argument("--diffuse", type=float, default=0.0, metavar="S",
+                    help="solve with diffuse reflection on, scattering coefficient S on every material (rfir "
+                         "simulate: 0.3, directive, alpha_r 4), its diffuse paths left out; the model's reflections "
+                         "get the same S")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     spec = build_scene(args.scene)
@@ -169,11 +179,11 @@ def main() -> None:
           "specular and refraction, no diffuse, true materials")
     all_m, all_s, report = [], [], {}
     with tempfile.TemporaryDirectory() as tmp:
-        scene = load_radio_scene(spec, Path(tmp), f)
+        scene = load_radio_scene(spec, Path(tmp), f, MaterialEffects(args.diffuse, "directive", 4))
         for text in args.tx:
             tx = np.array([float(v) for v in text.split(",")])
-            s = sionna_paths(scene, tx, rx, f, args.depth, args.samples)
-            m = model_paths(tx, rx, f, patches, provider, args.depth, eta, thickness, label_names)
+            s = sionna_paths(scene, tx, rx, f, args.depth, args.samples, args.max_paths, args.diffuse > 0)
+            m = model_paths(tx, rx, f, patches, provider, args.depth, eta, thickness, label_names, args.diffuse)
             report[text] = compare(m, s)
             all_m += m
             all_s += s

@@ -86,7 +86,7 @@ class SimulateSettings:
     clearance_m: float = 0.05
     test_fraction: float = 0.2
     rssi_samples_per_src: int = 30000
-    rssi_max_paths: int = 2000000
+    rssi_max_paths: int = 10_000_000
     rcs_backend: str = "sionna"
     po: PoSettings = field(default_factory=PoSettings)
     workers: int = 2
@@ -187,7 +187,7 @@ def parse_settings(config: dict | None, quick: bool | None = None, scene: str | 
             clearance_m=float(rs.get("clearance_m", 0.05)),
             test_fraction=float(rs.get("test_fraction", 0.2)),
             rssi_samples_per_src=int(rs.get("samples_per_src", 30000)),
-            rssi_max_paths=int(rs.get("max_num_paths_per_src", 2000000)),
+            rssi_max_paths=int(rs.get("max_num_paths_per_src", SimulateSettings.rssi_max_paths)),
             rcs_backend=str(c.get("rcs_backend", "sionna")).lower(),
             po=PoSettings(near_field=bool(po.get("near_field", True)), second_order=bool(po.get("second_order", True)),
                           max_bounces=int(po.get("max_bounces", 3)),
