@@ -209,12 +209,15 @@ def test_the_rssi_path_buffer_keeps_every_path_of_a_full_grid(tmp_path):
     buffer gives (a buffer of 2e6 moved the median link by 0.36 dB). Slow: two solves of 5-9 GB."""
     from rfir_cli.config import load_defaults
     from rfir_stages.simulate.radio_scene import MaterialEffects
+    from rfir_stages.simulate.rssi import clear_of_objects
 
     rssi = load_defaults()["simulate"]["rssi"]
     spec = build_scene("flat")
     scene = load_radio_scene(spec, tmp_path, 2.4e9, MaterialEffects(0.3, "directive", 4))
     xs, ys = np.meshgrid(np.arange(0.125, 9.0, 0.25), np.arange(0.125, 7.0, 0.25))
     rx = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)], 1)
+    rx = rx[clear_of_objects(spec, rx, 0.05)]                      # not inside the fridge or against a wall
+    assert len(rx) > 800
 
     def solve(cap):
         physics = PhysicsEffects(max_depth=3, diffuse=True, refraction=True, samples_per_src=int(rssi["samples_per_src"]),
