@@ -6,10 +6,11 @@
 SCENE.h5: surfels of the scene's true mesh (`rfir mesh-gaussians SIM/meshes/flat_gt.ply -o SCENE.h5 ...`,
 labels naming the simulator's objects). Both sides get the simulator's own materials (ITU-R P.2040 law and
 slab thickness of every object) and nothing is fitted: Sionna with specular reflection and refraction up to
-`--depth` interactions, no diffuse, no diffraction, the coherent sum of its paths; the room model
+`--depth` interactions, no diffraction, the coherent sum of its specular paths (with `--diffuse S`, solved
+with diffuse reflection on as rfir simulate does and its diffuse paths left out); the room model
 (rfir_stages.model.room_paths) with reflections up to order min(depth, 3) and at most `depth` interactions per
 path, its default patches (tiles) and area thresholds, no diffuse term. Receivers: a grid at --rx-height,
-clear of every object's bounding box by 5 cm and of every wall's plane by 5 cm.
+clear of every object's bounding box (a wall's plane included) by 5 cm.
 
 Printed per transmitter and overall: the median and mean |difference| of the received power (dB, model minus
 Sionna); the share of each link's Sionna power in paths the model does not have (matched by the sequence of
@@ -37,6 +38,7 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene, set_devices
 from rfir_stages.simulate.rssi import clear_of_objects
 from rfir_stages.simulate.scenes import build_scene
+from rfir_stages.simulate.truth import object_class
 from rfir_stages.simulate.solve import PhysicsEffects
 
 SPECULAR, DIFFUSE, REFRACTION = 1, 2, 4        # sionna.rt.InteractionType values
@@ -44,23 +46,16 @@ CLEARANCE_M = 0.05
 
 
 def receivers(spec, grid_m: float, height_m: float) -> np.ndarray:
-    """[R, 3] grid points inside the scene's bounds, clear of the objects' boxes and of the walls' planes."""
+    """[R, 3] grid points inside the scene's bounds, clear of every object's bounding box (a wall's is its plane)."""
     lo, hi = spec.bounds
     xs, ys = np.meshgrid(np.arange(lo[0] + grid_m / 2, hi[0], grid_m), np.arange(lo[1] + grid_m / 2, hi[1], grid_m))
     pts = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, height_m)], 1)
-    flat_objects = [o for o in spec.objects if np.ptp(o.vertices, 0).min() < 1e-9]      # walls, floors: planes
-    boxes = replace(spec, objects=[o for o in spec.objects if np.ptp(o.vertices, 0).min() >= 1e-9])
-    ok = clear_of_objects(boxes, pts, CLEARANCE_M)
-    for o in flat_objects:
-        axis = int(np.argmin(np.ptp(o.vertices, 0)))
-        inside = np.all((pts >= o.vertices.min(0) - CLEARANCE_M) & (pts <= o.vertices.max(0) + CLEARANCE_M), 1)
-        ok &= ~(inside & (np.abs(pts[:, axis] - o.vertices[0, axis]) < CLEARANCE_M))
-    return pts[ok]
+    return pts[clear_of_objects(spec, pts, CLEARANCE_M)]
 
 
 def kind_of(seq: tuple) -> str:
-    """The objects a path involves, by class (window_03 -> window), sorted; "direct" for none."""
-    return "+".join(sorted({s.split(":", 1)[1].rstrip("0123456789").rstrip("_") for s in seq})) or "direct"
+    """The object classes a path involves (window_03 -> window), sorted; "direct" for none."""
+    return "+".join(sorted({object_class(s.split(":", 1)[1]) for s in seq})) or "direct"
 
 
 def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int, max_paths: int, diffuse: bool = False) -> list[dict]:
