@@ -32,7 +32,7 @@ import torch
 
 from rfir_cli.artifacts import read_artifact
 from rfir_stages.model.materials import itu_law, permittivity
-from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
+from rfir_stages.model.room_paths import THIRD_ORDER_SMALL_REFLECTIONS, build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene, set_devices
@@ -90,11 +90,13 @@ def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int, max_paths
     return out
 
 
-def model_paths(tx, rx, freq_hz, patches, provider, depth: int, eta, thickness, names, s: float = 0.0) -> list[dict]:
+def model_paths(tx, rx, freq_hz, patches, provider, depth: int, eta, thickness, names, s: float = 0.0,
+                third_order_small: int = 0) -> list[dict]:
     """The same per receiver for the room model with the true materials (eta, thickness per patch; scattering
-    coefficient s of every material)."""
+    coefficient s of every material; third_order_small: the room model's third_order_small_reflections)."""
     p = trace_room_paths(np.repeat(tx[None], len(rx), 0), rx, np.full(len(rx), freq_hz), patches, provider,
-                         polarisation="V", max_order=min(depth, 3), max_interactions=depth)
+                         polarisation="V", max_order=min(depth, 3), max_interactions=depth,
+                         third_order_small_reflections=third_order_small)
     zero_s = torch.full((patches.num,), float(s), dtype=torch.float64)
     total = p.field(eta, thickness, zero_s).numpy()
     per = replace(p, link=torch.arange(p.num), num_links=p.num, freq_hz=p.freq_hz[p.link])  # one "link" per path
@@ -152,6 +154,8 @@ def main() -> None:
                     help="solve with diffuse reflection on, scattering coefficient S on every material (rfir "
                          "simulate: 0.3, directive, alpha_r 4), its diffuse paths left out; the model's reflections "
                          "get the same S")
+    ap.add_argument("--third-order-small", type=int, default=THIRD_ORDER_SMALL_REFLECTIONS,
+                    help="the room model's third_order_small_reflections ([rf_fit.room])")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     spec = build_scene(args.scene)
@@ -178,7 +182,8 @@ def main() -> None:
         for text in args.tx:
             tx = np.array([float(v) for v in text.split(",")])
             s = sionna_paths(scene, tx, rx, f, args.depth, args.samples, args.max_paths, args.diffuse > 0)
-            m = model_paths(tx, rx, f, patches, provider, args.depth, eta, thickness, label_names, args.diffuse)
+            m = model_paths(tx, rx, f, patches, provider, args.depth, eta, thickness, label_names, args.diffuse,
+                            args.third_order_small)
             report[text] = compare(m, s)
             all_m += m
             all_s += s

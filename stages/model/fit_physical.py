@@ -7,9 +7,10 @@ predicts nothing (a plate seen edge-on) gives a large but finite loss, never -30
 The loss over eps_r, sigma and thickness has several minima (a thin slab's reflection oscillates
 with thickness; metal and a dense dielectric can look alike at one angle), so the fit starts from a
 few physical materials (`STARTS`), runs each a short while with every material at that start, and
-continues from the best; then each material alone may switch to another start when that lowers the
-loss (a metal object beside wooden ones), with a short refit after each round of switches. The
-state with the lowest training loss is kept (not the last step).
+continues from the best (or from each of the `starts_kept` best, the lowest final loss kept); then each
+material alone may switch to another start when that lowers the loss (a metal object beside wooden
+ones), with a short refit after each round of switches. The state with the lowest training loss is
+kept (not the last step).
 """
 from __future__ import annotations
 
@@ -71,6 +72,9 @@ class PhysicalFitConfig:
     half_space: bool = False
     sigma_exponent: float = 1.0
     reflection_ranges: bool = True
+    # the starts carried through the start switching and the full fit, best after start_iterations first; the
+    # lowest final training loss wins (a start that leads after a few steps need not lead at the end)
+    starts_kept: int = 1
 
 
 @dataclass
@@ -191,31 +195,37 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
             best, best_state = final, snapshot(params)
         return best, best_state, curve
 
-    total = (len(STARTS) + SWITCH_ROUNDS) * cfg.start_iterations + cfg.iterations
+    kept = max(1, min(int(cfg.starts_kept), len(STARTS)))
+    total = len(STARTS) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
     with progress.task(f"rf-fit ({label})", total=total) as bar:
         tried = []
         for start in STARTS:
             params = new(start)
             loss, state, curve = run(params, cfg.start_iterations, bar)
             tried.append((loss, start, state, curve))
-        loss, start, state, curve0 = min(tried, key=lambda t: t[0])
-        params = new(start)
-        restore(params, state)
-        for _ in range(SWITCH_ROUNDS):   # one material at a time may prefer another start (metal beside wood)
-            if not _switch_starts(params, lambda: float(objective(params))):
-                break
-            _, state, more = run(params, cfg.start_iterations, bar)
+        finals = []
+        for _, start, state, curve0 in sorted(tried, key=lambda t: t[0])[:kept]:
+            params = new(start)
             restore(params, state)
-            curve0 = curve0 + more
-        with torch.no_grad():
-            initial = float((pred(params) - target).abs().mean())
-        _, state, curve1 = run(params, cfg.iterations, bar)
-        restore(params, state)
+            for _ in range(SWITCH_ROUNDS):   # one material at a time may prefer another start (metal beside wood)
+                if not _switch_starts(params, lambda: float(objective(params))):
+                    break
+                _, state, more = run(params, cfg.start_iterations, bar)
+                restore(params, state)
+                curve0 = curve0 + more
+            with torch.no_grad():
+                initial = float((pred(params) - target).abs().mean())
+            final, state, curve1 = run(params, cfg.iterations, bar)
+            restore(params, state)
+            finals.append((final, start, params, state, initial, curve0 + curve1))
+        _, start, params, state, initial, curve = min(finals, key=lambda t: t[0])
+        restore(params, state)   # the device gains, shared by every start, back to this one's
     with torch.no_grad():
         mae = float((pred(params) - target).abs().mean())
-    return PhysicalFitResult(params, mae, initial, np.asarray(curve0 + curve1, dtype=np.float64), start[0],
+    return PhysicalFitResult(params, mae, initial, np.asarray(curve, dtype=np.float64), start[0],
                              time.time() - t0,
-                             {"start_losses": {t[1][0]: t[0] for t in tried}})
+                             {"start_losses": {t[1][0]: t[0] for t in tried},
+                              "final_losses": {t[1][0]: t[0] for t in finals}})
 
 
 def label_class_names(label_names: list[str]) -> list[str]:

@@ -30,7 +30,8 @@ from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import (MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells,
                            diffuse_terms)
 from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2,
-                         PatchSet, RoomPaths, build_patch_set, trace_room_paths)
+                         THIRD_ORDER_SMALL_REFLECTIONS, PatchSet, RoomPaths, build_patch_set,
+                         trace_room_paths)
 from .surfels import surfel_areas
 
 
@@ -41,6 +42,9 @@ class RoomSettings:
     max_order: int = MAX_ORDER
     higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2
     third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2
+    # reflections of a third-order path that may be off patches under third_order_min_area_m2 (down to
+    # higher_order_min_area_m2: the desk tops)
+    third_order_small_reflections: int = THIRD_ORDER_SMALL_REFLECTIONS
     # interactions per path at most, reflections and surfaces crossed alike (room_paths.MAX_INTERACTIONS)
     max_interactions: int = MAX_INTERACTIONS
     coplanar_m: float = 0.01
@@ -60,6 +64,9 @@ class RoomSettings:
     # the fit uses at most this many training links, evenly spaced (0: all): materials are a few
     # parameters each, and a fit step costs paths x interactions
     fit_links: int = 1500
+    # the starting materials carried to the end of the fit (fit_physical.PhysicalFitConfig.starts_kept): a room's
+    # dozen materials reach different optima from different starts
+    starts_kept: int = 3
     # a gain per transmitter / receiver / both, fitted under a zero-mean prior (device_gains.py)
     device_gains: str = "off"
     device_gain_prior_db: float = 3.0
@@ -122,6 +129,7 @@ class RoomGeometry:
             return trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
                                     max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
                                     third_order_min_area_m2=s.third_order_min_area_m2,
+                                    third_order_small_reflections=s.third_order_small_reflections,
                                     max_interactions=s.max_interactions)
 
         def specular(p: RoomPaths, diffuse: DiffuseTerms | None = None) -> RoomLinks:

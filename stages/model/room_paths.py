@@ -63,6 +63,7 @@ PATCH_EXTENTS = ("disks", "tiles")
 MAX_ORDER = 3
 HIGHER_ORDER_MIN_AREA_M2 = 0.3
 THIRD_ORDER_MIN_AREA_M2 = 1.0
+THIRD_ORDER_SMALL_REFLECTIONS = 1
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -378,9 +379,11 @@ class RoomPaths:
 # tracing the paths
 # ---------------------------------------------------------------------------------------------------
 def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np.ndarray, order: int,
-                     min_m: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     min_m: float = 1e-4, small: np.ndarray | None = None,
+                     max_small: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Specular paths Tx -> patch_1 -> ... -> patch_order -> Rx over sequences of `cand` (no patch twice in a
-    row, nor a patch and one coplanar with it).
+    row, nor a patch and one coplanar with it). small [len(cand)] bool: candidates of which a sequence may hold
+    at most `max_small` (None: no limit).
 
     Returns (link [N], patch sequence [N, order], reflection points [N, order, 3]), ordered by patch
     sequence, then link. Images of the transmitter are built forward, for every distinct transmitter and
@@ -401,6 +404,7 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
     link_source = link_source.reshape(-1)
     source = np.arange(len(sources))
     seq = np.zeros((len(sources), 0), np.int64)          # indices into cand
+    num_small = np.zeros(len(sources), np.int64)         # small candidates in each row's sequence
     images = [sources]
     side_last = np.zeros(0)
     for level in range(order):
@@ -412,10 +416,14 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
             last = seq[:, -1]
             ok &= ~coplanar[last]
             ok[np.arange(len(last)), last] = False
+        if small is not None:
+            ok &= num_small[:, None] + small[None, :] <= max_small
         r, j = np.nonzero(ok)
         exact = np.abs(_dot(images[-1][r] - cp[j], cn[j])) > min_m
         r, j = r[exact], j[exact]
         side_last = side[r, j]
+        if small is not None:
+            num_small = num_small[r] + small[j]
         source, seq = source[r], np.concatenate([seq[r], j[:, None]], 1)
         images = [im[r] for im in images]
         images.append(mirror_points(images[-1], cp[j], cn[j]))
@@ -551,12 +559,16 @@ def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
                      max_order: int = MAX_ORDER, higher_order_min_area_m2: float = HIGHER_ORDER_MIN_AREA_M2,
                      first_order_min_area_m2: float = 0.0, third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2,
-                     max_interactions: int = MAX_INTERACTIONS, tx_gain=None, rx_gain=None) -> RoomPaths:
+                     max_interactions: int = MAX_INTERACTIONS,
+                     third_order_small_reflections: int = THIRD_ORDER_SMALL_REFLECTIONS,
+                     tx_gain=None, rx_gain=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].
 
     First-order reflections use every patch of at least first_order_min_area_m2, second order the
     patches of at least higher_order_min_area_m2 (walls, floor, ceiling, large furniture), third and
-    higher orders those of at least third_order_min_area_m2 (the surfaces that bound a room).
+    higher orders those of at least third_order_min_area_m2 (the surfaces that bound a room), of which up to
+    third_order_small_reflections reflections may be off patches of at least higher_order_min_area_m2 (a desk
+    top between the room's surfaces).
     tx_gain / rx_gain: callables (unit directions [N, 3]) -> linear power gain [N]; None: isotropic.
     Paths with more than max_interactions interactions (reflections plus surfaces crossed) are dropped."""
     tx = np.asarray(tx_m, dtype=np.float64)
@@ -566,9 +578,15 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
     verts.append(np.stack([tx, rx], 1))                       # [N, order + 2, 3] per order
     refl.append(np.zeros((m_links, 0), np.int64))
     for o in range(1, max_order + 1):
-        area_min = (first_order_min_area_m2, higher_order_min_area_m2)[o - 1] if o <= 2 else third_order_min_area_m2
-        cand = np.flatnonzero(patches.area >= area_min)
-        lo, po, co = reflection_paths(tx, rx, patches, cand, o)
+        small = None
+        if o <= 2:
+            cand = np.flatnonzero(patches.area >= (first_order_min_area_m2, higher_order_min_area_m2)[o - 1])
+        elif third_order_small_reflections > 0:
+            cand = np.flatnonzero(patches.area >= min(higher_order_min_area_m2, third_order_min_area_m2))
+            small = patches.area[cand] < third_order_min_area_m2
+        else:
+            cand = np.flatnonzero(patches.area >= third_order_min_area_m2)
+        lo, po, co = reflection_paths(tx, rx, patches, cand, o, small=small, max_small=third_order_small_reflections)
         link.append(lo)
         order.append(np.full(len(lo), o))
         verts.append(np.concatenate([tx[lo][:, None], co, rx[lo][:, None]], 1))

@@ -91,7 +91,7 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
         raise ConfigError(f"rf_fit.room: device_gains must be \"auto\" or one of {', '.join(DEVICE_CHOICES)} and "
                           "device_gain_prior_db > 0")
     phys = dict(config.get("physical", {}) or {})
-    fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys})
+    fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys}, starts_kept=settings.starts_kept)
     return settings, fit_cfg, sharing
 
 
@@ -122,6 +122,9 @@ def _higher_orders(settings: RoomSettings) -> str:
     if settings.max_order >= 3:
         out += f", order{' 3' if settings.max_order == 3 else 's 3 and up'} off patches of at least " \
                f"{settings.third_order_min_area_m2:g} m^2"
+        if settings.third_order_small_reflections > 0:
+            out += f" ({settings.third_order_small_reflections} of them may be off patches of at least " \
+                   f"{settings.higher_order_min_area_m2:g} m^2)"
     return out
 
 

@@ -305,3 +305,37 @@ def test_cylinder_broadside_whatever_the_facets(edge_m, freq_hz):
     power = _power(geom, links, settings=PairSettings(), provider=make_provider("auto", geom))
     sigma_db = rcs_dbsm(power[:, 0], r, freq_hz)
     assert abs(sigma_db[0] - 10 * np.log10(cylinder_rcs_broadside_m2(a, length, freq_hz))) < 0.5
+
+
+def test_the_kept_starts_run_to_the_end_and_the_lowest_final_loss_wins():
+    """starts_kept = 3 carries every start through the switching and the full fit: the leader after the first
+    steps (the only one starts_kept = 1 finishes) ends exactly as it does alone, and the result is the lowest
+    final training loss of the three."""
+    from rfir_stages.po import channel_from_amplitude, po_scattered_field
+    v1, f1 = plate_mesh((0.1, -0.2, 0), (0, 1, 0), (0, 0, 1), 0.2, 0.2)
+    n2 = np.array([-1.0, 1.0, 0.0]) / math.sqrt(2)
+    v2, f2 = plate_mesh((0, 0.2, 0), n2, (0, 0, 1), 0.25, 0.25)
+    verts, faces = np.concatenate([v1, v2]), np.concatenate([f1, f2 + 4])
+    names, thick = np.array(["metal"] * 2 + ["wood"] * 2), np.array([0.003] * 2 + [0.03] * 2)
+    freqs, r = np.array([2.4e9]), 3.0
+    pos, links = monostatic(np.arange(-90, 91, 6.0), r, freqs)
+    s = po_scattered_field(verts, faces, names, pos, pos, freqs, near_field=True, face_thickness=thick)
+    target = 20 * np.log10(np.abs(channel_from_amplitude(s, freqs, np.full(len(pos), r), np.full(len(pos), r))))
+    geom, g = surfels(verts, faces, 0.025, labels=np.array([0, 0, 1, 1]))
+    pairs = build_pairs(geom, links, ISO, ISO, make_provider("auto", geom), PairSettings())
+    idx, mat_names = material_index("label", geom.num, torch.as_tensor(g["gaussians/labels"]))
+    agg = AggregatedPairs.build(pairs, idx, len(mat_names))
+    one = fit_materials(agg, len(mat_names), target, PhysicalFitConfig(iterations=40, start_iterations=10))
+    three = fit_materials(agg, len(mat_names), target,
+                          PhysicalFitConfig(iterations=40, start_iterations=10, starts_kept=3))
+    assert len(one.extra["final_losses"]) == 1 and len(three.extra["final_losses"]) == 3
+    leader = min(one.extra["start_losses"], key=one.extra["start_losses"].get)
+    assert one.start == leader
+    assert three.extra["final_losses"][leader] == pytest.approx(one.extra["final_losses"][leader], rel=1e-9)
+    assert three.start == min(three.extra["final_losses"], key=three.extra["final_losses"].get)
+    assert min(three.extra["final_losses"].values()) <= one.extra["final_losses"][leader]
+    # the returned materials are the winner's: their loss is its final loss
+    from rfir_stages.model.fit_physical import training_predictor
+    pred = training_predictor(agg, target)(three.params)
+    loss = float(((pred - torch.as_tensor(target)) ** 2).mean())
+    assert loss == pytest.approx(three.extra["final_losses"][three.start], rel=1e-6)

@@ -555,3 +555,40 @@ def test_reflection_paths_in_chunks_of_pairs_equal_one_pass(monkeypatch):
         for a, b in zip(whole, chunked):
             np.testing.assert_array_equal(a, b)
     assert len(whole[0]) >= 60                   # third order in a box: paths for (nearly) every link
+
+
+def test_third_order_with_one_small_reflection_is_the_filtered_full_enumeration():
+    """third_order_small_reflections = 1: the third-order paths are exactly those of every patch of at least
+    higher_order_min_area_m2 whose sequences hold at most one patch under third_order_min_area_m2 (two table tops
+    in a closed box: table, ceiling, other table is left out), and some of them reflect off a table; with 0 none
+    does."""
+    from rfir_stages.model.room_paths import reflection_paths
+
+    walls = [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
+             plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
+             plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
+             plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
+             plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
+             plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5),
+             plate_mesh((1.3, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9),     # two table tops of 0.9 m^2
+             plate_mesh((2.7, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9)]
+    patches, prov = _room(walls, spacing=0.3, extent="tiles")
+    small = (patches.area >= 0.3) & (patches.area < 1.0)
+    assert small.sum() == 2
+    rng = np.random.default_rng(3)
+    tx = np.repeat(rng.uniform([0.5, 0.5, 2.0], [3.5, 2.5, 2.3], (2, 3)), 40, axis=0)
+    rx = rng.uniform([0.8, 1.1, 0.9], [3.2, 1.9, 1.2], (80, 3))
+    paths = trace_room_paths(tx, rx, np.full(80, F), patches, prov, max_order=3, higher_order_min_area_m2=0.3,
+                             third_order_min_area_m2=1.0, third_order_small_reflections=1)
+    three = (paths.order == 3).numpy()
+    got = {(int(lk), tuple(int(p) for p in pt[kd == 1])) for lk, pt, kd in
+           zip(paths.link.numpy()[three], paths.patch.numpy()[three], paths.kind.numpy()[three])}
+    cand = np.flatnonzero(patches.area >= 0.3)
+    link, seq, _ = reflection_paths(tx, rx, patches, cand, 3)
+    want = {(int(lk), tuple(int(p) for p in s)) for lk, s in zip(link, seq) if small[s].sum() <= 1}
+    assert got == want
+    assert any(small[list(s)].any() for _, s in got)
+    assert len(want) < len({(int(lk), tuple(s)) for lk, s in zip(link, seq)})     # two small ones are left out
+    none = trace_room_paths(tx, rx, np.full(80, F), patches, prov, max_order=3, higher_order_min_area_m2=0.3,
+                            third_order_min_area_m2=1.0, third_order_small_reflections=0)
+    assert not small[none.patch.numpy()[(none.order == 3).numpy()][none.kind.numpy()[(none.order == 3).numpy()] == 1]].any()
