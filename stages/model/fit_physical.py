@@ -208,7 +208,7 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
             params = new(start)
             restore(params, state)
             for _ in range(SWITCH_ROUNDS):   # one material at a time may prefer another start (metal beside wood)
-                if not _switch_starts(params, lambda: float(objective(params))):
+                if not _switch_starts(params, lambda p=params: float(objective(p))):
                     break
                 _, state, more = run(params, cfg.start_iterations, bar)
                 restore(params, state)
