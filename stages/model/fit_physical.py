@@ -31,6 +31,8 @@ from .physical import AggregatedPairs, MaterialParams
 # (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
 STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, 1e6, 0.1, 0.01),
           ("thick dielectric", 6.0, 0.05, 0.1, 0.2))
+# the start of a fit that continues from given materials (fit_materials' initial)
+CONTINUED = ("continued", 3.0, 0.01, 0.1, 0.01)
 FLOOR_BELOW_DB = 30.0
 SWITCH_ROUNDS = 2
 
@@ -101,14 +103,15 @@ def _loss(pred_db, target, cfg: PhysicalFitConfig):
 
 def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig,
                   progress=None, label: str = "physical", priors: dict | None = None,
-                  devices: DeviceGains | None = None) -> PhysicalFitResult:
+                  devices: DeviceGains | None = None, initial: MaterialParams | None = None) -> PhysicalFitResult:
     """Fit `num_materials` materials (the N of `agg`, or any model with the same `power`) so that the
     predicted path gain [M, K] dB matches target_db. priors: {material index: (eps_r, sigma at 1 GHz,
     thickness m)}, each such material's value at every start (a name that says "glass"). devices:
     per-device gains fitted beside the materials under their prior (device_gains.py), reset at each start;
-    the fitted values are left in `devices`."""
+    the fitted values are left in `devices`. initial: materials to continue from (a fit of a simpler model
+    of the same links) instead of the starts; the devices then continue from their values too."""
     with single_thread_torch():   # a step is many small tensor ops: thread hand-offs cost more than they save
-        return _fit_materials(agg, num_materials, target_db, cfg, progress, label, priors, devices)
+        return _fit_materials(agg, num_materials, target_db, cfg, progress, label, priors, devices, initial)
 
 
 def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | None = None):
@@ -134,7 +137,8 @@ def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: n
 
 
 def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig, progress, label: str,
-                   priors: dict | None, devices: DeviceGains | None) -> PhysicalFitResult:
+                   priors: dict | None, devices: DeviceGains | None,
+                   initial: MaterialParams | None = None) -> PhysicalFitResult:
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
@@ -196,13 +200,23 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
         return best, best_state, curve
 
     kept = max(1, min(int(cfg.starts_kept), len(STARTS)))
-    total = len(STARTS) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
+    starts = () if initial is not None else STARTS
+    if initial is not None:
+        kept = 1
+    total = len(starts) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
     with progress.task(f"rf-fit ({label})", total=total) as bar:
         tried = []
-        for start in STARTS:
+        for start in starts:
             params = new(start)
             loss, state, curve = run(params, cfg.start_iterations, bar)
             tried.append((loss, start, state, curve))
+        if initial is not None:
+            params = new(CONTINUED)
+            state = {k: v.detach().clone() for k, v in initial.state_dict().items()}
+            if devices is not None:   # the devices go on from where the fit of the simpler model left them
+                state.update({f"devices.{k}": v.detach().clone() for k, v in devices.state_dict().items()})
+            restore(params, state)
+            tried.append((float(objective(params).detach()), CONTINUED, state, []))
         finals = []
         for _, start, state, curve0 in sorted(tried, key=lambda t: t[0])[:kept]:
             params = new(start)

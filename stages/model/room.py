@@ -193,6 +193,10 @@ class RoomLinks:
     def num_links(self) -> int:
         return self.paths.num_links
 
+    def select_paths(self, keep: torch.Tensor) -> "RoomLinks":
+        """The same links with the specular paths where keep [Q] bool is true (the diffuse terms unchanged)."""
+        return RoomLinks(self.paths.select_paths(keep), self.diffuse, self.material_of_patch, self.num_materials)
+
     def select_links(self, rows) -> "RoomLinks":
         return RoomLinks(self.paths.select_links(rows), None if self.diffuse is None else self.diffuse.select_links(rows),
                          self.material_of_patch, self.num_materials)

@@ -328,6 +328,18 @@ class RoomPaths:
             self.length_m, self.gain, self.order, self.e_tx, self.e_rx, self.kind, self.patch, self.cos, self.s,
             self.p_in, self.p_out)), self.freq_hz[rows])
 
+    def select_paths(self, keep: torch.Tensor) -> "RoomPaths":
+        """The paths where keep [Q] bool is true, every link kept (their order, most interactions first, too)."""
+        return RoomPaths(self.num_links, *(t[keep] for t in (
+            self.link, self.length_m, self.gain, self.order, self.e_tx, self.e_rx, self.kind, self.patch, self.cos,
+            self.s, self.p_in, self.p_out)), self.freq_hz)
+
+    def small_third_order(self, area_m2: np.ndarray, third_order_min_area_m2: float) -> torch.Tensor:
+        """[Q] bool: the paths of order 3 and up with a reflection off a patch under third_order_min_area_m2
+        (area_m2 [P] of every patch): those third_order_small_reflections adds."""
+        small = torch.as_tensor(np.asarray(area_m2) < third_order_min_area_m2)[self.patch] & (self.kind == 1)
+        return (self.order >= 3) & small.any(1)
+
     def field(self, eta_of_patch: torch.Tensor, thickness_of_patch: torch.Tensor | None,
               scattering_of_patch: torch.Tensor) -> torch.Tensor:
         """Received complex amplitude [M] (P_T = 1 W), every coefficient evaluated exactly.

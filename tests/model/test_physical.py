@@ -336,6 +336,11 @@ def test_the_kept_starts_run_to_the_end_and_the_lowest_final_loss_wins():
     assert min(three.extra["final_losses"].values()) <= one.extra["final_losses"][leader]
     # the returned materials are the winner's: their loss is its final loss
     from rfir_stages.model.fit_physical import training_predictor
-    pred = training_predictor(agg, target)(three.params)
-    loss = float(((pred - torch.as_tensor(target)) ** 2).mean())
-    assert loss == pytest.approx(three.extra["final_losses"][three.start], rel=1e-6)
+    loss = lambda params: float(((training_predictor(agg, target)(params) - torch.as_tensor(target)) ** 2).mean())  # noqa: E731
+    assert loss(three.params) == pytest.approx(three.extra["final_losses"][three.start], rel=1e-6)
+    # a fit continued from given materials starts there (no starts of its own) and ends no worse
+    more = fit_materials(agg, len(mat_names), target, PhysicalFitConfig(iterations=20, start_iterations=10),
+                         initial=one.params)
+    assert more.start == "continued" and list(more.extra["start_losses"]) == ["continued"]
+    assert more.extra["start_losses"]["continued"] == pytest.approx(loss(one.params), rel=1e-9)
+    assert loss(more.params) <= loss(one.params) + 1e-12

@@ -592,3 +592,10 @@ def test_third_order_with_one_small_reflection_is_the_filtered_full_enumeration(
     none = trace_room_paths(tx, rx, np.full(80, F), patches, prov, max_order=3, higher_order_min_area_m2=0.3,
                             third_order_min_area_m2=1.0, third_order_small_reflections=0)
     assert not small[none.patch.numpy()[(none.order == 3).numpy()][none.kind.numpy()[(none.order == 3).numpy()] == 1]].any()
+    # the paths that the setting adds, as the fit's first step leaves them out: without them the field is that of
+    # the paths traced without the setting
+    extra = paths.small_third_order(patches.area, 1.0)
+    assert int(extra.sum()) == sum(small[list(q)].any() for _, q in got) > 0
+    eta = np.full(int(patches.label.max()) + 1, 5.0 - 0.3j)
+    np.testing.assert_allclose(_field(paths.select_paths(~extra), patches, eta, np.full(len(eta), 0.1), s=0.2),
+                               _field(none, patches, eta, np.full(len(eta), 0.1), s=0.2), rtol=1e-9)
