@@ -199,10 +199,8 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
             best, best_state = final, snapshot(params)
         return best, best_state, curve
 
-    kept = max(1, min(int(cfg.starts_kept), len(STARTS)))
     starts = () if initial is not None else STARTS
-    if initial is not None:
-        kept = 1
+    kept = 1 if initial is not None else max(1, min(int(cfg.starts_kept), len(STARTS)))
     total = len(starts) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
     with progress.task(f"rf-fit ({label})", total=total) as bar:
         tried = []
@@ -228,15 +226,15 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
                 restore(params, state)
                 curve0 = curve0 + more
             with torch.no_grad():
-                initial = float((pred(params) - target).abs().mean())
+                initial_mae = float((pred(params) - target).abs().mean())
             final, state, curve1 = run(params, cfg.iterations, bar)
             restore(params, state)
-            finals.append((final, start, params, state, initial, curve0 + curve1))
-        _, start, params, state, initial, curve = min(finals, key=lambda t: t[0])
+            finals.append((final, start, params, state, initial_mae, curve0 + curve1))
+        _, start, params, state, initial_mae, curve = min(finals, key=lambda t: t[0])
         restore(params, state)   # the device gains, shared by every start, back to this one's
     with torch.no_grad():
         mae = float((pred(params) - target).abs().mean())
-    return PhysicalFitResult(params, mae, initial, np.asarray(curve, dtype=np.float64), start[0],
+    return PhysicalFitResult(params, mae, initial_mae, np.asarray(curve, dtype=np.float64), start[0],
                              time.time() - t0,
                              {"start_losses": {t[1][0]: t[0] for t in tried},
                               "final_losses": {t[1][0]: t[0] for t in finals}})

@@ -82,8 +82,11 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
     if settings.max_interactions < settings.max_order:
         raise ConfigError(f"rf_fit.room.max_interactions = {settings.max_interactions} is below max_order = "
                           f"{settings.max_order}: paths of {settings.max_order} reflections would all be dropped")
-    if settings.small_patch_share < 0 or settings.merge_scatter_factor < 0:
-        raise ConfigError("rf_fit.room: small_patch_share and merge_scatter_factor must be >= 0")
+    if settings.small_patch_share < 0 or settings.merge_scatter_factor < 0 or settings.third_order_small_reflections < 0:
+        raise ConfigError("rf_fit.room: small_patch_share, merge_scatter_factor and third_order_small_reflections "
+                          "must be >= 0")
+    if settings.starts_kept < 1:
+        raise ConfigError(f"rf_fit.room.starts_kept = {settings.starts_kept}: expected at least 1")
     if settings.patch_extent not in PATCH_EXTENTS:
         raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
                           f"{', '.join(PATCH_EXTENTS)}")
@@ -200,9 +203,9 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     res = fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room, with them",
                         priors=priors, devices=devices, initial=first.params)
     # one fit as rf-fit reports it: from the first step's start, in the time of both
+    res.extra = {**first.extra, "continued_from_mae_db": res.initial_mae_db}
     res.initial_mae_db, res.wall_time_s = first.initial_mae_db, first.wall_time_s + res.wall_time_s
     res.start = first.start
-    res.extra = {**first.extra, "continued_from_mae_db": res.initial_mae_db}
     return res
 
 

@@ -447,6 +447,18 @@ def test_an_unknown_patch_extent_is_refused():
     assert room_config({"room": {"patch_extent": "tiles"}})[0].patch_extent == "tiles"
 
 
+def test_negative_small_reflections_and_no_kept_start_are_refused():
+    from rfir_cli.errors import ConfigError
+    from rfir_stages.rf_fit.room_stage import room_config
+
+    with pytest.raises(ConfigError, match="third_order_small_reflections"):
+        room_config({"room": {"third_order_small_reflections": -1}})
+    with pytest.raises(ConfigError, match="starts_kept = 0"):
+        room_config({"room": {"starts_kept": 0}})
+    settings, fit_cfg, _ = room_config({"room": {"starts_kept": 2, "third_order_small_reflections": 0}})
+    assert (fit_cfg.starts_kept, settings.third_order_small_reflections) == (2, 0)
+
+
 def test_fewer_interactions_than_reflections_are_refused():
     from rfir_cli.errors import ConfigError
     from rfir_stages.rf_fit.room_stage import room_config
