@@ -192,6 +192,9 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     (third_order_small_reflections), first without those paths, then with them from there: with them from the
     starts alone, the classroom's fit ended in a poorer optimum than the materials of the fit without them give
     (docs/rssi.md, "Third order off desk tops")."""
+    if fit_cfg.starts_kept > 1:
+        progress.log(f"the {fit_cfg.starts_kept} best starting materials after {fit_cfg.start_iterations} steps are "
+                     "each fitted to the end, the lowest final training loss kept (rf_fit.room.starts_kept)")
     extra = links.paths.small_third_order(room.patches.area, settings.third_order_min_area_m2)
     if settings.third_order_small_reflections <= 0 or not bool(extra.any()):
         return fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room",

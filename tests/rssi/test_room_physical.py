@@ -35,6 +35,8 @@ def fitted(tmp_path_factory):
     assert "patch extents tiles" in r.output and "reflections up to order 3" in r.output
     assert "order 2 off patches of at least 0.3 m^2, order 3 off patches of at least 1 m^2" in r.output
     out = " ".join(r.output.split())
+    assert "(1 of them may be off patches of at least 0.3 m^2)" in out
+    assert "the 3 best starting materials after 15 steps are each fitted to the end" in out
     assert ("at most 8 interactions per path (reflections and surfaces crossed; auto: the measurements record no "
             "simulator depth)") in out
     assert "planar patches (neighbours within 0.01 m of one plane joined)" in r.output    # exact surfels: no plane fit
