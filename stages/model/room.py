@@ -268,6 +268,8 @@ class RoomPredictor:
         kw.setdefault("merge_scatter_factor", 0.0)
         # and a cell per patch, when they store no pooling share
         kw.setdefault("small_patch_share", 0.0)
+        # and their third order off large patches alone, when they store no small reflections
+        kw.setdefault("third_order_small_reflections", 0)
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])

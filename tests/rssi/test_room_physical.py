@@ -58,6 +58,24 @@ def test_fit_writes_materials_and_predicts_held_out_links(fitted, tmp_path):
     assert {"rssi_predicted.png", "fov_attributes.png"} <= {p.name for p in (tmp_path / "plots").iterdir()}
 
 
+def test_a_model_that_stores_no_small_reflections_loads_as_it_was_fitted(fitted, tmp_path):
+    """A model written before third_order_small_reflections existed was fitted with the third order off large
+    patches alone: it loads so (0), not with the current default; one that stores it, with its value."""
+    import shutil
+
+    import h5py
+
+    from rfir_stages.model.room import RoomPredictor
+
+    old = tmp_path / "old.h5"
+    shutil.copy(fitted / "rf.h5", old)
+    with h5py.File(old, "r+") as h:
+        assert int(h["model"].attrs["room.third_order_small_reflections"]) == 1
+        del h["model"].attrs["room.third_order_small_reflections"]
+    assert RoomPredictor(read_artifact(old, "rf")).room.settings.third_order_small_reflections == 0
+    assert RoomPredictor(read_artifact(fitted / "rf.h5", "rf")).room.settings.third_order_small_reflections == 1
+
+
 def test_partition_material_costs_about_the_measured_wall_loss(fitted):
     rf = read_artifact(fitted / "rf.h5", "rf")
     model = load_physical(rf)
