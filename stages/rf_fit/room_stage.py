@@ -21,7 +21,8 @@ from rfir_cli.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains
-from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index, reflection_ranges
+from rfir_stages.model.fit_physical import (STARTS, PhysicalFitConfig, fit_materials, material_index,
+                                             reflection_ranges)
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS
@@ -192,8 +193,9 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     (third_order_small_reflections), first without those paths, then with them from there: with them from the
     starts alone, the classroom's fit ended in a poorer optimum than the materials of the fit without them give
     (docs/rssi.md, "Third order off desk tops")."""
-    if fit_cfg.starts_kept > 1:
-        progress.log(f"the {fit_cfg.starts_kept} best starting materials after {fit_cfg.start_iterations} steps are "
+    kept = min(fit_cfg.starts_kept, len(STARTS))
+    if kept > 1:
+        progress.log(f"the {kept} best starting materials after {fit_cfg.start_iterations} steps are "
                      "each fitted to the end, the lowest final training loss kept (rf_fit.room.starts_kept)")
     extra = links.paths.small_third_order(room.patches.area, settings.third_order_min_area_m2)
     if settings.third_order_small_reflections <= 0 or not bool(extra.any()):
@@ -205,8 +207,10 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
                           label="physical room, without them", priors=priors, devices=devices)
     res = fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room, with them",
                         priors=priors, devices=devices, initial=first.params)
-    # one fit as rf-fit reports it: from the first step's start, in the time of both
+    # one fit as rf-fit reports it and stores it: from the first step's start, its loss curve through both steps,
+    # in the time of both
     res.extra = {**first.extra, "continued_from_mae_db": res.initial_mae_db}
+    res.loss_curve = np.concatenate([first.loss_curve, res.loss_curve])
     res.initial_mae_db, res.wall_time_s = first.initial_mae_db, first.wall_time_s + res.wall_time_s
     res.start = first.start
     return res

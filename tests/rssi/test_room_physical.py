@@ -48,6 +48,9 @@ def fitted(tmp_path_factory):
 def test_fit_writes_materials_and_predicts_held_out_links(fitted, tmp_path):
     rf = read_artifact(fitted / "rf.h5", "rf")
     assert rf.free["model@attrs"]["model_kind"] == "rssi_physical"
+    # the stored loss curve holds both steps of the fit (this room has third-order paths off patches under 1 m^2):
+    # the winning start's 15 + 60 steps before the continuation's 60; one step alone holds at most 15 + 2 x 15 + 60
+    assert len(np.asarray(rf.free["training"]["loss_curve"])) >= (15 + 60) + 60 > 15 + 2 * 15 + 60 - 1
     res = tmp_path / "res.json"
     r = CliRunner().invoke(app, ["predict", "rssi", str(fitted / "rf.h5"), "--measurements", str(fitted / "meas.h5"),
                                  "-o", str(tmp_path / "p.h5"), "--results", str(res), "--plots", str(tmp_path / "plots")])
