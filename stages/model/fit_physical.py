@@ -9,8 +9,10 @@ with thickness; metal and a dense dielectric can look alike at one angle), so th
 few physical materials (`STARTS`), runs each a short while with every material at that start, and
 continues from the best (or from each of the `starts_kept` best, the lowest final loss kept); then each
 material alone may switch to another start when that lowers the loss (a metal object beside wooden
-ones), with a short refit after each round of switches. The state with the lowest training loss is
-kept (not the last step).
+ones), with a short refit after each round of switches. With several starts kept, the winner's materials
+are then crossed with the others' one material at a time (`_cross_finals`: a swap is kept where it lowers
+the loss) and fitted on for half the iterations. The state with the lowest training loss is kept (not the
+last step).
 """
 from __future__ import annotations
 
@@ -35,6 +37,33 @@ STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, 1e6, 0.1, 0.
 CONTINUED = ("continued", 3.0, 0.01, 0.1, 0.01)
 FLOOR_BELOW_DB = 30.0
 SWITCH_ROUNDS = 2
+
+
+def _raw(params: MaterialParams) -> tuple:
+    """The unconstrained tensors [N] of every material property (what the optimiser moves)."""
+    return params.t_eps, params.t_sig, params.t_s, params.t_th
+
+
+def _cross_finals(params: MaterialParams, others: list[MaterialParams], loss_now) -> int:
+    """Greedy, one material at a time: that material's values from each of the other fits (`others`, fitted from
+    other starts to their end) in place of its own; keep every swap that lowers the loss. A class that one start
+    left in a poor basin (a thin lossy slab for 20 cm of concrete) may sit in a better one in another start's
+    fit. Returns how many materials changed."""
+    changed = 0
+    with torch.no_grad():
+        best = loss_now()
+        for i in range(params.num):
+            for other in others:
+                keep = [t[i].clone() for t in _raw(params)]
+                for t, u in zip(_raw(params), _raw(other)):
+                    t[i] = u[i]
+                trial = loss_now()
+                if trial < best - 1e-9:
+                    best, changed = trial, changed + 1
+                else:
+                    for t, v in zip(_raw(params), keep):
+                        t[i] = v
+    return changed
 
 
 def _switch_starts(params: MaterialParams, loss_now) -> bool:
@@ -75,7 +104,8 @@ class PhysicalFitConfig:
     sigma_exponent: float = 1.0
     reflection_ranges: bool = True
     # the starts carried through the start switching and the full fit, best after start_iterations first; the
-    # lowest final training loss wins (a start that leads after a few steps need not lead at the end)
+    # lowest final training loss wins (a start that leads after a few steps need not lead at the end), and with
+    # more than one, each material may take its value from another start's fit where that lowers the loss
     starts_kept: int = 1
 
 
@@ -201,7 +231,9 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
 
     starts = () if initial is not None else STARTS
     kept = 1 if initial is not None else max(1, min(int(cfg.starts_kept), len(STARTS)))
-    total = len(starts) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
+    cross_steps = cfg.iterations // 2 if kept > 1 else 0     # the fit on after materials crossed between starts
+    total = (len(starts) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
+             + cross_steps)
     with progress.task(f"rf-fit ({label})", total=total) as bar:
         tried = []
         for start in starts:
@@ -232,12 +264,23 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
             finals.append((final, start, params, state, initial_mae, curve0 + curve1))
         _, start, params, state, initial_mae, curve = min(finals, key=lambda t: t[0])
         restore(params, state)   # the device gains, shared by every start, back to this one's
+        crossed = _cross_finals(params, [t[2] for t in finals if t[2] is not params],
+                                lambda: float(objective(params))) if kept > 1 else 0
+        if crossed:
+            _, state, more = run(params, cross_steps, bar)
+            restore(params, state)
+            curve = curve + more
+        else:
+            bar.advance(cross_steps)
+        with torch.no_grad():
+            crossed_loss = float(objective(params))
     with torch.no_grad():
         mae = float((pred(params) - target).abs().mean())
     return PhysicalFitResult(params, mae, initial_mae, np.asarray(curve, dtype=np.float64), start[0],
                              time.time() - t0,
                              {"start_losses": {t[1][0]: t[0] for t in tried},
-                              "final_losses": {t[1][0]: t[0] for t in finals}})
+                              "final_losses": {t[1][0]: t[0] for t in finals},
+                              "crossed_materials": crossed, "crossed_loss": crossed_loss})
 
 
 def label_class_names(label_names: list[str]) -> list[str]:

@@ -196,15 +196,19 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     kept = min(fit_cfg.starts_kept, len(STARTS))
     if kept > 1:
         progress.log(f"the {kept} best starting materials after {fit_cfg.start_iterations} steps are "
-                     "each fitted to the end, the lowest final training loss kept (rf_fit.room.starts_kept)")
+                     "each fitted to the end, the lowest final training loss kept, then each material tried with "
+                     "the others' fitted values (rf_fit.room.starts_kept)")
     extra = links.paths.small_third_order(room.patches.area, settings.third_order_min_area_m2)
     if settings.third_order_small_reflections <= 0 or not bool(extra.any()):
-        return fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room",
-                             priors=priors, devices=devices)
+        res = fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room",
+                            priors=priors, devices=devices)
+        _log_crossing(res, progress)
+        return res
     progress.log(f"fitting first without the {int(extra.sum())} third-order paths off patches under "
                  f"{settings.third_order_min_area_m2:g} m^2, then with them from there")
     first = fit_materials(links.select_paths(~extra), num_materials, target_db, fit_cfg, progress,
                           label="physical room, without them", priors=priors, devices=devices)
+    _log_crossing(first, progress)
     res = fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room, with them",
                         priors=priors, devices=devices, initial=first.params)
     # one fit as rf-fit reports it and stores it: from the first step's start, its loss curve through both steps,
@@ -214,6 +218,14 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     res.initial_mae_db, res.wall_time_s = first.initial_mae_db, first.wall_time_s + res.wall_time_s
     res.start = first.start
     return res
+
+
+def _log_crossing(res, progress) -> None:
+    """Which materials the fit took from another start's fit (fit_physical._cross_finals), with the loss."""
+    n = res.extra.get("crossed_materials", 0)
+    if n:
+        progress.log(f"{n} material(s) took another start's fitted values: training loss "
+                     f"{min(res.extra['final_losses'].values()):.4g} -> {res.extra['crossed_loss']:.4g} (after fitting on)")
 
 
 def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,

@@ -337,10 +337,31 @@ def test_the_kept_starts_run_to_the_end_and_the_lowest_final_loss_wins():
     # the returned materials are the winner's: their loss is its final loss
     from rfir_stages.model.fit_physical import training_predictor
     loss = lambda params: float(((training_predictor(agg, target)(params) - torch.as_tensor(target)) ** 2).mean())  # noqa: E731
-    assert loss(three.params) == pytest.approx(three.extra["final_losses"][three.start], rel=1e-6)
+    assert loss(three.params) == pytest.approx(three.extra["crossed_loss"], rel=1e-6)
+    assert three.extra["crossed_loss"] <= min(three.extra["final_losses"].values()) + 1e-12
+    assert one.extra["crossed_materials"] == 0 and one.extra["crossed_loss"] == pytest.approx(loss(one.params), rel=1e-6)
     # a fit continued from given materials starts there (no starts of its own) and ends no worse
     more = fit_materials(agg, len(mat_names), target, PhysicalFitConfig(iterations=20, start_iterations=10),
                          initial=one.params)
     assert more.start == "continued" and list(more.extra["start_losses"]) == ["continued"]
     assert more.extra["start_losses"]["continued"] == pytest.approx(loss(one.params), rel=1e-9)
     assert loss(more.params) <= loss(one.params) + 1e-12
+
+
+def test_crossing_takes_a_material_from_another_fit_only_where_the_loss_falls():
+    """_cross_finals: material 0 is better in the other fit, material 1 in this one; the loss (squared distance
+    of every raw value to a target) falls only by taking material 0 across, so exactly that swap is kept."""
+    from rfir_stages.model.fit_physical import _cross_finals, _raw
+    from rfir_stages.model.physical import MaterialParams
+    this = MaterialParams(2, eps_r=2.0, sigma_1ghz=0.01, scattering=0.1, thickness_m=0.01)
+    other = MaterialParams(2, eps_r=6.0, sigma_1ghz=0.05, scattering=0.3, thickness_m=0.2)
+    target = [t.detach().clone() for t in _raw(this)]
+    with torch.no_grad():
+        for t, u in zip(target, _raw(other)):
+            t[0] = u[0]
+    loss = lambda: float(sum(((t - u) ** 2).sum() for t, u in zip(_raw(this), target)))  # noqa: E731
+    assert loss() > 0
+    assert _cross_finals(this, [other], loss) == 1
+    assert loss() == pytest.approx(0.0, abs=1e-18)
+    assert float(this.values().eps_r[0]) == pytest.approx(6.0) and float(this.values().eps_r[1]) == pytest.approx(2.0)
+    assert _cross_finals(this, [other], loss) == 0
