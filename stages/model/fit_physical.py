@@ -53,16 +53,18 @@ def _cross_finals(params: MaterialParams, others: list[MaterialParams], loss_now
     with torch.no_grad():
         best = loss_now()
         for i in range(params.num):
+            took = False
             for other in others:
                 keep = [t[i].clone() for t in _raw(params)]
                 for t, u in zip(_raw(params), _raw(other)):
                     t[i] = u[i]
                 trial = loss_now()
                 if trial < best - 1e-9:
-                    best, changed = trial, changed + 1
+                    best, took = trial, True
                 else:
                     for t, v in zip(_raw(params), keep):
                         t[i] = v
+            changed += took
     return changed
 
 
@@ -73,7 +75,7 @@ def _switch_starts(params: MaterialParams, loss_now) -> bool:
     with torch.no_grad():
         best = loss_now()
         for i in range(params.num):
-            keep = [p[i].clone() for p in (params.t_eps, params.t_sig, params.t_s, params.t_th)]
+            keep = [p[i].clone() for p in _raw(params)]
             choice = None
             for start in STARTS:
                 _, eps, sig, s, th = start
@@ -81,7 +83,7 @@ def _switch_starts(params: MaterialParams, loss_now) -> bool:
                 trial = loss_now()
                 if trial < best - 1e-9:
                     best, choice = trial, start
-            for p, v in zip((params.t_eps, params.t_sig, params.t_s, params.t_th), keep):
+            for p, v in zip(_raw(params), keep):
                 p[i] = v
             if choice is not None:
                 _, eps, sig, s, th = choice

@@ -365,3 +365,7 @@ def test_crossing_takes_a_material_from_another_fit_only_where_the_loss_falls():
     assert loss() == pytest.approx(0.0, abs=1e-18)
     assert float(this.values().eps_r[0]) == pytest.approx(6.0) and float(this.values().eps_r[1]) == pytest.approx(2.0)
     assert _cross_finals(this, [other], loss) == 0
+    # two other fits that both improve material 0 (the second more): one material changed, the better value kept
+    this = MaterialParams(2, eps_r=2.0, sigma_1ghz=0.01, scattering=0.1, thickness_m=0.01)
+    half = MaterialParams(2, eps_r=4.0, sigma_1ghz=0.02, scattering=0.2, thickness_m=0.05)
+    assert _cross_finals(this, [half, other], loss) == 1 and loss() == pytest.approx(0.0, abs=1e-18)
