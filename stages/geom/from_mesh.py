@@ -1,6 +1,14 @@
 """Flat Gaussians (surfels) tiled on a triangle mesh: a geometry oracle for rf-fit and tests.
 
-Every triangle is split into m x m congruent sub-triangles (m = ceil(longest edge / spacing)), and
+Two coplanar triangles that share an edge and together form a rectangle (a box's face, a wall's panel
+between openings) are tiled as the rectangle: n1 x n2 equal cells of at most spacing / 2 a side (the
+area of a sub-triangle whose longest edge is the spacing), each one Gaussian with the cell's centre,
+the face normal, in-plane axes along the rectangle's sides and the cell's second moments scaled to its
+area. Its footprint cell (rfir_stages.model.surfels.footprint_cells) is then the cell itself, so the
+cells' union is the rectangle to the edge; the rotated squares of a triangle tiling overshoot a straight
+edge by up to a third of a tile and fall short between (docs/physics.md section 8.10).
+
+Every other triangle is split into m x m congruent sub-triangles (m = ceil(longest edge / spacing)), and
 each sub-triangle becomes one Gaussian:
 - mean: the sub-triangle's centroid [m];
 - normal: the face normal (winding v0 -> v1 -> v2, right hand);
@@ -67,12 +75,13 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
     """Scene fields (`gaussians/...`) of surfels tiling the mesh.
 
     vertices [V, 3] m, faces [F, 3] int (any winding; the normal follows it), spacing_m: the
-    largest sub-triangle edge [m]; labels [F] int per face (optional) -> `gaussians/labels`.
+    largest sub-triangle edge, twice the largest side of a rectangle's cell [m]; labels [F] int per face
+    (optional) -> `gaussians/labels`.
     Returns dict with means [G, 3], log_scales [G, 3] (in-plane, in-plane, normal), rotations
     [G, 4] wxyz, opacities [G] (ones), normals [G, 3], (labels [G]). Degenerate faces are skipped and
     sliver surfels merged (module docstring); `report`, when given, receives the counts: faces,
     degenerate_faces, sliver_faces, sliver_surfels, merged_surfels, sliver_area_m2, area_m2,
-    sliver_width_m (the std below which a surfel is a sliver).
+    sliver_width_m (the std below which a surfel is a sliver), rectangles (face pairs tiled as rectangles).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -82,8 +91,9 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
     cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
     keep = area2 > 1e-14
+    paired, rects = _rectangles(vertices, faces, cross, area2)
     means, covs, normals, labs = [], [], [], []
-    for f in np.flatnonzero(keep):
+    for f in np.flatnonzero(keep & ~paired):
         tri = tris[f]
         longest = max(np.linalg.norm(tri[1] - tri[0]), np.linalg.norm(tri[2] - tri[1]), np.linalg.norm(tri[0] - tri[2]))
         m = max(1, int(math.ceil(longest / spacing_m - 1e-9)))
@@ -97,26 +107,42 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
         if labels is not None:
             labs.append(np.full(len(sub), int(labels[f])))
         covs[-1] = _scaled_to_area(covs[-1], 0.5 * area2[f] / m**2)
-    if not means:
+    if not means and not rects:
         raise ValueError("the mesh has no face with a non-zero area")
-    face_of = np.concatenate([np.full(len(c), f) for f, c in zip(np.flatnonzero(keep), means)])
-    means = np.concatenate(means)
-    normals = np.ascontiguousarray(np.concatenate(normals))
-    cov = np.concatenate(covs)
-    lab_all = np.concatenate(labs) if labels is not None else np.zeros(len(means), np.int64)
-    means, normals, cov, lab_all, stats = _merge_slivers(means, normals, cov, lab_all, face_of, spacing_m)
+    stats = {"sliver_faces": 0, "sliver_surfels": 0, "sliver_area_m2": 0.0, "merged_surfels": 0,
+             "sliver_width_m": SLIVER_RATIO * spacing_m}
+    if means:
+        tri_faces = np.flatnonzero(keep & ~paired)
+        face_of = np.concatenate([np.full(len(c), f) for f, c in zip(tri_faces, means)])
+        means = np.concatenate(means)
+        normals = np.ascontiguousarray(np.concatenate(normals))
+        cov = np.concatenate(covs)
+        lab_all = np.concatenate(labs) if labels is not None else np.zeros(len(means), np.int64)
+        means, normals, cov, lab_all, stats = _merge_slivers(means, normals, cov, lab_all, face_of, spacing_m)
+        # In-plane axes from the covariance, third axis = the normal.
+        ev, evec = np.linalg.eigh(cov)  # ascending; the smallest (~0) is along the normal
+        e1 = evec[:, :, 2]
+        s1, s2 = np.sqrt(np.maximum(ev[:, 2], 0)), np.sqrt(np.maximum(ev[:, 1], 0))
+    else:
+        means, normals, e1, s1, s2, lab_all = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                                               np.zeros(0), np.zeros(0, np.int64))
+    if rects:
+        cells = [_rectangle_cells(*r, spacing_m) for r in rects]
+        means = np.concatenate([means] + [c[0] for c in cells])
+        normals = np.ascontiguousarray(np.concatenate([normals] + [c[1] for c in cells]))
+        e1 = np.concatenate([e1] + [c[2] for c in cells])
+        s1 = np.concatenate([s1] + [c[3] for c in cells])
+        s2 = np.concatenate([s2] + [c[4] for c in cells])
+        lab_of = labels if labels is not None else np.zeros(len(faces), np.int64)
+        lab_all = np.concatenate([lab_all] + [np.full(len(c[0]), int(lab_of[r[3]])) for c, r in zip(cells, rects)])
     if labels is not None:
         labs = [lab_all]
     if report is not None:
         report.update(stats, faces=int(len(faces)), degenerate_faces=int((~keep).sum()),
-                      area_m2=float(0.5 * area2[keep].sum()))
-    # In-plane axes from the covariance, third axis = the normal.
-    ev, evec = np.linalg.eigh(cov)  # ascending; the smallest (~0) is along the normal
-    e1, e2 = evec[:, :, 2], evec[:, :, 1]
+                      area_m2=float(0.5 * area2[keep].sum()), rectangles=len(rects))
     e2 = np.cross(normals, e1)  # exactly in-plane, right-handed with (e1, e2, n)
     e1 = np.cross(e2, normals)
     rot = np.stack([e1, e2, normals], axis=-1)
-    s1, s2 = np.sqrt(np.maximum(ev[:, 2], 0)), np.sqrt(np.maximum(ev[:, 1], 0))
     s3 = thickness_ratio * np.minimum(s1, s2)
     out = {
         "gaussians/means": means,
@@ -128,6 +154,53 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
     if labels is not None:
         out["gaussians/labels"] = np.concatenate(labs).astype(np.int64)
     return out
+
+
+def _rectangles(vertices: np.ndarray, faces: np.ndarray, cross: np.ndarray, area2: np.ndarray, tol: float = 1e-6):
+    """Pairs of faces that form a rectangle: two non-degenerate triangles sharing an edge (the rectangle's
+    diagonal), normals equal (same winding), the four corners a parallelogram with a right angle (to tol
+    relative to the diagonal). Each face joins at most one pair. Returns (paired [F] bool, [(corner [3],
+    side_1 [3], side_2 [3], face)]): the rectangle is corner + a side_1 + b side_2 for a, b in [0, 1]."""
+    opposite: dict = {}
+    for f, tri in enumerate(faces):
+        if area2[f] <= 1e-14:
+            continue
+        for k in range(3):
+            a, b = int(tri[k]), int(tri[(k + 1) % 3])
+            opposite.setdefault((min(a, b), max(a, b)), []).append((f, int(tri[(k + 2) % 3])))
+    paired = np.zeros(len(faces), dtype=bool)
+    rects = []
+    for (a, b), sides in opposite.items():
+        if len(sides) != 2:
+            continue
+        (f1, c1), (f2, c2) = sides
+        if paired[f1] or paired[f2] or cross[f1] @ cross[f2] < (1 - 1e-9) * area2[f1] * area2[f2]:
+            continue
+        diag = np.linalg.norm(vertices[b] - vertices[a])
+        side_1, side_2 = vertices[a] - vertices[c1], vertices[b] - vertices[c1]
+        if (np.linalg.norm(vertices[c1] + vertices[c2] - vertices[a] - vertices[b]) > tol * diag
+                or abs(side_1 @ side_2) > tol * diag * diag):
+            continue
+        if np.cross(side_1, side_2) @ cross[f1] < 0:      # the sides in the faces' winding
+            side_1, side_2 = side_2, side_1
+        paired[f1] = paired[f2] = True
+        rects.append((vertices[c1], side_1, side_2, f1))
+    return paired, rects
+
+
+def _rectangle_cells(corner: np.ndarray, side_1: np.ndarray, side_2: np.ndarray, face: int, spacing_m: float):
+    """A rectangle's cells (module docstring): (means [n, 3], normals [n, 3], first in-plane axis [n, 3] (along
+    side_1), spreads s1 [n] and s2 [n] m along side_1 and side_2, scaled so that pi s1 s2 is the cell's area)."""
+    l1, l2 = float(np.linalg.norm(side_1)), float(np.linalg.norm(side_2))
+    n1, n2 = (max(1, int(math.ceil(2.0 * length / spacing_m - 1e-9))) for length in (l1, l2))
+    i, j = np.meshgrid((np.arange(n1) + 0.5) / n1, (np.arange(n2) + 0.5) / n2, indexing="ij")
+    means = corner + i.reshape(-1, 1) * side_1 + j.reshape(-1, 1) * side_2
+    normal = np.cross(side_1, side_2)
+    normal /= np.linalg.norm(normal)
+    count = n1 * n2
+    # a uniform a x b cell has spreads a / sqrt(12), b / sqrt(12); scaled to pi s1 s2 = a b: a / sqrt(pi)
+    return (means, np.broadcast_to(normal, (count, 3)), np.broadcast_to(side_1 / l1, (count, 3)),
+            np.full(count, l1 / n1 / math.sqrt(math.pi)), np.full(count, l2 / n2 / math.sqrt(math.pi)))
 
 
 def _merge_slivers(means, normals, cov, labels, face_of, spacing_m: float):

@@ -55,7 +55,10 @@ FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 
 # closed: a patch ends where its tiles end. A disk of the area's size widens a desk top's 3 cm edge band by
 # centimetres, and legs that graze it cross it falsely.
 TILE_CLOSING = 1.0
-TILE_OVERLAP = 1.1        # rectangles a tenth wider than the tile's: neighbours overlap where the tiles are triangles
+# the occupancy grid's cell, in tile sides: a crossing point is placed to half a cell, and a leg that passes
+# a chair's back or a desk's edge by a centimetre must not cross it (a quarter tile moved the classroom's
+# levels by 0.2 dB median against Sionna's paths on the same faces, docs/rssi.md "Patch extents")
+CELL_PER_TILE = 0.1
 PATCH_EXTENTS = ("disks", "tiles")
 # reflections up to MAX_ORDER; second order off patches of at least HIGHER_ORDER_MIN_AREA_M2 (walls, floor,
 # ceiling, desk tops), third and higher orders off those of at least THIRD_ORDER_MIN_AREA_M2 (the surfaces that
@@ -156,7 +159,7 @@ def _disk_occupancy(centres: np.ndarray, uv: np.ndarray, reach: np.ndarray, cell
 def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half: np.ndarray, shape: np.ndarray,
                     closing_cells: int) -> np.ndarray:
     """[C] bool: grid centres [C, 2] (a grid of `shape`) inside the rectangle (unit axes [n, 2, 2], half-sides
-    [n, 2] m, TILE_OVERLAP wider) of one of their 8 nearest surfels (uv [n, 2]), then closed with a disk of
+    [n, 2] m) of one of their 8 nearest surfels (uv [n, 2]), then closed with a disk of
     closing_cells cells."""
     from scipy import ndimage
     from scipy.spatial import cKDTree
@@ -164,7 +167,7 @@ def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half:
     k = min(8, len(uv))
     near = cKDTree(uv).query(centres, k=k)[1].reshape(len(centres), k)
     along = np.abs(np.einsum("cki,ckai->cka", centres[:, None, :] - uv[near], axes[near]))   # [C, k, 2] per axis
-    occupied = (along <= TILE_OVERLAP * half[near]).all(2).any(1).reshape(shape[0], shape[1])
+    occupied = (along <= half[near]).all(2).any(1).reshape(shape[0], shape[1])
     r = closing_cells
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     padded = np.pad(occupied, r + 1)                                    # the closing must not eat the border
@@ -205,7 +208,7 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
             reach = FOOTPRINT_REACH * np.sqrt(a[idx])
         lo = uv.min(0) - reach.max()
         hi = uv.max(0) + reach.max()
-        cell = max(0.25 * tile_m, 1e-4)
+        cell = max(CELL_PER_TILE * tile_m, 1e-4)
         cell = max(cell, math.sqrt(float(np.prod(hi - lo)) / max_cells))
         shape = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
         ci, cj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")

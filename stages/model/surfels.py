@@ -37,11 +37,12 @@ import math
 import numpy as np
 import torch
 
-from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2
+from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2, quaternion_to_matrix
 
 SAME_SURFACE_COS = math.cos(math.radians(30.0))
 COPLANAR_M = 0.0015     # means closer than this to a surfel's plane lie on its surface (the faces of a 3 mm sheet stay apart)
 NEIGHBOURS = 48
+SQUARE_CELL_TOL = 1e-6   # spreads equal to this (relative): a square cell, its axes from the rotation
 
 
 def face_on_area_m2(cov: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
@@ -104,7 +105,15 @@ def footprint_cells(log_scales: torch.Tensor, rotations: torch.Tensor, normals: 
     ratio = torch.sqrt(v1 / v2).clamp(max=1e3)                       # side_1 / side_2
     side2 = torch.sqrt(areas_m2 / ratio)
     side1 = areas_m2 / side2.clamp(min=1e-300)
-    return torch.stack([evecs[:, :, 2] * (0.5 * side1)[:, None], evecs[:, :, 1] * (0.5 * side2)[:, None]], 1)
+    axis1, axis2 = evecs[:, :, 2], evecs[:, :, 1]
+    # equal spreads leave the covariance's axes undetermined: a square cell's sides follow the Gaussian's
+    # first axis (a mesh's square cells, rfir_stages.geom.from_mesh, are laid along their rectangle's sides)
+    first = (proj @ quaternion_to_matrix(rotations)[:, :, 0:1])[:, :, 0]
+    first = first / first.norm(dim=-1, keepdim=True).clamp(min=1e-300)
+    square = ((ratio - 1.0).abs() < SQUARE_CELL_TOL)[:, None]
+    axis1 = torch.where(square, first, axis1)
+    axis2 = torch.where(square, torch.linalg.cross(n, first), axis2)
+    return torch.stack([axis1 * (0.5 * side1)[:, None], axis2 * (0.5 * side2)[:, None]], 1)
 
 
 def footprint_factor(q_cell: torch.Tensor, k0: torch.Tensor) -> torch.Tensor:

@@ -421,7 +421,9 @@ def test_tiled_patches_end_where_their_surfaces_end(spacing):
     over_band = np.array([[0.0, 0.3, 0.77], [0.3, 0.3, 0.70]])       # 2 cm above and 2 cm below the 3 cm band
     assert tiles.contains(np.full(2, b), np.array([[0.0, 0.3, 0.735], [0.4, 0.3, 0.73]])).all()
     assert not tiles.contains(np.full(2, b), over_band).any()
-    assert disks.contains(np.full(2, b), over_band).any()
+    near_band = np.array([[0.0, 0.3, 0.756], [0.3, 0.3, 0.714]])    # 6 mm above and below it
+    assert not tiles.contains(np.full(2, b), near_band).any()
+    assert disks.contains(np.full(2, b), near_band).any()
     inside = np.array([[0.56, 0.0, 0.75], [-0.56, 0.0, 0.75], [0.0, 0.26, 0.75], [0.0, -0.26, 0.75]])
     outside = np.array([[0.615, 0.0, 0.75], [-0.615, 0.0, 0.75], [0.0, 0.315, 0.75], [0.0, -0.315, 0.75]])
     assert tiles.contains(np.full(4, t), inside).all()
@@ -436,6 +438,25 @@ def test_tiled_patches_end_where_their_surfaces_end(spacing):
     hit = np.zeros(2, int)
     np.add.at(hit, paths.link[(paths.order == 1) & (paths.patch[:, 0] == t)].numpy(), 1)
     assert hit.tolist() == [1, 0]
+
+
+def test_a_small_face_ends_within_millimetres_of_its_edges():
+    """A chair back's face (0.42 x 0.40 m, tiled at its size / 12): its patch holds points 3 mm inside every
+    edge and none 3 mm outside, as a leg that passes the back's corner by millimetres must not cross it
+    (rectangle cells, an occupancy grid of a tenth of a tile)."""
+    back = plate_mesh((5.26, 1.4, 0.65), (0, 1, 0), (0, 0, 1), 0.42, 0.40)
+    geom, labels, areas = _surfels_of([back], 0.85 / 12)
+    tiles = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles")
+    assert tiles.num == 1
+    s = np.linspace(-0.95, 0.95, 39)
+    for d in (-0.003, 0.003):
+        edges = np.concatenate([
+            np.stack([np.full_like(s, 5.26), 1.4 + 0.21 * s, np.full_like(s, 0.85 + d)], 1),
+            np.stack([np.full_like(s, 5.26), 1.4 + 0.21 * s, np.full_like(s, 0.45 - d)], 1),
+            np.stack([np.full_like(s, 5.26), np.full_like(s, 1.61 + d), 0.65 + 0.2 * s], 1),
+            np.stack([np.full_like(s, 5.26), np.full_like(s, 1.19 - d), 0.65 + 0.2 * s], 1)])
+        inside = tiles.contains(np.zeros(len(edges), np.int64), edges)
+        assert (not inside.any()) if d > 0 else inside.all()
 
 
 def test_an_unknown_patch_extent_is_refused():
