@@ -110,6 +110,26 @@ def model_paths(tx, rx, freq_hz, patches, provider, depth: int, eta, thickness, 
     return out
 
 
+def true_materials(scene_h5: Path, spec, freq_hz: float):
+    """The room model's patches of SCENE.h5's surfels (default extents) with the simulator's materials of `spec`:
+    (patches, tracer provider, eta [P, 1] complex relative permittivity and thickness [P] m per patch, label
+    names)."""
+    scene_art = read_artifact(scene_h5, "scene")
+    g = {k: np.asarray(scene_art.data["gaussians/" + k]) for k in ("means", "log_scales", "rotations", "normals", "labels")}
+    label_names = [str(s) for s in scene_art.attrs["label_names"]]
+    by_name = {o.name: o for o in spec.objects}
+    geom = FrozenGeometry(*(torch.as_tensor(g[k]).double() for k in ("means", "log_scales", "rotations", "normals")))
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    patches = build_patch_set(geom, areas, torch.as_tensor(g["labels"], dtype=torch.int64), 0.01, extent="tiles")
+    eta_l = [complex(permittivity(*(float(np.asarray(x).reshape(-1)[0])
+                                    for x in itu_law(by_name[n].radio_material, freq_hz)), freq_hz))
+             for n in label_names]
+    lab = torch.as_tensor(patches.label)
+    eta = torch.as_tensor(np.array(eta_l))[lab][:, None]
+    thickness = torch.as_tensor(np.array([by_name[n].thickness_m for n in label_names]))[lab]
+    return patches, make_provider("auto", geom), eta, thickness, label_names
+
+
 def compare(model: list[dict], sionna: list[dict]) -> dict:
     """Differences in dB and unmatched power shares over links with power on both sides."""
     diff, missing, extra = [], collections.Counter(), collections.Counter()
@@ -159,20 +179,8 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     spec = build_scene(args.scene)
-    scene_art = read_artifact(args.scene_h5, "scene")
-    g = {k: np.asarray(scene_art.data["gaussians/" + k]) for k in ("means", "log_scales", "rotations", "normals", "labels")}
-    label_names = [str(s) for s in scene_art.attrs["label_names"]]
-    by_name = {o.name: o for o in spec.objects}
-    geom = FrozenGeometry(*(torch.as_tensor(g[k]).double() for k in ("means", "log_scales", "rotations", "normals")))
-    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    patches = build_patch_set(geom, areas, torch.as_tensor(g["labels"], dtype=torch.int64), 0.01, extent="tiles")
-    provider = make_provider("auto", geom)
     f = args.freq_hz
-    eta_l = [complex(permittivity(*(float(np.asarray(x).reshape(-1)[0]) for x in itu_law(by_name[n].radio_material, f)), f))
-             for n in label_names]
-    lab = torch.as_tensor(patches.label)
-    eta = torch.as_tensor(np.array(eta_l))[lab][:, None]
-    thickness = torch.as_tensor(np.array([by_name[n].thickness_m for n in label_names]))[lab]
+    patches, provider, eta, thickness, label_names = true_materials(args.scene_h5, spec, f)
     rx = receivers(spec, args.grid, args.rx_height)
     print(f"{len(rx)} receivers, {patches.num} patches; Sionna and the room model at depth {args.depth}, "
           "specular and refraction, no diffuse, true materials")

@@ -1,12 +1,15 @@
 """Flat Gaussians (surfels) tiled on a triangle mesh: a geometry oracle for rf-fit and tests.
 
-Two coplanar triangles that share an edge and together form a rectangle (a box's face, a wall's panel
-between openings) are tiled as the rectangle: n1 x n2 equal cells of at most spacing / 2 a side (the
-area of a sub-triangle whose longest edge is the spacing), each one Gaussian with the cell's centre,
+With `rectangles` (`rfir mesh-gaussians --rectangles`), two coplanar triangles that share an edge and
+together form a rectangle (a box's face, a wall's panel between openings) are tiled as the rectangle:
+n1 x n2 equal cells of at most spacing / 2 a side (the area of a sub-triangle whose longest edge is the
+spacing), each one Gaussian with the cell's centre,
 the face normal, in-plane axes along the rectangle's sides and the cell's second moments scaled to its
 area. Its footprint cell (rfir_stages.model.surfels.footprint_cells) is then the cell itself, so the
 cells' union is the rectangle to the edge; the rotated squares of a triangle tiling overshoot a straight
-edge by up to a third of a tile and fall short between (docs/physics.md section 8.10).
+edge by up to a third of a tile and fall short between (docs/physics.md section 8.10). The room model's
+patches then end where the faces end; the physical-optics RCS checks (edge waves, the box against full-wave
+data) were made on the sub-triangle tiling, which stays the default.
 
 Every other triangle is split into m x m congruent sub-triangles (m = ceil(longest edge / spacing)), and
 each sub-triangle becomes one Gaussian:
@@ -71,12 +74,13 @@ def _subdivide(tri: np.ndarray, m: int) -> np.ndarray:
 
 def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: float,
                         labels: np.ndarray | None = None, thickness_ratio: float = 0.05,
-                        report: dict | None = None) -> dict[str, np.ndarray]:
+                        report: dict | None = None, rectangles: bool = False) -> dict[str, np.ndarray]:
     """Scene fields (`gaussians/...`) of surfels tiling the mesh.
 
     vertices [V, 3] m, faces [F, 3] int (any winding; the normal follows it), spacing_m: the
     largest sub-triangle edge, twice the largest side of a rectangle's cell [m]; labels [F] int per face
-    (optional) -> `gaussians/labels`.
+    (optional) -> `gaussians/labels`; rectangles: tile the face pairs that form a rectangle as its cells (module
+    docstring; off: every face as sub-triangles).
     Returns dict with means [G, 3], log_scales [G, 3] (in-plane, in-plane, normal), rotations
     [G, 4] wxyz, opacities [G] (ones), normals [G, 3], (labels [G]). Degenerate faces are skipped and
     sliver surfels merged (module docstring); `report`, when given, receives the counts: faces,
@@ -91,7 +95,7 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
     cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
     keep = area2 > 1e-14
-    paired, rects = _rectangles(vertices, faces, cross, area2)
+    paired, rects = _rectangles(vertices, faces, cross, area2) if rectangles else (np.zeros(len(faces), bool), [])
     means, covs, normals, labs = [], [], [], []
     for f in np.flatnonzero(keep & ~paired):
         tri = tris[f]
@@ -192,7 +196,8 @@ def _rectangle_cells(corner: np.ndarray, side_1: np.ndarray, side_2: np.ndarray,
     """A rectangle's cells (module docstring): (means [n, 3], normals [n, 3], first in-plane axis [n, 3] (along
     side_1), spreads s1 [n] and s2 [n] m along side_1 and side_2, scaled so that pi s1 s2 is the cell's area)."""
     l1, l2 = float(np.linalg.norm(side_1)), float(np.linalg.norm(side_2))
-    n1, n2 = (max(1, int(math.ceil(2.0 * length / spacing_m - 1e-9))) for length in (l1, l2))
+    # 1e-6: a float32 mesh's 0.4 m side at 0.2 m spacing is 4 cells, not 5
+    n1, n2 = (max(1, int(math.ceil(2.0 * length / spacing_m - 1e-6))) for length in (l1, l2))
     i, j = np.meshgrid((np.arange(n1) + 0.5) / n1, (np.arange(n2) + 0.5) / n2, indexing="ij")
     means = corner + i.reshape(-1, 1) * side_1 + j.reshape(-1, 1) * side_2
     normal = np.cross(side_1, side_2)
@@ -281,13 +286,14 @@ def scene_from_mesh(scene_name: str, spacing_m: float, thickness_ratio: float = 
 
 
 def write_scene_artifact(path: str | Path, fields: dict, *, label_names=None, source: str = "mesh",
-                         spacing_m: float | None = None) -> Path:
-    """Write surfel fields as a `scene` artifact (records the mesh source in provenance)."""
+                         spacing_m: float | None = None, rectangles: bool = False) -> Path:
+    """Write surfel fields as a `scene` artifact (records the mesh source, spacing and tiling in provenance)."""
     from rfir_cli.artifacts import write_artifact
     from rfir_cli.provenance import Provenance
 
     attrs = {"source": source}
     if label_names is not None:
         attrs["label_names"] = np.asarray([str(n) for n in label_names], dtype=object)
-    prov = Provenance(stage="geom.from_mesh", extra={"source": source, "spacing_m": spacing_m})
+    prov = Provenance(stage="geom.from_mesh", extra={"source": source, "spacing_m": spacing_m,
+                                                         "tiling": "rectangles" if rectangles else "triangles"})
     return write_artifact(path, "scene", fields, attrs=attrs, provenance=prov)

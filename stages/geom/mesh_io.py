@@ -84,21 +84,23 @@ def object_spacings(mesh: Mesh, spacing_m: float, object_cells: int) -> dict[int
     return out
 
 
-def surfels_per_object(mesh: Mesh, spacings: dict[int, float], report: dict | None = None) -> dict[str, np.ndarray]:
-    """Scene fields (`gaussians_from_mesh`) with each object tiled at its own spacing (object_spacings).
+def surfels_per_object(mesh: Mesh, spacings: dict[int, float], report: dict | None = None,
+                       rectangles: bool = False) -> dict[str, np.ndarray]:
+    """Scene fields (`gaussians_from_mesh`, its `rectangles`) with each object tiled at its own spacing
+    (object_spacings).
 
     report, when given, receives gaussians_from_mesh's counts summed over the objects."""
     from rfir_stages.geom import gaussians_from_mesh
 
     if mesh.labels is None:
-        return gaussians_from_mesh(mesh.vertices, mesh.faces, spacings[-1], report=report)
+        return gaussians_from_mesh(mesh.vertices, mesh.faces, spacings[-1], report=report, rectangles=rectangles)
     parts = []
     for value, spacing in sorted(spacings.items()):
         keep = mesh.labels == value
         part_report: dict = {}
         try:
             parts.append(gaussians_from_mesh(mesh.vertices, mesh.faces[keep], spacing, labels=mesh.labels[keep],
-                                             report=part_report))
+                                             report=part_report, rectangles=rectangles))
         except ValueError:   # an object whose facets all have zero area: counted, nothing to tile
             part_report = {"faces": int(keep.sum()), "degenerate_faces": int(keep.sum())}
         if report is not None:

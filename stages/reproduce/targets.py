@@ -38,10 +38,10 @@ def _simulate(r: Plan, name: str, scene: str, sets: dict, args: list[str] = ()) 
 
 def _surfels(r: Plan, name: str, scene: str, spacing: float, object_cells: int = 0) -> Path:
     """Surfels of the scene's true mesh; object_cells > 0 tiles each labelled object at
-    min(spacing, its size / object_cells) (furniture in rooms)."""
+    min(spacing, its size / object_cells) and the mesh's rectangles as cells (`--rectangles`; rooms)."""
     out = r.data / name / "scene.h5"
     mesh = r.data / name / "meshes" / f"{scene}_gt.ply"
-    cells = ["--object-cells", str(object_cells)] if object_cells else []
+    cells = ["--object-cells", str(object_cells), "--rectangles"] if object_cells else []
     r.step(f"data__{name}_surfels", [r.rfir, "mesh-gaussians", str(mesh), "-o", str(out), "--spacing", f"{spacing:g}",
                                      *cells], out)
     return out

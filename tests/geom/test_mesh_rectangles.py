@@ -17,7 +17,7 @@ def _rotation(axis, deg):
 
 
 def _fields(vertices, faces, spacing):
-    g = gaussians_from_mesh(vertices, faces, spacing)
+    g = gaussians_from_mesh(vertices, faces, spacing, rectangles=True)
     t = {k.split("/")[1]: torch.as_tensor(v) for k, v in g.items()}
     areas = surfel_areas(t["means"], t["log_scales"], t["rotations"], t["normals"])
     cells = footprint_cells(t["log_scales"], t["rotations"], t["normals"], areas).numpy()
@@ -81,3 +81,28 @@ def test_square_cells_take_the_rectangle_sides_and_other_quads_stay_triangles():
     g, cells, areas = _fields(para, np.array([[0, 1, 2], [0, 2, 3]]), 0.2)
     assert abs(areas.sum() - 0.16) < 1e-5 * 0.16
     assert len(areas) % 2 == 0 and len(areas) > 4                     # m x m sub-triangles of each face
+
+
+def test_the_command_tiles_rectangles_only_when_asked_and_records_the_tiling(tmp_path):
+    """`rfir mesh-gaussians --rectangles`: the two panels' rectangles as cells (1 x 0.5 m at 0.2 m: 10 x 5, 0.4 x
+    0.4 m: 4 x 4), the tiling in the artifact's provenance and the count printed; without it, sub-triangles."""
+    from typer.testing import CliRunner
+
+    from rfir_cli.artifacts import read_artifact
+    from rfir_cli.main import app
+
+    from .test_mesh_gaussians import two_panels, write_ply
+
+    mesh = write_ply(tmp_path / "m.ply", *two_panels())
+    runner = CliRunner()
+    r = runner.invoke(app, ["mesh-gaussians", str(mesh), "-o", str(tmp_path / "r.h5"), "--spacing", "0.2",
+                            "--rectangles"])
+    assert r.exit_code == 0, r.output
+    assert "2 rectangles tiled as cells" in " ".join(r.output.split())
+    art = read_artifact(tmp_path / "r.h5", "scene")
+    assert len(art["gaussians/means"]) == 10 * 5 + 4 * 4
+    assert art.provenance.extra["tiling"] == "rectangles"
+    r = runner.invoke(app, ["mesh-gaussians", str(mesh), "-o", str(tmp_path / "t.h5"), "--spacing", "0.2"])
+    assert r.exit_code == 0, r.output
+    art = read_artifact(tmp_path / "t.h5", "scene")
+    assert art.provenance.extra["tiling"] == "triangles" and len(art["gaussians/means"]) != 10 * 5 + 4 * 4

@@ -20,8 +20,8 @@ def plate_mesh(centre, u, w, a, b):
     return v, np.array([[0, 1, 2], [0, 2, 3]])
 
 
-def surfels(vertices, faces, spacing_m, labels=None):
-    g = gaussians_from_mesh(vertices, faces, spacing_m, labels=labels)
+def surfels(vertices, faces, spacing_m, labels=None, rectangles=False):
+    g = gaussians_from_mesh(vertices, faces, spacing_m, labels=labels, rectangles=rectangles)
     geom = FrozenGeometry(*(torch.as_tensor(g["gaussians/" + k]).double()
                             for k in ("means", "log_scales", "rotations", "normals")))
     return geom, g

@@ -31,15 +31,16 @@ K = 2 * math.pi / LAM
 METAL = complex(1.0, -math.inf)   # a perfect conductor (materials.fresnel)
 
 
-def _surfels_of(meshes, spacing):
-    """(geometry, labels [G], areas [G]) of a list of (vertices, faces) meshes, one label each."""
+def _surfels_of(meshes, spacing, rectangles=False):
+    """(geometry, labels [G], areas [G]) of a list of (vertices, faces) meshes, one label each (rectangles: the
+    mesh's rectangles tiled as cells, gaussians_from_mesh)."""
     vs, fs, ls, off = [], [], [], 0
     for i, (v, f) in enumerate(meshes):
         vs.append(v)
         fs.append(f + off)
         ls.append(np.full(len(f), i))
         off += len(v)
-    geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls))
+    geom, g = surfels(np.concatenate(vs), np.concatenate(fs), spacing, labels=np.concatenate(ls), rectangles=rectangles)
     labels = torch.as_tensor(g["gaussians/labels"], dtype=torch.int64)
     return geom, labels, surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
 
@@ -443,9 +444,9 @@ def test_tiled_patches_end_where_their_surfaces_end(spacing):
 def test_a_small_face_ends_within_millimetres_of_its_edges():
     """A chair back's face (0.42 x 0.40 m, tiled at its size / 12): its patch holds points 3 mm inside every
     edge and none 3 mm outside, as a leg that passes the back's corner by millimetres must not cross it
-    (rectangle cells, an occupancy grid of a tenth of a tile)."""
+    (`mesh-gaussians --rectangles`, an occupancy grid of a tenth of a tile)."""
     back = plate_mesh((5.26, 1.4, 0.65), (0, 1, 0), (0, 0, 1), 0.42, 0.40)
-    geom, labels, areas = _surfels_of([back], 0.85 / 12)
+    geom, labels, areas = _surfels_of([back], 0.85 / 12, rectangles=True)
     tiles = build_patch_set(geom, areas, labels, coplanar_m=0.01, extent="tiles")
     assert tiles.num == 1
     s = np.linspace(-0.95, 0.95, 39)

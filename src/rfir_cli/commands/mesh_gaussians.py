@@ -41,6 +41,10 @@ def mesh_gaussians(
     object_cells: Annotated[int, typer.Option(
         "--object-cells", help="Tile each labelled object at min(--spacing, its size / N), so that small objects "
         "(furniture in a room) get about N surfels across; 0: every face at --spacing.")] = 0,
+    rectangles: Annotated[bool, typer.Option(
+        "--rectangles", help="Tile each pair of triangles that forms a rectangle (a box's face, a wall panel) as "
+        "the rectangle's cells, at most spacing / 2 a side, so that surfaces end at their edges: for rooms "
+        "(docs/rssi.md). Off: every face split into smaller triangles (the tiling the RCS checks were made on).")] = False,
 ) -> None:
     """Tile a mesh with flat Gaussians (normals from the faces) and write a scene artifact."""
     from rfir_stages.geom import write_scene_artifact
@@ -58,7 +62,7 @@ def mesh_gaussians(
         spacings = object_spacings(data, spacing_m, object_cells)
         report: dict = {}
         try:
-            fields = surfels_per_object(data, spacings, report=report)
+            fields = surfels_per_object(data, spacings, report=report, rectangles=rectangles)
         except ValueError as exc:   # a mesh with no face of non-zero area
             raise InputFileError(str(exc), path=mesh) from None
         names = None
@@ -67,7 +71,8 @@ def mesh_gaussians(
             names = [data.label_names.get(i, f"label_{i}") for i in range(top)]
         finer = sorted(v for v in spacings.values() if v < spacing_m)
         described = spacing_m if not finer else f"{spacing_m} (objects: min(spacing, size / {object_cells}))"
-        path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=described)
+        path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=described,
+                                    rectangles=rectangles)
         return path, len(fields["gaussians/means"]), report, finer
 
     path, count, report, finer = run_guarded(ctx, work)
@@ -75,5 +80,6 @@ def mesh_gaussians(
         console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
     extra = (f"; {len(finer)} smaller objects at {finer[0] * 100:.3g}-{finer[-1] * 100:.3g} cm (size / {object_cells})"
              if finer else "")
-    console.print(f"[green]wrote[/green] {path}: {count} Gaussians at {spacing_m * 100:g} cm spacing{extra}",
+    tiling = f"; {report.get('rectangles', 0)} rectangles tiled as cells" if rectangles else ""
+    console.print(f"[green]wrote[/green] {path}: {count} Gaussians at {spacing_m * 100:g} cm spacing{extra}{tiling}",
                   highlight=False)
