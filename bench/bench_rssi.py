@@ -1,11 +1,11 @@
 """Benchmark of `predict rssi` (issue 23): radio maps for new transmitters in the classroom.
 
-    .venv/bin/python bench/bench_rssi.py                       # furniture-resolving surfels (0.8 m, size / 12)
+    .venv/bin/python bench/bench_rssi.py                       # furniture-resolving surfels (0.8 m, size / 12, rectangles)
     .venv/bin/python bench/bench_rssi.py --object-cells 0      # uniform 0.8 m surfels
     .venv/bin/python bench/bench_rssi.py --rf rf.h5 --results results/classroom_rssi_speed.json   # a fitted model
 
 Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes) and tiled as
-`rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12` tiles them; a 5-step fit of the
+`rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12 --rectangles` tiles them; a 5-step fit of the
 room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
 - map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: the surfaces crossed from
   every receiver to the diffuse cells it needs traced (room_diffuse.CellCrossings), and map_cold_cpu_s its
@@ -44,13 +44,14 @@ NEW_TX = np.array([[4.1, 3.3, 1.7], [6.0, 2.0, 2.2], [2.5, 5.1, 2.0], [7.2, 4.4,
 
 
 def classroom_fields(spacing_m: float, object_cells: int):
-    """Surfels of the code-built classroom as `mesh-gaussians --spacing --object-cells` tiles its mesh."""
+    """Surfels of the code-built classroom as `mesh-gaussians --spacing --object-cells` tiles its mesh, with
+    `--rectangles` where object_cells > 0 (the room recipe of docs/rssi.md)."""
     from rfir_stages.geom.from_mesh import scene_triangles
     from rfir_stages.geom.mesh_io import Mesh, object_spacings, surfels_per_object
 
     verts, faces, labels, names = scene_triangles("classroom")
     mesh = Mesh(verts, faces, labels, dict(enumerate(names)))
-    return surfels_per_object(mesh, object_spacings(mesh, spacing_m, object_cells)), names
+    return surfels_per_object(mesh, object_spacings(mesh, spacing_m, object_cells), rectangles=object_cells > 0), names
 
 
 def main() -> None:
