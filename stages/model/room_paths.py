@@ -169,9 +169,13 @@ def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half:
     along = np.abs(np.einsum("cki,ckai->cka", centres[:, None, :] - uv[near], axes[near]))   # [C, k, 2] per axis
     occupied = (along <= half[near]).all(2).any(1).reshape(shape[0], shape[1])
     r = closing_cells
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     padded = np.pad(occupied, r + 1)                                    # the closing must not eat the border
-    return ndimage.binary_closing(padded, structure=xx ** 2 + yy ** 2 <= r * r)[r + 1:-r - 1, r + 1:-r - 1].ravel()
+    # closing with the disk {d : |d|^2 <= r^2}, by distance transforms (exact on the grid, and linear in the cells
+    # where a structuring element of a tenth-of-a-tile grid costs its 300-odd cells per cell): dilation is a
+    # distance to the occupied cells of at most r, erosion of that a distance to the empty ones above r
+    dilated = np.rint(ndimage.distance_transform_edt(~padded) ** 2) <= r * r
+    closed = np.rint(ndimage.distance_transform_edt(dilated) ** 2) > r * r
+    return closed[r + 1:-r - 1, r + 1:-r - 1].ravel()
 
 
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
