@@ -96,8 +96,9 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
     area2 = np.linalg.norm(cross, axis=1)
     keep = area2 > 1e-14
     paired, rects = _rectangles(vertices, faces, cross, area2) if rectangles else (np.zeros(len(faces), bool), [])
-    means, covs, normals, labs = [], [], [], []
-    for f in np.flatnonzero(keep & ~paired):
+    tri_faces = np.flatnonzero(keep & ~paired)
+    means, covs, normals, labs = [np.zeros((0, 3))], [np.zeros((0, 3, 3))], [np.zeros((0, 3))], [np.zeros(0, np.int64)]
+    for f in tri_faces:
         tri = tris[f]
         longest = max(np.linalg.norm(tri[1] - tri[0]), np.linalg.norm(tri[2] - tri[1]), np.linalg.norm(tri[0] - tri[2]))
         m = max(1, int(math.ceil(longest / spacing_m - 1e-9)))
@@ -111,27 +112,21 @@ def gaussians_from_mesh(vertices: np.ndarray, faces: np.ndarray, spacing_m: floa
         if labels is not None:
             labs.append(np.full(len(sub), int(labels[f])))
         covs[-1] = _scaled_to_area(covs[-1], 0.5 * area2[f] / m**2)
-    if not means and not rects:
+    if not len(tri_faces) and not rects:
         raise ValueError("the mesh has no face with a non-zero area")
-    stats = {"sliver_faces": 0, "sliver_surfels": 0, "sliver_area_m2": 0.0, "merged_surfels": 0,
-             "sliver_width_m": SLIVER_RATIO * spacing_m}
-    if means:
-        tri_faces = np.flatnonzero(keep & ~paired)
-        face_of = np.concatenate([np.full(len(c), f) for f, c in zip(tri_faces, means)])
-        means = np.concatenate(means)
-        normals = np.ascontiguousarray(np.concatenate(normals))
-        cov = np.concatenate(covs)
-        lab_all = np.concatenate(labs) if labels is not None else np.zeros(len(means), np.int64)
-        means, normals, cov, lab_all, stats = _merge_slivers(means, normals, cov, lab_all, face_of, spacing_m)
-        # In-plane axes from the covariance, third axis = the normal.
-        ev, evec = np.linalg.eigh(cov)  # ascending; the smallest (~0) is along the normal
-        e1 = evec[:, :, 2]
-        s1, s2 = np.sqrt(np.maximum(ev[:, 2], 0)), np.sqrt(np.maximum(ev[:, 1], 0))
-    else:
-        means, normals, e1, s1, s2, lab_all = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                                               np.zeros(0), np.zeros(0, np.int64))
+    # the lists start with an empty entry, so a mesh of rectangles alone goes through the same steps
+    face_of = np.concatenate([np.zeros(0, np.int64)] + [np.full(len(c), f) for f, c in zip(tri_faces, means[1:])])
+    means = np.concatenate(means)
+    normals = np.ascontiguousarray(np.concatenate(normals))
+    cov = np.concatenate(covs)
+    lab_all = np.concatenate(labs) if labels is not None else np.zeros(len(means), np.int64)
+    means, normals, cov, lab_all, stats = _merge_slivers(means, normals, cov, lab_all, face_of, spacing_m)
+    # In-plane axes from the covariance, third axis = the normal.
+    ev, evec = np.linalg.eigh(cov)  # ascending; the smallest (~0) is along the normal
+    e1 = evec[:, :, 2]
+    s1, s2 = np.sqrt(np.maximum(ev[:, 2], 0)), np.sqrt(np.maximum(ev[:, 1], 0))
     if rects:
-        cells = [_rectangle_cells(*r, spacing_m) for r in rects]
+        cells = [_rectangle_cells(corner, side_1, side_2, spacing_m) for corner, side_1, side_2, _ in rects]
         means = np.concatenate([means] + [c[0] for c in cells])
         normals = np.ascontiguousarray(np.concatenate([normals] + [c[1] for c in cells]))
         e1 = np.concatenate([e1] + [c[2] for c in cells])
@@ -192,7 +187,7 @@ def _rectangles(vertices: np.ndarray, faces: np.ndarray, cross: np.ndarray, area
     return paired, rects
 
 
-def _rectangle_cells(corner: np.ndarray, side_1: np.ndarray, side_2: np.ndarray, face: int, spacing_m: float):
+def _rectangle_cells(corner: np.ndarray, side_1: np.ndarray, side_2: np.ndarray, spacing_m: float):
     """A rectangle's cells (module docstring): (means [n, 3], normals [n, 3], first in-plane axis [n, 3] (along
     side_1), spreads s1 [n] and s2 [n] m along side_1 and side_2, scaled so that pi s1 s2 is the cell's area)."""
     l1, l2 = float(np.linalg.norm(side_1)), float(np.linalg.norm(side_2))
