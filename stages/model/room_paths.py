@@ -115,6 +115,14 @@ class PatchSet:
         out[inside] = self.grid[idx[inside]]
         return out
 
+    def bounding_spheres(self, pid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(centre [N, 3] m, radius [N] m) of a sphere holding every cell of patches pid [N]: about the centre of
+        the patch's occupancy grid, through its corners."""
+        half = 0.5 * self.grid_shape[pid] * self.cell_m[pid, None]                   # [N, 2] half sides
+        mid = self.grid_origin[pid] + half
+        centre = self.point[pid] + mid[:, :1] * self.u[pid] + mid[:, 1:] * self.v[pid]
+        return centre, np.hypot(half[:, 0], half[:, 1])
+
 
 def _labelled_planar_patches(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
                              coplanar_m: float, merge_scatter_factor: float) -> Patches:
@@ -449,6 +457,11 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
         images.append(mirror_points(images[-1], cp[j], cn[j]))
         if source.size == 0:
             break
+    if order > 1 and source.size:
+        # before pairing the rows with receivers, drop those no receiver can complete (most third-order rows)
+        keep = _sequence_may_connect(images, cand[seq], patches)
+        source, seq, side_last = source[keep], seq[keep], side_last[keep]
+        images = [im[keep] for im in images]
     # every link of each row's transmitter with its receiver on the image's side of the last plane (screened with
     # half the margin, decided exactly below), in chunks of rows of at most PAIR_CHUNK (row, link) pairs: third
     # order off a few dozen large patches is tens of millions of pairs (a flat of four rooms), held at once 10 GB
@@ -478,6 +491,33 @@ def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np
     pts = np.concatenate([o[2] for o in out])
     srt = np.lexsort([links] + [seq[:, k] for k in range(order - 1, -1, -1)])
     return links[srt], cand[seq[srt]], pts[srt]
+
+
+def _angular_radius(radius: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """Half-angle [rad] of the cone from a point at `distance` that holds a sphere of `radius`; pi from inside it."""
+    return np.where(distance > radius, np.arcsin(np.clip(radius / np.maximum(distance, 1e-12), 0.0, 1.0)), math.pi)
+
+
+def _sequence_may_connect(images: list[np.ndarray], seq_patch: np.ndarray, patches: PatchSet) -> np.ndarray:
+    """[R] bool: whether rows (transmitter, patch sequence) can hold a path for some receiver. images: order + 1
+    arrays [R, 3], the transmitter and its images across seq_patch [R, order] in turn.
+
+    Reflection point k lies on the segment from image k + 1 to reflection point k + 1, so the ray from that image
+    through patch k must reach patch k + 1: with each patch in its bounding sphere, the angle at the image between
+    the spheres' centres must not exceed the sum of the spheres' angular radii. A necessary condition (no path
+    is lost), decided once per row instead of once per (row, receiver) pair."""
+    ok = np.ones(len(seq_patch), dtype=bool)
+    for k in range(seq_patch.shape[1] - 1):
+        image = images[k + 1]
+        c_a, r_a = patches.bounding_spheres(seq_patch[:, k])
+        c_b, r_b = patches.bounding_spheres(seq_patch[:, k + 1])
+        a, b = c_a - image, c_b - image
+        d_a, d_b = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+        spread = _angular_radius(r_a, d_a) + _angular_radius(r_b, d_b)
+        cos_ab = _dot(a, b) / np.maximum(d_a * d_b, 1e-24)
+        # a thousandth of a radian of slack: rounding never drops a path at the edge of a patch
+        ok &= (spread + 1e-3 >= math.pi) | (cos_ab >= np.cos(np.minimum(spread + 1e-3, math.pi)))
+    return ok
 
 
 def _paths_of_rows(rows, rep_all, first_link, source, by_source, side_last, rx, rx_side, seq, images, per_row,

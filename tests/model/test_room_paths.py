@@ -633,3 +633,64 @@ def test_third_order_with_one_small_reflection_is_the_filtered_full_enumeration(
     eta = np.full(int(patches.label.max()) + 1, 5.0 - 0.3j)
     np.testing.assert_allclose(_field(paths.select_paths(~extra), patches, eta, np.full(len(eta), 0.1), s=0.2),
                                _field(none, patches, eta, np.full(len(eta), 0.1), s=0.2), rtol=1e-9)
+
+
+def _box_room_with_furniture():
+    """A 4 x 3 x 2.5 m box, two table tops, a turned panel and a small plate low on a wall: patches and
+    provider."""
+    walls = [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
+             plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
+             plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
+             plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
+             plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
+             plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5),
+             plate_mesh((1.3, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9),     # table tops
+             plate_mesh((2.9, 0.8, 0.75), (1, 0, 0), (0, 1, 0), 0.8, 0.7),
+             plate_mesh((3.2, 2.4, 1.4), (0.6, -0.8, 0), (0, 0, 1), 0.9, 1.0),  # a turned panel
+             plate_mesh((0.02, 0.3, 0.5), (0, 1, 0), (0, 0, 1), 0.2, 0.2)]      # a small plate low on a wall
+    return _room(walls, spacing=0.1, extent="tiles")
+
+
+def test_bounding_spheres_hold_every_cell_of_their_patches():
+    """PatchSet.bounding_spheres: every corner of every occupied cell lies within its patch's sphere."""
+    patches, _ = _box_room_with_furniture()
+    centre, radius = patches.bounding_spheres(np.arange(patches.num))
+    for p in range(patches.num):
+        rows, cols = patches.grid_shape[p]
+        occ = patches.grid[patches.grid_offset[p]:patches.grid_offset[p] + rows * cols].reshape(rows, cols)
+        i, j = np.nonzero(occ)
+        assert len(i) > 0
+        for di in (0, 1):
+            for dj in (0, 1):
+                a = patches.grid_origin[p, 0] + (i + di) * patches.cell_m[p]
+                b = patches.grid_origin[p, 1] + (j + dj) * patches.cell_m[p]
+                pts = patches.point[p] + a[:, None] * patches.u[p] + b[:, None] * patches.v[p]
+                assert (np.linalg.norm(pts - centre[p], axis=1) <= radius[p] + 1e-9).all()
+
+
+def test_sequences_dropped_before_pairing_hold_no_path(monkeypatch):
+    """reflection_paths drops (transmitter, sequence) rows that no receiver can complete before pairing them with
+    the receivers (_sequence_may_connect): orders 2 and 3 give the same paths as without the test, and it drops
+    rows. A transmitter just above the floor has its image inside the floor's bounding sphere, and its path off
+    the floor to the small plate on the wall beside it leaves that image more than 90 degrees from the floor's
+    centre (a cone of the sphere's angular radius would miss it)."""
+    from rfir_stages.model import room_paths
+    from rfir_stages.model.room_paths import reflection_paths
+
+    patches, _ = _box_room_with_furniture()
+    rng = np.random.default_rng(7)
+    tx = np.repeat(np.vstack([[0.8, 0.3, 0.1], rng.uniform([0.3, 0.3, 0.9], [3.7, 2.7, 2.3], (3, 3))]), 40, axis=0)
+    rx = rng.uniform([0.2, 0.2, 0.2], [3.8, 2.8, 2.3], (160, 3))
+    cand = np.arange(patches.num)
+    test = room_paths._sequence_may_connect
+    kept = []
+    monkeypatch.setattr(room_paths, "_sequence_may_connect",
+                        lambda images, seq, p: kept.append(test(images, seq, p)) or kept[-1])
+    pruned = {o: reflection_paths(tx, rx, patches, cand, o) for o in (2, 3)}
+    assert all(0 < k.sum() < len(k) for k in kept)
+    monkeypatch.setattr(room_paths, "_sequence_may_connect", lambda images, seq, p: np.ones(len(seq), bool))
+    for order in (2, 3):
+        full = reflection_paths(tx, rx, patches, cand, order)
+        assert len(full[0]) > 100
+        for a, b in zip(full, pruned[order]):
+            np.testing.assert_array_equal(a, b)
