@@ -8,7 +8,8 @@ MEASUREMENTS.h5 the file it was fitted on. For each material (object class: desk
 any one object of the class, the fitted |Gamma(0)|, eps_r, sigma and thickness at the fitted
 frequency, the simulator's (its ITU-R P.2040 material and slab thickness), and whether issue targets
 hold: |Gamma(0)| within 0.1, eps_r within 30 % for dielectrics, a metal fitted as a metal
-(|Gamma(0)| >= 0.9). The |Gamma(0)| range the links allow is read from the artifact when rf-fit ran
+(|Gamma(0)| >= 0.9); "(concrete)": rf-fit took the material as that tabulated one
+(rf_fit.room.tabulated_materials). The |Gamma(0)| range the links allow is read from the artifact when rf-fit ran
 with rf_fit.room.reflection_ranges = true. --eps-ranges also scans the same candidate grid with the
 same one-standard-error rule (rfir_stages.model.identifiability) and gives the range of eps_r of the
 compatible dielectric candidates: whether the links determine eps_r at all. A report, not a stage.
@@ -108,6 +109,7 @@ def main() -> None:
     ranges = rf.get("material/gamma_normal_range")
     eps_r = eps_ranges(links, pred.mats, target, f) if args.eps_ranges else None
     truth = true_materials(str(rf.attrs.get("scene", "classroom")), names, f)
+    tabulated = [str(s) for s in np.atleast_1d(rf.free["model@attrs"].get("material_tabulated", [""] * len(names)))]
     out = []
     for i, (name, row) in enumerate(zip(names, fitted)):
         itu, th, eps, sig, g = truth[name]
@@ -118,19 +120,21 @@ def main() -> None:
                     "fitted": {"gamma_normal_abs": row["gamma_normal_abs"], "eps_r": row["eps_r"],
                                "sigma_s_per_m": row["sigma_s_per_m"], "thickness_m": row["thickness_m"],
                                "scattering": row["scattering"]},
+                    "taken_as_tabulated": tabulated[i],
                     "links_allow_gamma": None if ranges is None else [float(x) for x in np.asarray(ranges)[i]],
                     "links_allow_eps_r": None if eps_r is None or metal else [float(x) for x in eps_r[i]],
                     "simulator": {"material": itu, "thickness_m": th, "eps_r": eps, "sigma_s_per_m": sig,
                                   "gamma_normal_abs": g},
                     "gamma_within_0.1": bool(ok_g), "within_target": bool(ok)})
-    print(f"{'material':<14} {'links':>5} {'min/obj':>7}  fitted |G0| eps_r  sigma     th mm  | simulator |G0| eps_r "
-          "sigma th mm | |G0| allow  eps_r allow | target")
+    print(f"{'material':<14} {'links':>5} {'min/obj':>7}  fitted |G0| eps_r  sigma     th mm  {'(tabulated)':<13} | "
+          "simulator |G0| eps_r sigma th mm | |G0| allow  eps_r allow | target")
     for r in out:
         a, s = r["fitted"], r["simulator"]
         ga = "-" if r["links_allow_gamma"] is None else "{:.2f}-{:.2f}".format(*r["links_allow_gamma"])
         ea = "-" if r["links_allow_eps_r"] is None else "{:g}-{:g}".format(*r["links_allow_eps_r"])
         print(f"{r['material']:<14} {r['links']:>5} {r['fewest_links_one_object']:>7}  {a['gamma_normal_abs']:.2f} "
-              f"{a['eps_r']:6.2f} {a['sigma_s_per_m']:8.3g} {a['thickness_m'] * 1e3:6.1f} | {s['material']:<8} "
+              f"{a['eps_r']:6.2f} {a['sigma_s_per_m']:8.3g} {a['thickness_m'] * 1e3:6.1f}  "
+              f"{('(' + r['taken_as_tabulated'] + ')') if r['taken_as_tabulated'] else '':<13} | {s['material']:<8} "
               f"{s['gamma_normal_abs']:.2f} {s['eps_r']:5.2f} {s['sigma_s_per_m']:8.3g} {s['thickness_m'] * 1e3:5.1f} | "
               f"{ga:>9} {ea:>9} | {'yes' if r['within_target'] else 'no'} (|G0| {'yes' if r['gamma_within_0.1'] else 'no'})")
     if args.json:

@@ -73,6 +73,9 @@ class RoomSettings:
     # the materials' |Gamma(0)| ranges the links allow (identifiability.py): off by default in rooms,
     # where each of the materials x 336 grid points costs an evaluation of every fitted link's paths
     reflection_ranges: bool = False
+    # after the fit, each material the training links cannot tell from a tabulated one (ITU-R P.2040) within one
+    # standard error is taken as that one (tabulated.py)
+    tabulated_materials: bool = True
     # keep the surfaces crossed from each receiver of the default radio map ([predict.rssi] grid) to the diffuse cells
     # in the model: a map for a new transmitter then traces no receiver (a few MB, a few s of the fit)
     map_visibility: bool = True

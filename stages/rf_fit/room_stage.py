@@ -27,6 +27,8 @@ from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS
 
+from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
+
 from .physical_stage import attach_ranges, bound_warnings, range_words
 
 MODEL_KIND = "rssi_physical"
@@ -164,26 +166,17 @@ def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], st
     return idx.numpy(), mnames, sharing
 
 
-TYPICAL_THICKNESS_M = {"glass": 0.01, "metal": 0.002, "concrete": 0.2, "brick": 0.15, "wood": 0.03,
-                       "plasterboard": 0.0125, "ceiling_board": 0.015, "chipboard": 0.02, "plywood": 0.015,
-                       "marble": 0.03, "floorboard": 0.02}
-
-
 def name_priors(names: list[str]) -> dict:
     """{material index: (eps_r, sigma at 1 GHz [S/m], thickness [m])} for materials whose name contains an
     ITU-R P.2040 material ("glass_partition" -> glass), the law's values at 1 GHz and a typical thickness."""
-    import re
-
     from rfir_stages.model.materials import ITU_MATERIALS
 
     out = {}
     for i, name in enumerate(names):
-        low = str(name).lower()
-        for key in sorted(ITU_MATERIALS, key=len, reverse=True):     # "ceiling_board" before "board"-like keys
-            if key != "vacuum" and re.search(rf"(^|[^a-z]){key}([^a-z]|$)", low):
-                a, _, c, _, _, _ = ITU_MATERIALS[key]
-                out[i] = (a, max(c, 1e-4), TYPICAL_THICKNESS_M.get(key, 0.05))
-                break
+        key = named_material(name)
+        if key is not None:
+            a, _, c, _, _, _ = ITU_MATERIALS[key]
+            out[i] = (a, max(c, 1e-4), TYPICAL_THICKNESS_M.get(key, DEFAULT_THICKNESS_M))
     return out
 
 
@@ -218,6 +211,31 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     res.initial_mae_db, res.wall_time_s = first.initial_mae_db, first.wall_time_s + res.wall_time_s
     res.start = first.start
     return res
+
+
+def _take_tabulated(links, res, target_db: np.ndarray, freq_hz: float, names: list[str], devices,
+                    tabulated: list[str], progress) -> None:
+    """tabulated.take_tabulated on the fit `res` (its params replaced in place, its training MAE updated), the key
+    taken written into tabulated [N] per material, and printed."""
+    from rfir_stages.model.fit_physical import training_predictor
+    from rfir_stages.model.residual import SE_MARGIN
+
+    pred = training_predictor(links, torch.as_tensor(target_db), devices)
+    taken = take_tabulated(pred, res.params, target_db, freq_hz, names, margin=SE_MARGIN)
+    for t in taken:
+        tabulated[t.index] = t.key
+    with torch.no_grad():
+        res.train_mae_db = float((pred(res.params) - torch.as_tensor(target_db)).abs().mean())
+    if taken:
+        progress.log(f"materials the training links cannot tell from a tabulated one (ITU-R P.2040 at "
+                     f"{freq_hz / 1e9:g} GHz, within {SE_MARGIN:g} standard error), taken as it: " + "; ".join(
+                         f"{names[t.index]}: {t.key}"
+                         + ("" if t.key == "metal" else f" {t.thickness_m * 100:.1f} cm")
+                         + f" ({t.increase_se:+.1f} SE)" for t in taken)
+                     + f"; training MAE {res.train_mae_db:.3f} dB")
+    else:
+        progress.log("no fitted material is within one standard error of a tabulated one (ITU-R P.2040): "
+                     "all kept as fitted")
 
 
 def _log_crossing(res, progress) -> None:
@@ -279,6 +297,11 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db)
     res = fit_room_materials(links, room, settings, len(names), target_db[fit, None], fit_cfg, progress, priors,
                              devices)
+    tabulated = [""] * len(names)
+    if settings.tabulated_materials:
+        t_tab = time.time()
+        _take_tabulated(links, res, target_db[fit, None], freq_hz, names, devices, tabulated, progress)
+        progress.log(f"tabulated materials tried in {time.time() - t_tab:.1f} s (rf_fit.room.tabulated_materials)")
     if devices is not None:
         for side, g in devices.gains.items():
             g = g.detach().numpy()
@@ -299,6 +322,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     data, model_attrs = physical_fields(vals, torch.as_tensor(material), room.areas, np.asarray([freq_hz]),
                                         PairSettings(opacity=settings.opacity, polarisation=settings.polarisation),
                                         names, float(res.params.gain_db.detach()))
+    model_attrs["material_tabulated"] = np.asarray(tabulated, dtype=object)   # "": as fitted
     model_attrs.update({"model_kind": MODEL_KIND, "sharing": sharing,
                         "model_doc": "room paths (images over planar patches) + diffuse, physical materials "
                                      "(docs/physics.md section 8.10)"})
@@ -344,10 +368,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     bounds = bound_warnings(table)
     for w in bounds:
         progress.log(f"warning: {w}")
-    for row in table:
+    for row, key in zip(table, tabulated):
+        row["tabulated"] = key
         progress.log(f"  {row['material']:<16} eps_r {row['eps_r']:5.2f}  sigma {row['sigma_s_per_m']:8.3g} S/m  "
                      f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
-                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}{range_words(row)}")
+                     f"|Gamma(0)| {row['gamma_normal_abs']:.2f}{range_words(row)}"
+                     + (f"  ({key})" if key else ""))
     if ranges is not None:
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
                      "(rf_fit.room.reflection_ranges)")

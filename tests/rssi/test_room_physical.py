@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from rfir_cli.artifacts import read_artifact
 from rfir_cli.main import app
 from rfir_stages.model.artifact import load_physical
-from rfir_stages.model.materials import C0, slab_transmission
+from rfir_stages.model.materials import C0, ITU_MATERIALS, slab_transmission
 
 from .helpers import write_measurements, write_scene
 
@@ -42,12 +42,16 @@ def fitted(tmp_path_factory):
     assert "planar patches (neighbours within 0.01 m of one plane joined)" in r.output    # exact surfels: no plane fit
     assert re.search(r"diffuse on \(\d+ cells of about 0.7 m, patches under 0.12 m\^2 pooled by material, facing and "
                      r"voxel; through the slabs it crosses\)", r.output)
+    assert "tabulated materials tried in" in r.output and "tabulated one (ITU-R P.2040" in out
     return d
 
 
 def test_fit_writes_materials_and_predicts_held_out_links(fitted, tmp_path):
     rf = read_artifact(fitted / "rf.h5", "rf")
     assert rf.free["model@attrs"]["model_kind"] == "rssi_physical"
+    tabulated = [str(s) for s in np.atleast_1d(rf.free["model@attrs"]["material_tabulated"])]
+    names = [str(s) for s in np.atleast_1d(rf.free["model@attrs"]["material_names"])]
+    assert len(tabulated) == len(names) and set(tabulated) <= {"", *ITU_MATERIALS}
     # the stored loss curve holds both steps of the fit (this room has third-order paths off patches under 1 m^2):
     # the winning start's 15 + 60 steps before the continuation's 60; one step alone holds at most 15 + 2 x 15 + 60
     assert len(np.asarray(rf.free["training"]["loss_curve"])) >= (15 + 60) + 60 > 15 + 2 * 15 + 60 - 1
