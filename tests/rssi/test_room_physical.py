@@ -52,6 +52,11 @@ def test_fit_writes_materials_and_predicts_held_out_links(fitted, tmp_path):
     tabulated = [str(s) for s in np.atleast_1d(rf.free["model@attrs"]["material_tabulated"])]
     names = [str(s) for s in np.atleast_1d(rf.free["model@attrs"]["material_names"])]
     assert len(tabulated) == len(names) and set(tabulated) <= {"", *ITU_MATERIALS}
+    info = CliRunner().invoke(app, ["info", str(fitted / "rf.h5")], terminal_width=200)
+    assert info.exit_code == 0 and ("P.2040" in info.output) == any(tabulated)
+    for name, key in zip(names, tabulated):
+        if key:
+            assert re.search(rf"{name}\b.*\b{key}\b", info.output)
     # the stored loss curve holds both steps of the fit (this room has third-order paths off patches under 1 m^2):
     # the winning start's 15 + 60 steps before the continuation's 60; one step alone holds at most 15 + 2 x 15 + 60
     assert len(np.asarray(rf.free["training"]["loss_curve"])) >= (15 + 60) + 60 > 15 + 2 * 15 + 60 - 1

@@ -47,18 +47,22 @@ def _show_materials(path: str) -> None:
     if art.kind != "rf" or art.get("material/eps_r") is None:
         return
     names = [str(n) for n in art.free.get("model@attrs", {}).get("material_names", [])]
+    # the tabulated material rf-fit took each as (rf_fit.room.tabulated_materials; "": as fitted)
+    tabulated = [str(n) for n in art.free.get("model@attrs", {}).get("material_tabulated", [])]
     freqs = art["rf/freq_hz"]
     gam = art["material/gamma_normal_abs"]
     span = art.get("material/gamma_normal_range")   # what the training links allow (rf_fit.physical.reflection_ranges)
     table = Table("material", "eps_r", "sigma(1 GHz) S/m", "S", "thickness mm",
                   *[f"|Gamma(0)| {f / 1e9:g} GHz" for f in freqs],
                   *([] if span is None else [f"links allow |Gamma(0)| {freqs[0] / 1e9:g} GHz"]),
+                  *(["taken as (ITU-R P.2040)"] if any(tabulated) else []),
                   box=None, pad_edge=False, title="fitted materials")
     for i in range(len(art["material/eps_r"])):
         table.add_row(names[i] if i < len(names) else str(i), f"{art['material/eps_r'][i]:.2f}",
                       f"{art['material/sigma_1ghz_s_per_m'][i]:.3g}", f"{art['material/scattering'][i]:.2f}",
                       f"{1e3 * art['material/thickness_m'][i]:.1f}", *[f"{g:.2f}" for g in gam[i]],
-                      *([] if span is None else [f"{span[i][0]:.2f}-{span[i][1]:.2f}"]))
+                      *([] if span is None else [f"{span[i][0]:.2f}-{span[i][1]:.2f}"]),
+                      *([tabulated[i] if i < len(tabulated) else ""] if any(tabulated) else []))
     console.print(table)
 
 
