@@ -5,14 +5,16 @@ else: a thin lossy slab and 20 cm of concrete reflect alike off a wall no link c
 whichever its start led to. After the fit, each material in turn is replaced by every tabulated building
 material (materials.ITU_MATERIALS valid at the fitted frequency, metal included; the grounds only for a
 material whose name names one) at the fitted slab thickness and at the material's typical thickness
-(TYPICAL_THICKNESS_M), its scattering S kept. A replacement is taken when it raises the training links' mean
-squared dB error by no more than `margin` standard errors of that increase
-(identifiability.block_standard_error: the one-standard-error rule, a difference the links cannot resolve),
-both against the state before it and against the lowest error reached so far (so replacements taken in turn
-cannot drift further than one such margin). The materials are tried in order of their best candidate's
-increase, most compatible first, and a material's name that names a tabulated material ("glass_partition")
-takes that one wherever it is compatible. A replacement may lower the error too: the starts of the fit can
-leave a material in a poorer optimum than a tabulated one (docs/rssi.md, "Tabulated materials").
+(TYPICAL_THICKNESS_M), its scattering S kept, and its SHORTLIST best candidates are kept (a name that names a
+tabulated material, "glass_partition", keeps that one alone where it is compatible). Then, in rounds, one
+replacement at a time: every remaining material's shortlist is scored against the current state, and the
+candidate of smallest increase of the training links' mean squared dB error is taken among those whose
+increase is within `margin` standard errors (identifiability.block_standard_error: the one-standard-error
+rule, a difference the links cannot resolve), both against the state before it and against the lowest error
+reached so far (so replacements taken in turn cannot drift further than one such margin); the rounds end when
+none is. A replacement may lower the error too: the starts of the fit can leave a material in a poorer optimum
+than a tabulated one (docs/rssi.md, "Tabulated materials"). Cost: materials x candidates evaluations of the
+training links, then about materials^2 x SHORTLIST / 2.
 
 The materials stay what they were where the links tell them apart from every tabulated one; a
 measured room of unlisted materials loses nothing the links can see.
@@ -36,6 +38,7 @@ TYPICAL_THICKNESS_M = {"glass": 0.01, "metal": 0.002, "concrete": 0.2, "brick": 
                        "marble": 0.03, "floorboard": 0.02}
 DEFAULT_THICKNESS_M = 0.05
 METAL_SIGMA_1GHZ = 1e6      # S/m: a conductor to every reflection and crossing (the fit's metal start)
+SHORTLIST = 2               # candidates per material scored again in each round (the best against the fit)
 
 
 @dataclass
@@ -106,10 +109,9 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
         params.set_values(i, eps_r=eps, sigma_1ghz=sig, thickness_m=th)
 
     with torch.no_grad():
-        vals = params.values()
-        fitted_th = vals.thickness_m.numpy().copy()
+        fitted_th = params.values().thickness_m.numpy().copy()
         base = per_link()
-        best: list[tuple[float, str, float]] = []
+        shortlist = {}                   # material -> its SHORTLIST best (score, key, thickness) against the fit
         for i in range(params.num):
             keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
             named = named_material(names[i]) if i < len(names) else None
@@ -120,21 +122,30 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
                 params.load_state_dict(keep)
             tried.sort()
             own = [t for t in tried if t[1] == named and t[0] <= margin]
-            best.append(own[0] if own else tried[0])
+            shortlist[i] = own[:1] or tried[:SHORTLIST]
+        # best first, every remaining shortlist scored again against the current state in each round: a replacement
+        # taken changes the others' increases (20 cm of concrete on the floor makes it on the windows' wall too)
         taken: list[TabulatedChoice] = []
         current, lowest = base, base
-        for i in np.argsort([b[0] for b in best], kind="stable"):
-            _, key, th = best[i]
-            keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
-            put(int(i), key, th)
-            err = per_link()
-            d_now, d_low = err - current, err - lowest
-            if (float(d_now.mean()) <= margin * block_standard_error(d_now)
-                    and float(d_low.mean()) <= margin * block_standard_error(d_low)):
-                taken.append(TabulatedChoice(int(i), key, float(th), score(d_now)))
-                current = err
-                if float(err.mean()) < float(lowest.mean()):
-                    lowest = err
-            else:
-                params.load_state_dict(keep)
+        while shortlist:
+            trials = []
+            for i, cands in shortlist.items():
+                keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
+                for _, key, th in cands:
+                    put(i, key, th)
+                    err = per_link()
+                    trials.append((score(err - current), i, key, th, err))
+                    params.load_state_dict(keep)
+            trials.sort(key=lambda t: t[0])
+            ok = [t for t in trials if t[0] <= margin
+                  and float((t[4] - lowest).mean()) <= margin * block_standard_error(t[4] - lowest)]
+            if not ok:
+                break                                    # none left within the margin
+            now, i, key, th, err = ok[0]
+            put(i, key, th)
+            taken.append(TabulatedChoice(int(i), key, float(th), now))
+            del shortlist[i]
+            current = err
+            if float(err.mean()) < float(lowest.mean()):
+                lowest = err
     return taken
