@@ -563,18 +563,23 @@ def test_abs2_equals_the_squared_modulus():
     assert torch.isfinite(torch.view_as_real(z.grad)).all()
 
 
+def _box_walls():
+    """The six inward-facing plates of a closed 4 x 3 x 2.5 m box (floor at z = 0, a corner at the origin)."""
+    return [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
+            plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
+            plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
+            plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
+            plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
+            plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5)]
+
+
 def test_reflection_paths_in_chunks_of_pairs_equal_one_pass(monkeypatch):
     """reflection_paths evaluates its (image row, link) pairs in chunks of PAIR_CHUNK (memory): any chunk size
     gives the same paths, in the same order, up to the third order in a closed box."""
     from rfir_stages.model import room_paths
     from rfir_stages.model.room_paths import reflection_paths
 
-    walls = [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
-             plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
-             plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
-             plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
-             plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
-             plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5)]
+    walls = _box_walls()
     patches, _ = _room(walls, spacing=0.5)
     rng = np.random.default_rng(1)
     tx = np.repeat(rng.uniform([0.5, 0.5, 0.5], [3.5, 2.5, 2.0], (3, 3)), 20, axis=0)   # 3 transmitters x 20 links
@@ -598,14 +603,9 @@ def test_third_order_with_one_small_reflection_is_the_filtered_full_enumeration(
     does."""
     from rfir_stages.model.room_paths import reflection_paths
 
-    walls = [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
-             plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
-             plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
-             plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
-             plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
-             plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5),
-             plate_mesh((1.3, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9),     # two table tops of 0.9 m^2
-             plate_mesh((2.7, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9)]
+    walls = _box_walls() + [
+        plate_mesh((1.3, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9),     # two table tops of 0.9 m^2
+        plate_mesh((2.7, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9)]
     patches, prov = _room(walls, spacing=0.3, extent="tiles")
     small = (patches.area >= 0.3) & (patches.area < 1.0)
     assert small.sum() == 2
@@ -638,16 +638,11 @@ def test_third_order_with_one_small_reflection_is_the_filtered_full_enumeration(
 def _box_room_with_furniture():
     """A 4 x 3 x 2.5 m box, two table tops, a turned panel and a small plate low on a wall: patches and
     provider."""
-    walls = [plate_mesh((2.0, 1.5, 0.0), (1, 0, 0), (0, 1, 0), 4.0, 3.0),      # floor
-             plate_mesh((2.0, 1.5, 2.5), (1, 0, 0), (0, -1, 0), 4.0, 3.0),     # ceiling
-             plate_mesh((0.0, 1.5, 1.25), (0, 1, 0), (0, 0, 1), 3.0, 2.5),
-             plate_mesh((4.0, 1.5, 1.25), (0, -1, 0), (0, 0, 1), 3.0, 2.5),
-             plate_mesh((2.0, 0.0, 1.25), (-1, 0, 0), (0, 0, 1), 4.0, 2.5),
-             plate_mesh((2.0, 3.0, 1.25), (1, 0, 0), (0, 0, 1), 4.0, 2.5),
-             plate_mesh((1.3, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9),     # table tops
-             plate_mesh((2.9, 0.8, 0.75), (1, 0, 0), (0, 1, 0), 0.8, 0.7),
-             plate_mesh((3.2, 2.4, 1.4), (0.6, -0.8, 0), (0, 0, 1), 0.9, 1.0),  # a turned panel
-             plate_mesh((0.02, 0.3, 0.5), (0, 1, 0), (0, 0, 1), 0.2, 0.2)]      # a small plate low on a wall
+    walls = _box_walls() + [
+        plate_mesh((1.3, 1.5, 0.75), (1, 0, 0), (0, 1, 0), 1.0, 0.9),     # table tops
+        plate_mesh((2.9, 0.8, 0.75), (1, 0, 0), (0, 1, 0), 0.8, 0.7),
+        plate_mesh((3.2, 2.4, 1.4), (0.6, -0.8, 0), (0, 0, 1), 0.9, 1.0),  # a turned panel
+        plate_mesh((0.02, 0.3, 0.5), (0, 1, 0), (0, 0, 1), 0.2, 0.2)]      # a small plate low on a wall
     return _room(walls, spacing=0.1, extent="tiles")
 
 
