@@ -111,16 +111,17 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
     with torch.no_grad():
         fitted_th = params.values().thickness_m.numpy().copy()
         base = per_link()
-        shortlist = {}                   # material -> its SHORTLIST best (score, key, thickness) against the fit
+        shortlist = {}            # material -> its SHORTLIST best (score, key, thickness, errors) against the fit
         for i in range(params.num):
             keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
             named = named_material(names[i]) if i < len(names) else None
             tried = []
             for key, th in candidates(freq_hz, fitted_th[i], named):
                 put(i, key, th)
-                tried.append((score(per_link() - base), key, th))
+                err = per_link()
+                tried.append((score(err - base), key, th, err))
                 params.load_state_dict(keep)
-            tried.sort()
+            tried.sort(key=lambda t: t[0])
             own = [t for t in tried if t[1] == named and t[0] <= margin]
             shortlist[i] = own[:1] or tried[:SHORTLIST]
         # best first, every remaining shortlist scored again against the current state in each round: a replacement
@@ -131,11 +132,12 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
             trials = []
             for i, cands in shortlist.items():
                 keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
-                for _, key, th in cands:
-                    put(i, key, th)
-                    err = per_link()
-                    trials.append((score(err - current), i, key, th, err))
-                    params.load_state_dict(keep)
+                for first, key, th, err in cands:
+                    if taken:                             # the first round is the first pass's state
+                        put(i, key, th)
+                        err = per_link()
+                        params.load_state_dict(keep)
+                    trials.append((score(err - current) if taken else first, i, key, th, err))
             trials.sort(key=lambda t: t[0])
             ok = [t for t in trials if t[0] <= margin
                   and float((t[4] - lowest).mean()) <= margin * block_standard_error(t[4] - lowest)]

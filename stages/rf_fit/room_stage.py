@@ -26,7 +26,6 @@ from rfir_stages.model.fit_physical import (STARTS, PhysicalFitConfig, fit_mater
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS
-
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
 from .physical_stage import attach_ranges, bound_warnings, range_words
