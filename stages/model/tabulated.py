@@ -28,6 +28,8 @@ from typing import Callable
 import numpy as np
 import torch
 
+from rfir_stages.po.geometry import single_thread_torch
+
 from .identifiability import block_standard_error
 from .materials import ITU_MATERIALS
 from .physical import MaterialParams
@@ -108,7 +110,8 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
         eps, sig = tabulated_values(key, freq_hz, params.sigma_exponent)
         params.set_values(i, eps_r=eps, sigma_1ghz=sig, thickness_m=th)
 
-    with torch.no_grad():
+    # many evaluations of small tensor ops: on a shared CPU thread hand-offs cost more than they save (as the fit)
+    with torch.no_grad(), single_thread_torch():
         fitted_th = params.values().thickness_m.numpy().copy()
         base = per_link()
         shortlist = {}            # material -> its SHORTLIST best (score, key, thickness, errors) against the fit
