@@ -212,29 +212,44 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     return res
 
 
-def _take_tabulated(links, res, target_db: np.ndarray, freq_hz: float, names: list[str], devices,
+def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, names: list[str], devices,
                     tabulated: list[str], progress) -> None:
-    """tabulated.take_tabulated on the fit `res` (its params replaced in place, its training MAE updated), the key
-    taken written into tabulated [N] per material, and printed."""
+    """tabulated.take_tabulated on the fit `res` (its params replaced in place, its training MAE on the fit links
+    `links` / target_db updated), decided on `check` = (links, target_db [M, 1]) of training links the fit did not
+    use (None: on the fit links); the key taken written into tabulated [N] per material, and printed."""
     from rfir_stages.model.fit_physical import training_predictor
     from rfir_stages.model.residual import SE_MARGIN
 
     pred = training_predictor(links, torch.as_tensor(target_db), devices)
-    taken = take_tabulated(pred, res.params, target_db, freq_hz, names, margin=SE_MARGIN)
+    decide, decide_db = (pred, target_db) if check is None else (
+        training_predictor(check[0], torch.as_tensor(check[1])), check[1])   # device gains fit every link: no check
+    taken = take_tabulated(decide, res.params, decide_db, freq_hz, names, margin=SE_MARGIN)
     for t in taken:
         tabulated[t.index] = t.key
     with torch.no_grad():
         res.train_mae_db = float((pred(res.params) - torch.as_tensor(target_db)).abs().mean())
+    on = "the links it was fitted on" if check is None else f"{len(check[1])} training links the fit did not use"
     if taken:
         progress.log(f"materials the training links cannot tell from a tabulated one (ITU-R P.2040 at "
-                     f"{freq_hz / 1e9:g} GHz, within {SE_MARGIN:g} standard error), taken as it: " + "; ".join(
+                     f"{freq_hz / 1e9:g} GHz, within {SE_MARGIN:g} standard error on {on}), taken as it: " + "; ".join(
                          f"{names[t.index]}: {t.key}"
                          + ("" if t.key == "metal" else f" {t.thickness_m * 100:.1f} cm")
                          + f" ({t.increase_se:+.1f} SE)" for t in taken)
                      + f"; training MAE {res.train_mae_db:.3f} dB")
     else:
-        progress.log("no fitted material is within one standard error of a tabulated one (ITU-R P.2040): "
+        progress.log(f"no fitted material is within one standard error of a tabulated one (ITU-R P.2040) on {on}: "
                      "all kept as fitted")
+
+
+def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float):
+    """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
+    it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
+    worse on the links those values were fitted to (rfir_stages.model.tabulated)."""
+    rest = np.setdiff1d(np.arange(len(tx)), fit)
+    if len(rest) == 0:
+        return None
+    rest = rest[np.unique(np.linspace(0, len(rest) - 1, min(len(fit), len(rest))).round().astype(np.int64))]
+    return room.links(tx[rest], rx[rest], np.full(len(rest), freq_hz)), target_db[rest, None]
 
 
 def _log_crossing(res, progress) -> None:
@@ -299,7 +314,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     tabulated = [""] * len(names)
     if settings.tabulated_materials:
         t_tab = time.time()
-        _take_tabulated(links, res, target_db[fit, None], freq_hz, names, devices, tabulated, progress)
+        check = _check_links(room, tx, rx, fit, target_db, freq_hz)
+        _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
         progress.log(f"tabulated materials tried in {time.time() - t_tab:.1f} s (rf_fit.room.tabulated_materials)")
     if devices is not None:
         for side, g in devices.gains.items():

@@ -107,6 +107,26 @@ def test_material_names_give_itu_starting_values():
     assert got[0][0] == 6.31 and got[2][1] == 1e7 and got[3][2] == 0.2
 
 
+def test_tabulated_step_decides_on_training_links_the_fit_did_not_use():
+    from rfir_stages.rf_fit.room_stage import _check_links
+
+    class Room:                                  # links() as the room's: returns what it was asked for
+        def links(self, tx, rx, freq):
+            return tx, rx, freq
+
+    tx, rx = np.arange(100.0)[:, None] * [1, 0, 0], np.zeros((100, 3))
+    target = np.arange(100.0) - 50
+    fit = np.linspace(0, 99, 30).round().astype(np.int64)
+    (ctx, _, freq), ctarget = _check_links(Room(), tx, rx, fit, target, 2.4e9)
+    rows = ctx[:, 0].astype(np.int64)
+    assert len(rows) == 30 and not set(rows) & set(fit) and len(set(rows)) == 30    # as many, none fitted
+    assert rows.max() - rows.min() > 80                                             # spread over the rest
+    assert np.array_equal(ctarget[:, 0], target[rows]) and ctarget.shape == (30, 1) and np.all(freq == 2.4e9)
+    few = np.setdiff1d(np.arange(100), [3, 7])                                      # fewer left than fitted
+    assert sorted(_check_links(Room(), tx, rx, few, target, 2.4e9)[0][0][:, 0]) == [3, 7]
+    assert _check_links(Room(), tx, rx, np.arange(100), target, 2.4e9) is None      # all fitted: on the fit links
+
+
 def test_materials_at_the_edge_of_their_range_are_named():
     from rfir_stages.rf_fit.physical_stage import bound_warnings
 
