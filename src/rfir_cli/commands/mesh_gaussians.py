@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from ..context import console, run_guarded
@@ -25,6 +26,17 @@ def degenerate_facet_warnings(report: dict) -> list[str]:
                    f"{report['sliver_surfels']} surfels narrower than {report['sliver_width_m'] * 1e3:.2g} mm "
                    f"({share:.0f} % of the area) were merged into {report['merged_surfels']} (area kept)")
     return out
+
+
+def contact_words(mesh, contact) -> str:
+    """The line that says which faces were left out as resting against another object ("" when none)."""
+    if not contact.any():
+        return ""
+    labels, counts = np.unique(mesh.labels[contact], return_counts=True)
+    named = [f"{mesh.label_names.get(int(lab), f'label_{lab}')} {n}" for lab, n in zip(labels, counts)]
+    shown = ", ".join(named[:6]) + (f" and {len(named) - 6} more objects" if len(named) > 6 else "")
+    return (f"left out {int(contact.sum())} faces that rest against another object's surface (hidden: a box's "
+            f"bottom on the floor; --keep-contact-faces keeps them): {shown}")
 
 
 def register(app: typer.Typer) -> None:
@@ -45,10 +57,14 @@ def mesh_gaussians(
         "--rectangles", help="Tile each pair of triangles that forms a rectangle (a box's face, a wall panel) as "
         "the rectangle's cells, at most spacing / 2 a side, so that surfaces end at their edges: for rooms "
         "(docs/rssi.md). Off: every face split into smaller triangles (the tiling the RCS checks were made on).")] = False,
+    keep_contact_faces: Annotated[bool, typer.Option(
+        "--keep-contact-faces", help="Keep the faces of a labelled mesh that rest against another object's surface "
+        "(a box's bottom on the floor: hidden, so left out by default; rfir_stages.geom.contact_faces).")] = False,
 ) -> None:
     """Tile a mesh with flat Gaussians (normals from the faces) and write a scene artifact."""
     from rfir_stages.geom import write_scene_artifact
-    from rfir_stages.geom.mesh_io import object_spacings, read_ply_mesh, surfels_per_object
+    from rfir_stages.geom.contact_faces import contact_faces
+    from rfir_stages.geom.mesh_io import Mesh, object_spacings, read_ply_mesh, surfels_per_object
 
     def work():
         if not spacing_m > 0:
@@ -56,6 +72,11 @@ def mesh_gaussians(
         if object_cells < 0:
             raise ConfigError(f"--object-cells must be 0 (off) or positive, got {object_cells}")
         data = read_ply_mesh(mesh)
+        contact = np.zeros(len(data.faces), bool) if keep_contact_faces else contact_faces(
+            data.vertices, data.faces, data.labels)
+        resting = contact_words(data, contact)
+        if contact.any():
+            data = Mesh(data.vertices, data.faces[~contact], data.labels[~contact], data.label_names)
         if object_cells and data.labels is None:
             raise InputFileError("--object-cells needs a per-face 'label' (one object per label); the mesh has none",
                                  path=mesh)
@@ -73,9 +94,11 @@ def mesh_gaussians(
         described = spacing_m if not finer else f"{spacing_m} (objects: min(spacing, size / {object_cells}))"
         path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=described,
                                     rectangles=rectangles)
-        return path, len(fields["gaussians/means"]), report, finer
+        return path, len(fields["gaussians/means"]), report, finer, resting
 
-    path, count, report, finer = run_guarded(ctx, work)
+    path, count, report, finer, resting = run_guarded(ctx, work)
+    if resting:
+        console.print(resting, highlight=False)
     for line in degenerate_facet_warnings(report):
         console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
     extra = (f"; {len(finer)} smaller objects at {finer[0] * 100:.3g}-{finer[-1] * 100:.3g} cm (size / {object_cells})"
