@@ -5,8 +5,8 @@
     .venv/bin/python bench/bench_rssi.py --rf rf.h5 --results results/classroom_rssi_speed.json   # a fitted model
 
 Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes) and tiled as
-`rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12 --rectangles` tiles them; a 5-step fit of the
-room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
+`rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces`
+tiles them; a 5-step fit of the room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
 - map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: the surfaces crossed from
   every receiver to the diffuse cells it needs traced (room_diffuse.CellCrossings), and map_cold_cpu_s its
   CPU time; the paths are traced on a second thread meanwhile (RoomGeometry.links);
@@ -45,12 +45,14 @@ NEW_TX = np.array([[4.1, 3.3, 1.7], [6.0, 2.0, 2.2], [2.5, 5.1, 2.0], [7.2, 4.4,
 
 def classroom_fields(spacing_m: float, object_cells: int):
     """Surfels of the code-built classroom as `mesh-gaussians --spacing --object-cells` tiles its mesh, with
-    `--rectangles` where object_cells > 0 (the room recipe of docs/rssi.md)."""
+    `--rectangles --drop-contact-faces` where object_cells > 0 (the room recipe of docs/rssi.md)."""
     from rfir_stages.geom.from_mesh import scene_triangles
-    from rfir_stages.geom.mesh_io import Mesh, object_spacings, surfels_per_object
+    from rfir_stages.geom.mesh_io import Mesh, object_spacings, surfels_per_object, without_contact_faces
 
     verts, faces, labels, names = scene_triangles("classroom")
     mesh = Mesh(verts, faces, labels, dict(enumerate(names)))
+    if object_cells > 0:
+        mesh = without_contact_faces(mesh)[0]
     return surfels_per_object(mesh, object_spacings(mesh, spacing_m, object_cells), rectangles=object_cells > 0), names
 
 

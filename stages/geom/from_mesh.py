@@ -281,8 +281,10 @@ def scene_from_mesh(scene_name: str, spacing_m: float, thickness_ratio: float = 
 
 
 def write_scene_artifact(path: str | Path, fields: dict, *, label_names=None, source: str = "mesh",
-                         spacing_m: float | None = None, rectangles: bool = False) -> Path:
-    """Write surfel fields as a `scene` artifact (records the mesh source, spacing and tiling in provenance)."""
+                         spacing_m: float | None = None, rectangles: bool = False,
+                         contact_faces_left_out: bool = False) -> Path:
+    """Write surfel fields as a `scene` artifact (records the mesh source, spacing, tiling and whether the faces
+    resting against another object's surface were left out (geom.contact_faces) in provenance)."""
     from rfir_cli.artifacts import write_artifact
     from rfir_cli.provenance import Provenance
 
@@ -290,5 +292,7 @@ def write_scene_artifact(path: str | Path, fields: dict, *, label_names=None, so
     if label_names is not None:
         attrs["label_names"] = np.asarray([str(n) for n in label_names], dtype=object)
     prov = Provenance(stage="geom.from_mesh", extra={"source": source, "spacing_m": spacing_m,
-                                                         "tiling": "rectangles" if rectangles else "triangles"})
+                                                         "tiling": "rectangles" if rectangles else "triangles",
+                                                         "contact_faces": "left out" if contact_faces_left_out
+                                                         else "kept"})
     return write_artifact(path, "scene", fields, attrs=attrs, provenance=prov)

@@ -109,3 +109,14 @@ def surfels_per_object(mesh: Mesh, spacings: dict[int, float], report: dict | No
     if not parts:
         raise ValueError("the mesh has no face of non-zero area")
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def without_contact_faces(mesh: Mesh) -> tuple[Mesh, np.ndarray]:
+    """(the mesh without the faces that rest against another object's surface (geom.contact_faces), the labels [K]
+    of the faces left out); an unlabelled mesh is returned as it is."""
+    from .contact_faces import contact_faces
+
+    contact = contact_faces(mesh.vertices, mesh.faces, mesh.labels)
+    if not contact.any():
+        return mesh, np.zeros(0, np.int64)
+    return Mesh(mesh.vertices, mesh.faces[~contact], mesh.labels[~contact], mesh.label_names), mesh.labels[contact]

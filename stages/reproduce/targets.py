@@ -41,7 +41,7 @@ def _surfels(r: Plan, name: str, scene: str, spacing: float, object_cells: int =
     min(spacing, its size / object_cells) and the mesh's rectangles as cells (`--rectangles`; rooms)."""
     out = r.data / name / "scene.h5"
     mesh = r.data / name / "meshes" / f"{scene}_gt.ply"
-    cells = ["--object-cells", str(object_cells), "--rectangles"] if object_cells else []
+    cells = ["--object-cells", str(object_cells), "--rectangles", "--drop-contact-faces"] if object_cells else []
     r.step(f"data__{name}_surfels", [r.rfir, "mesh-gaussians", str(mesh), "-o", str(out), "--spacing", f"{spacing:g}",
                                      *cells], out)
     return out

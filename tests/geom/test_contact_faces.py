@@ -78,16 +78,20 @@ def test_mesh_gaussians_leaves_them_out_and_says_so(tmp_path):
     (tmp_path / "labels.json").write_text(json.dumps({"objects": [{"label": 0, "name": "floor"},
                                                                   {"label": 1, "name": "block"}]}))
     counts = {}
-    for extra in ([], ["--keep-contact-faces"]):
+    for extra in (["--drop-contact-faces"], []):
         out = tmp_path / f"s{len(extra)}.h5"
         r = CliRunner().invoke(app, ["mesh-gaussians", str(tmp_path / "room.ply"), "-o", str(out), "--spacing", "0.2",
                                      *extra], terminal_width=200)
         assert r.exit_code == 0, r.output
-        assert ("left out 2 faces that rest against another object's surface" in r.output) == (not extra)
-        assert not extra or "left out" not in r.output
+        assert ("left out 2 faces that rest against another object's surface" in r.output) == bool(extra)
+        assert extra or "left out" not in r.output
         with h5py.File(out) as h5:
             means, normals, labels = (np.asarray(h5[f"gaussians/{k}"]) for k in ("means", "normals", "labels"))
-        counts[bool(extra)] = int(((labels == 1) & (normals[:, 2] < -0.9)).sum())
+        counts[not extra] = int(((labels == 1) & (normals[:, 2] < -0.9)).sum())
         assert ((labels == 0) & (normals[:, 2] > 0.9)).sum() > 0                  # the floor is kept
         assert np.all(np.abs(means[(labels == 1) & (normals[:, 2] < -0.9), 2]) < 1e-9)
     assert counts[False] == 0 and counts[True] > 0
+    r = CliRunner().invoke(app, ["mesh-gaussians", str(write_ply(tmp_path / "bare.ply", v, f)), "-o",
+                                 str(tmp_path / "bare.h5"), "--drop-contact-faces"], terminal_width=200)
+    assert r.exit_code != 0 and "needs a per-face 'label'" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "bare.h5").exists()

@@ -29,14 +29,14 @@ def degenerate_facet_warnings(report: dict) -> list[str]:
 
 
 def contact_words(mesh, contact) -> str:
-    """The line that says which faces were left out as resting against another object ("" when none)."""
-    if not contact.any():
-        return ""
-    labels, counts = np.unique(mesh.labels[contact], return_counts=True)
+    """The line that says which faces were left out as resting against another object; contact [K]: their labels."""
+    if len(contact) == 0:
+        return "--drop-contact-faces: no face rests against another object's surface"
+    labels, counts = np.unique(contact, return_counts=True)
     named = [f"{mesh.label_names.get(int(lab), f'label_{lab}')} {n}" for lab, n in zip(labels, counts)]
     shown = ", ".join(named[:6]) + (f" and {len(named) - 6} more objects" if len(named) > 6 else "")
-    return (f"left out {int(contact.sum())} faces that rest against another object's surface (hidden: a box's "
-            f"bottom on the floor; --keep-contact-faces keeps them): {shown}")
+    return (f"left out {len(contact)} faces that rest against another object's surface (hidden: a box's "
+            f"bottom on the floor): {shown}")
 
 
 def register(app: typer.Typer) -> None:
@@ -57,14 +57,14 @@ def mesh_gaussians(
         "--rectangles", help="Tile each pair of triangles that forms a rectangle (a box's face, a wall panel) as "
         "the rectangle's cells, at most spacing / 2 a side, so that surfaces end at their edges: for rooms "
         "(docs/rssi.md). Off: every face split into smaller triangles (the tiling the RCS checks were made on).")] = False,
-    keep_contact_faces: Annotated[bool, typer.Option(
-        "--keep-contact-faces", help="Keep the faces of a labelled mesh that rest against another object's surface "
-        "(a box's bottom on the floor: hidden, so left out by default; rfir_stages.geom.contact_faces).")] = False,
+    drop_contact_faces: Annotated[bool, typer.Option(
+        "--drop-contact-faces", help="Leave out the faces of a labelled mesh that rest against another object's "
+        "surface (a box's bottom on the floor: hidden; rfir_stages.geom.contact_faces): for rooms (docs/rssi.md). "
+        "Off: every face kept (as the RCS checks were made).")] = False,
 ) -> None:
     """Tile a mesh with flat Gaussians (normals from the faces) and write a scene artifact."""
     from rfir_stages.geom import write_scene_artifact
-    from rfir_stages.geom.contact_faces import contact_faces
-    from rfir_stages.geom.mesh_io import Mesh, object_spacings, read_ply_mesh, surfels_per_object
+    from rfir_stages.geom.mesh_io import object_spacings, read_ply_mesh, surfels_per_object, without_contact_faces
 
     def work():
         if not spacing_m > 0:
@@ -72,11 +72,13 @@ def mesh_gaussians(
         if object_cells < 0:
             raise ConfigError(f"--object-cells must be 0 (off) or positive, got {object_cells}")
         data = read_ply_mesh(mesh)
-        contact = np.zeros(len(data.faces), bool) if keep_contact_faces else contact_faces(
-            data.vertices, data.faces, data.labels)
-        resting = contact_words(data, contact)
-        if contact.any():
-            data = Mesh(data.vertices, data.faces[~contact], data.labels[~contact], data.label_names)
+        resting = ""
+        if drop_contact_faces:
+            if data.labels is None:
+                raise InputFileError("--drop-contact-faces needs a per-face 'label' (one object per label); the mesh "
+                                     "has none", path=mesh)
+            data, contact = without_contact_faces(data)
+            resting = contact_words(data, contact)
         if object_cells and data.labels is None:
             raise InputFileError("--object-cells needs a per-face 'label' (one object per label); the mesh has none",
                                  path=mesh)
@@ -93,7 +95,7 @@ def mesh_gaussians(
         finer = sorted(v for v in spacings.values() if v < spacing_m)
         described = spacing_m if not finer else f"{spacing_m} (objects: min(spacing, size / {object_cells}))"
         path = write_scene_artifact(out, fields, label_names=names, source=str(mesh), spacing_m=described,
-                                    rectangles=rectangles)
+                                    rectangles=rectangles, contact_faces_left_out=drop_contact_faces)
         return path, len(fields["gaussians/means"]), report, finer, resting
 
     path, count, report, finer, resting = run_guarded(ctx, work)
