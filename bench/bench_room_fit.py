@@ -7,7 +7,8 @@ number of Gaussians and with the number of links it fits (issue 23's speed targe
     .venv/bin/python bench/bench_room_fit.py --quick              # two geometries, two link counts
 
 Needs no simulator: the classroom's meshes are built by code and tiled as `rfir mesh-gaussians
-classroom_gt.ply --spacing S [--object-cells N --rectangles --drop-contact-faces]` tiles them, at five tilings from 2.6k to 105k surfels
+classroom_gt.ply --spacing S [--object-cells N --rectangles --drop-contact-faces]` tiles them, at five tilings
+from 2.6k to 105k surfels
 (uniform spacings 0.8, 0.25 and 0.15 m, whose planar patches stay the same surfaces; and furniture at
 size / 12 and size / 24, which add patches). The links are the classroom's layout (`rfir simulate
 classroom`: 24 transmitters x 440 receivers, 20 % test), their levels free space plus N(0, 3 dB) unless

@@ -6,7 +6,8 @@
 
 Needs no simulator: the classroom's meshes are built by code (rfir_stages.simulate.scenes) and tiled as
 `rfir mesh-gaussians classroom_gt.ply --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces`
-tiles them; a 5-step fit of the room model on free-space data for two transmitters gives an `rf` artifact. Then, median of `--repeats`:
+tiles them; a 5-step fit of the room model on free-space data for two transmitters gives an `rf` artifact.
+Then, median of `--repeats`:
 - map_cold_s: a 440-point map (22 x 20 receivers at 1 m) with nothing kept: the surfaces crossed from
   every receiver to the diffuse cells it needs traced (room_diffuse.CellCrossings), and map_cold_cpu_s its
   CPU time; the paths are traced on a second thread meanwhile (RoomGeometry.links);

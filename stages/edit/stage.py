@@ -25,9 +25,10 @@ from .script import Edit
 # Datasets known not to be per-Gaussian even when their first dimension happens to equal G (tiny scenes).
 NOT_PER_GAUSSIAN = {"rf/freq_hz", "training/loss_curve", "training/train_rows",
                     "training/fit_rows", "training/holdout_tx_ids"}
-# the per-device gains; the residual's training links (residual/surfel is per Gaussian); the per-material
-# arrays (material/index is per Gaussian), which a model with as many materials as Gaussians must not lose
-NOT_PER_GAUSSIAN_PREFIXES = ("model/device_", "residual/tx_pos", "residual/rx_pos", "residual/weights_db",
+# the per-device gains; the room patches' grids (as many patches as Gaussians where each surfel is its own); the
+# residual's training links (residual/surfel is per Gaussian); the per-material arrays (material/index is per
+# Gaussian), which a model with as many materials as Gaussians must not lose
+NOT_PER_GAUSSIAN_PREFIXES = ("model/device_", "model/patch_", "residual/tx_pos", "residual/rx_pos", "residual/weights_db",
                              "residual/mean_db", "material/eps_r", "material/sigma", "material/scattering",
                              "material/thickness", "material/gamma_normal")
 _MOVES = ("translate", "rotate", "duplicate")

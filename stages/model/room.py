@@ -29,9 +29,9 @@ from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import (MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells,
                            diffuse_terms)
-from .room_paths import (HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER, THIRD_ORDER_MIN_AREA_M2,
-                         THIRD_ORDER_SMALL_REFLECTIONS, PatchSet, RoomPaths, build_patch_set,
-                         trace_room_paths)
+from .room_paths import (CELL_PER_TILE, FOOTPRINT_REACH, HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER,
+                         THIRD_ORDER_MIN_AREA_M2, THIRD_ORDER_SMALL_REFLECTIONS, TILE_CLOSING, PatchSet, RoomPaths,
+                         build_patch_set, trace_room_paths)
 from .surfels import surfel_areas
 
 
@@ -86,15 +86,19 @@ class RoomGeometry:
 
     def __init__(self, geom: FrozenGeometry, labels: torch.Tensor | None, material_of_gaussian: np.ndarray,
                  settings: RoomSettings, alpha_min: float = 1e-3, occlusion: str = "auto",
-                 areas_m2: torch.Tensor | None = None):
+                 areas_m2: torch.Tensor | None = None, extents: dict | None = None):
         """areas_m2 [G]: the surfels' areas when already known for exactly these Gaussians (a model's stored
-        areas, geometry_key matching); None: computed (surfels.surfel_areas)."""
+        areas, geometry_key matching); None: computed (surfels.surfel_areas). extents: the patches' occupancy
+        grids when already known for these Gaussians, labels and settings (room_paths.extent_grids of a model,
+        extents_key matching); None: rasterised."""
         self.geom, self.settings, self.alpha_min = geom, settings, float(alpha_min)
+        self.labels = labels
         self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) if areas_m2 is None \
             else torch.as_tensor(areas_m2, dtype=torch.float64)
         self.patches: PatchSet = build_patch_set(geom, self.areas, labels, settings.coplanar_m,
                                                     extent=settings.patch_extent,
-                                                    merge_scatter_factor=settings.merge_scatter_factor)
+                                                    merge_scatter_factor=settings.merge_scatter_factor,
+                                                    extents=extents)
         mat = np.asarray(material_of_gaussian, dtype=np.int64)
         # a patch lies within one label, so its surfels share one material: take the first
         first = np.full(self.patches.num, -1)
@@ -112,6 +116,10 @@ class RoomGeometry:
     def geometry_key(self) -> str:
         """Fingerprint of the Gaussians (means, scales, rotations, normals)."""
         return geometry_key(self.geom)
+
+    def extents_key(self) -> str:
+        """extents_key of these Gaussians, labels and settings."""
+        return extents_key(self.geom, self.labels, self.settings)
 
     def crossings_key(self) -> str:
         """Fingerprint of what the surfaces crossed from a point to the diffuse cells depend on: the Gaussians,
@@ -149,6 +157,17 @@ class RoomGeometry:
             diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.material_of_patch, self.num_materials,
                                     self.cell_crossings)
             return specular(pending.result(), diffuse)
+
+
+def extents_key(geom: FrozenGeometry, labels: torch.Tensor | None, settings: RoomSettings) -> str:
+    """Fingerprint of what the patches' occupancy grids depend on: the Gaussians, their labels [G], the patch
+    settings and the rasterisation's constants. A model's stored grids are used only where it matches."""
+    h = hashlib.sha256(geometry_key(geom).encode())
+    if labels is not None:
+        h.update(np.ascontiguousarray(labels.numpy(), dtype=np.int64).tobytes())
+    h.update(repr((settings.coplanar_m, settings.patch_extent, settings.merge_scatter_factor, FOOTPRINT_REACH,
+                   TILE_CLOSING, CELL_PER_TILE)).encode())
+    return h.hexdigest()
 
 
 def geometry_key(geom: FrozenGeometry) -> str:
@@ -279,10 +298,15 @@ class RoomPredictor:
         # the fit's surfel areas, while the Gaussians are the fitted ones (an edit that moves or deletes some
         # changes the areas of their neighbours: then they are computed again)
         same = attrs.get("geometry_key") == geometry_key(self.geom)
-        self.room = RoomGeometry(self.geom, None if labels is None else torch.as_tensor(np.asarray(labels, np.int64)),
-                                 model.material_of_gaussian.numpy(), RoomSettings(**kw),
+        settings = RoomSettings(**kw)
+        label_tensor = None if labels is None else torch.as_tensor(np.asarray(labels, np.int64))
+        # the fit's patch grids, while the Gaussians, labels and patch settings are the fitted ones
+        grids = {k[len("patch_"):]: stored[k] for k in stored if k.startswith("patch_")}
+        key = extents_key(self.geom, label_tensor, settings) if grids else None
+        self.room = RoomGeometry(self.geom, label_tensor, model.material_of_gaussian.numpy(), settings,
                                  float(attrs.get("render.alpha_min", 1e-3)), occlusion,
-                                 areas_m2=model.areas_m2 if same else None)
+                                 areas_m2=model.areas_m2 if same else None,
+                                 extents=grids if key and attrs.get("patch_extents_key") == key else None)
         self.provider = self.room.provider
         if attrs.get("map_crossings_key") == self.room.crossings_key() and "map_rx_m" in stored:
             self.room.cell_crossings.keep(np.asarray(stored["map_rx_m"]), np.asarray(stored["map_cell_crossings"]))

@@ -187,16 +187,35 @@ def _tile_occupancy(centres: np.ndarray, uv: np.ndarray, axes: np.ndarray, half:
     return closed[r + 1:-r - 1, r + 1:-r - 1].ravel()
 
 
+EXTENT_GRID_FIELDS = ("grid", "grid_offset", "grid_shape", "grid_origin", "cell_m")
+
+
+def extent_grids(patches: PatchSet) -> dict[str, np.ndarray]:
+    """A PatchSet's occupancy grids as arrays to store (the grid packed 8 cells a byte) for build_patch_set's
+    `extents`: rasterising them is most of what building a classroom's patches costs (5 s of 6)."""
+    out = {f: np.asarray(getattr(patches, f)) for f in EXTENT_GRID_FIELDS[1:]}
+    out["grid"] = np.packbits(patches.grid)
+    out["grid_cells"] = np.asarray(patches.grid.size, np.int64)
+    return out
+
+
 def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.Tensor | None,
                     coplanar_m: float, *, extent: str, merge_scatter_factor: float = 0.0,
-                    max_cells: int = 40_000) -> PatchSet:
+                    max_cells: int = 40_000, extents: dict[str, np.ndarray] | None = None) -> PatchSet:
     """Every surfel in one patch (singletons included): neighbours joined within coplanar_m, or planes fitted to
     merge_scatter_factor times the Gaussians' scatter where that is wider (plane_merge; 0: never);
     extents rasterised from the surfel footprints (see PATCH_EXTENTS): "disks" (_disk_occupancy) or "tiles",
-    the rectangle cells of docs/physics.md 8.6 (surfels.footprint_cells) with gaps closed (_tile_occupancy)."""
+    the rectangle cells of docs/physics.md 8.6 (surfels.footprint_cells) with gaps closed (_tile_occupancy).
+    extents: extent_grids of an earlier build from the same surfels, labels and settings (the caller's to
+    know: RoomGeometry.extents_key), taken instead of rasterising; ignored when its patch count differs."""
     if extent not in PATCH_EXTENTS:
         raise ValueError(f"patch extent {extent!r}: expected one of {', '.join(PATCH_EXTENTS)}")
     raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m, merge_scatter_factor)
+    if extents is not None and len(np.asarray(extents["grid_offset"])) == len(raw.members):
+        return _patch_set(raw, geom, labels, {
+            **{f: np.asarray(extents[f]) for f in EXTENT_GRID_FIELDS[1:]},
+            "grid": np.unpackbits(np.asarray(extents["grid"], np.uint8),
+                                  count=int(extents["grid_cells"])).astype(bool)})
     x = geom.means.numpy()
     a = areas_m2.detach().numpy()
     lab = None if labels is None else labels.numpy()
@@ -208,9 +227,7 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
     offset = 0
     for p, idx in enumerate(raw.members):
         n = raw.normal[p]
-        u = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
-        u /= np.linalg.norm(u)
-        v = np.cross(n, u)
+        u, v = _patch_axes(n)
         rel = x[idx] - raw.point[p]
         uv = np.stack([rel @ u, rel @ v], 1)
         tile_m = float(np.median(np.sqrt(a[idx])))
@@ -236,7 +253,7 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
         points.append(raw.point[p])
         us.append(u)
         vs.append(v)
-        label.append(-1 if lab is None else int(np.bincount(lab[idx] - lab[idx].min()).argmax() + lab[idx].min()))
+        label.append(_patch_label(lab, idx))
         grids.append(occupied)
         offsets.append(offset)
         shapes.append(shape)
@@ -248,6 +265,31 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
                     np.concatenate(grids) if grids else np.zeros(0, bool), np.asarray(offsets, dtype=np.int64),
                     np.asarray(shapes, dtype=np.int64).reshape(-1, 2), np.asarray(origins).reshape(-1, 2),
                     np.asarray(cells), raw.merge_tol_m)
+
+
+def _patch_set(raw: Patches, geom: FrozenGeometry, labels: torch.Tensor | None, grids: dict) -> PatchSet:
+    """The PatchSet of patches `raw` with their occupancy grids given (extent_grids' fields, the grid unpacked):
+    each patch's in-plane axes and label as build_patch_set makes them."""
+    lab = None if labels is None else labels.numpy()
+    frames = [_patch_axes(raw.normal[p]) for p in range(len(raw.members))]
+    label = [_patch_label(lab, idx) for idx in raw.members]
+    return PatchSet(raw.normal.reshape(-1, 3), raw.point.reshape(-1, 3),
+                    np.asarray([u for u, _ in frames]).reshape(-1, 3), np.asarray([v for _, v in frames]).reshape(-1, 3),
+                    raw.area, np.asarray(label, dtype=np.int64), raw.id, grids["grid"],
+                    grids["grid_offset"].astype(np.int64), grids["grid_shape"].astype(np.int64).reshape(-1, 2),
+                    grids["grid_origin"].reshape(-1, 2), grids["cell_m"], raw.merge_tol_m)
+
+
+def _patch_label(lab: np.ndarray | None, idx: np.ndarray) -> int:
+    """A patch's label: the most common of its surfels idx (labels lab [G]; -1 without labels)."""
+    return -1 if lab is None else int(np.bincount(lab[idx] - lab[idx].min()).argmax() + lab[idx].min())
+
+
+def _patch_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """In-plane unit axes (u, v) of a patch of unit normal n [3]: u horizontal unless n is near vertical."""
+    u = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    return u, np.cross(n, u)
 
 
 def polarisation_vectors(k: np.ndarray, pol: str) -> np.ndarray:

@@ -25,7 +25,7 @@ from rfir_stages.model.fit_physical import (STARTS, PhysicalFitConfig, fit_mater
                                              reflection_ranges)
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import RoomGeometry, RoomSettings
-from rfir_stages.model.room_paths import PATCH_EXTENTS
+from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
 from .physical_stage import attach_ranges, bound_warnings, range_words
@@ -376,7 +376,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     prov.add_input(measurements_path)
     prov.wall_time_s = time.time() - t_start
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s, "fit_time_s": res.wall_time_s}
-    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table()), **map_rows},
+    # the patches' occupancy grids: loading the model then rasterises nothing (most of a classroom's load time)
+    model_attrs["patch_extents_key"] = room.extents_key()
+    grids = {f"patch_{k}": v for k, v in extent_grids(room.patches).items()}
+    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table()), **map_rows, **grids},
             "training": {"loss_curve": res.loss_curve, "train_rows": np.asarray(rows, np.int64),
                          "fit_rows": np.asarray(rows, np.int64)[fit],
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}

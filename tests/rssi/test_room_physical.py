@@ -88,6 +88,39 @@ def test_a_model_that_stores_no_small_reflections_loads_as_it_was_fitted(fitted,
     assert RoomPredictor(read_artifact(fitted / "rf.h5", "rf")).room.settings.third_order_small_reflections == 1
 
 
+def test_the_stored_patch_grids_load_the_patches_the_fit_built(fitted, tmp_path, monkeypatch):
+    """rf-fit stores the patches' occupancy grids: the model loads them instead of rasterising, into the patch set
+    a fresh build gives; a model whose Gaussians no longer match the key (an edit) rasterises again."""
+    import shutil
+
+    import h5py
+
+    import rfir_stages.model.room_paths as room_paths
+    from rfir_stages.model.room import RoomPredictor
+
+    rasterised = []
+    original = room_paths._tile_occupancy
+    monkeypatch.setattr(room_paths, "_tile_occupancy", lambda *a, **k: rasterised.append(1) or original(*a, **k))
+    rf = read_artifact(fitted / "rf.h5", "rf")
+    assert "patch_grid" in rf.free["model"] and rf.free["model@attrs"]["patch_extents_key"]
+    loaded = RoomPredictor(rf).room
+    assert not rasterised                                           # nothing rasterised: the stored grids
+    built = room_paths.build_patch_set(loaded.geom, loaded.areas, loaded.labels, loaded.settings.coplanar_m,
+                                       extent=loaded.settings.patch_extent,
+                                       merge_scatter_factor=loaded.settings.merge_scatter_factor)
+    assert rasterised
+    for name in ("normal", "point", "u", "v", "area", "label", "surfel_patch", "grid", "grid_offset", "grid_shape",
+                 "grid_origin", "cell_m"):
+        np.testing.assert_array_equal(getattr(loaded.patches, name), getattr(built, name), err_msg=name)
+    moved = tmp_path / "moved.h5"
+    shutil.copy(fitted / "rf.h5", moved)
+    with h5py.File(moved, "r+") as h:
+        h["gaussians/means"][0, 2] += 0.01
+    rasterised.clear()
+    RoomPredictor(read_artifact(moved, "rf"))
+    assert rasterised                                               # key mismatch: rasterised again
+
+
 def test_partition_material_costs_about_the_measured_wall_loss(fitted):
     rf = read_artifact(fitted / "rf.h5", "rf")
     model = load_physical(rf)
