@@ -6,11 +6,7 @@ whichever its start led to. After the fit, each material in turn is replaced by 
 material (materials.ITU_MATERIALS valid at the fitted frequency, metal included; the grounds only for a
 material whose name names one) at the fitted slab thickness and at the material's typical thickness
 (TYPICAL_THICKNESS_M), its scattering S kept, and its SHORTLIST best candidates are kept (a name that names a
-tabulated material, "glass_partition", keeps that one alone where it is compatible); S, which no table gives,
-is then chosen for each shortlisted candidate as the value of lowest error among the fitted one and
-SCATTERING_GRID (a fitted S belongs to the fitted slab: the classroom's front wall, fitted as a 3 mm lossy slab
-with S 0.55, is 20 cm of concrete within the links' noise at S 0.4 and 2.7 standard errors from it at 0.55).
-Then, in rounds, one
+tabulated material, "glass_partition", keeps that one alone where it is compatible). Then, in rounds, one
 replacement at a time: every remaining material's shortlist is scored against the current state, and the
 candidate of smallest increase of the training links' mean squared dB error is taken among those whose
 increase is within `margin` standard errors (identifiability.block_standard_error: the one-standard-error
@@ -50,19 +46,17 @@ TYPICAL_THICKNESS_M = {"glass": 0.01, "metal": 0.002, "concrete": 0.2, "brick": 
 DEFAULT_THICKNESS_M = 0.05
 METAL_SIGMA_1GHZ = 1e6      # S/m: a conductor to every reflection and crossing (the fit's metal start)
 SHORTLIST = 2               # candidates per material scored again in each round (the best against the fit)
-SCATTERING_GRID = (0.0, 0.2, 0.4, 0.6, 0.8)   # S tried for each shortlisted candidate besides the fitted one
 
 
 @dataclass
 class TabulatedChoice:
-    """A material replaced by a tabulated one: material index, table key, slab thickness [m], scattering S, and
-    the increase of the training links' mean squared dB error over the state before it, in standard errors of that
-    increase (negative: lower)."""
+    """A material replaced by a tabulated one: material index, table key, slab thickness [m], and the increase of
+    the training links' mean squared dB error over the state before it, in standard errors of that increase
+    (negative: lower)."""
 
     index: int
     key: str
     thickness_m: float
-    scattering: float
     increase_se: float
 
 
@@ -117,29 +111,27 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
     def score(d: torch.Tensor) -> float:     # the mean increase in standard errors (a decrease: below 0)
         return float(d.mean()) / max(block_standard_error(d), 1e-300)
 
-    def put(i: int, key: str, th: float, s: float) -> None:
+    def put(i: int, key: str, th: float) -> None:
         eps, sig = tabulated_values(key, freq_hz, params.sigma_exponent)
-        params.set_values(i, eps_r=eps, sigma_1ghz=sig, thickness_m=th, scattering=s)
+        params.set_values(i, eps_r=eps, sigma_1ghz=sig, thickness_m=th)
 
     # many evaluations of small tensor ops: on a shared CPU thread hand-offs cost more than they save (as the fit)
     with torch.no_grad(), single_thread_torch():
-        fitted = params.values()
-        fitted_th, fitted_s = fitted.thickness_m.numpy().copy(), fitted.scattering.numpy().copy()
+        fitted_th = params.values().thickness_m.numpy().copy()
         base = per_link()
-        shortlist = {}       # material -> its SHORTLIST best (score, key, thickness, S, errors) against the fit
+        shortlist = {}            # material -> its SHORTLIST best (score, key, thickness, errors) against the fit
         for i in range(params.num):
             keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
             named = named_material(names[i]) if i < len(names) else None
             tried = []
             for key, th in candidates(freq_hz, fitted_th[i], named):
-                put(i, key, th, float(fitted_s[i]))
+                put(i, key, th)
                 err = per_link()
-                tried.append((score(err - base), key, th, float(fitted_s[i]), err))
+                tried.append((score(err - base), key, th, err))
                 params.load_state_dict(keep)
             tried.sort(key=lambda t: t[0])
             own = [t for t in tried if t[1] == named and t[0] <= margin]
-            shortlist[i] = [_best_scattering(t, i, put, per_link, score, base, params)
-                            for t in (own[:1] or tried[:SHORTLIST])]
+            shortlist[i] = own[:1] or tried[:SHORTLIST]
         # best first, every remaining shortlist scored again against the current state in each round: a replacement
         # taken changes the others' increases (20 cm of concrete on the floor makes it on the windows' wall too)
         taken: list[TabulatedChoice] = []
@@ -148,39 +140,22 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
             trials = []
             for i, cands in shortlist.items():
                 keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
-                for first, key, th, s, err in cands:
+                for first, key, th, err in cands:
                     if taken:                             # the first round is the first pass's state
-                        put(i, key, th, s)
+                        put(i, key, th)
                         err = per_link()
                         params.load_state_dict(keep)
-                    trials.append((score(err - current) if taken else first, i, key, th, s, err))
+                    trials.append((score(err - current) if taken else first, i, key, th, err))
             trials.sort(key=lambda t: t[0])
             ok = [t for t in trials if t[0] <= margin
-                  and float((t[5] - lowest).mean()) <= margin * block_standard_error(t[5] - lowest)]
+                  and float((t[4] - lowest).mean()) <= margin * block_standard_error(t[4] - lowest)]
             if not ok:
                 break                                    # none left within the margin
-            now, i, key, th, s, err = ok[0]
-            put(i, key, th, s)
-            taken.append(TabulatedChoice(int(i), key, float(th), float(s), now))
+            now, i, key, th, err = ok[0]
+            put(i, key, th)
+            taken.append(TabulatedChoice(int(i), key, float(th), now))
             del shortlist[i]
             current = err
             if float(err.mean()) < float(lowest.mean()):
                 lowest = err
     return taken
-
-
-def _best_scattering(cand: tuple, i: int, put, per_link, score, base: torch.Tensor, params: MaterialParams) -> tuple:
-    """The shortlisted candidate (score, key, thickness, S, errors [M]) of material i at the S of lowest error among
-    its own and SCATTERING_GRID (scores against base [M]); params left as they were."""
-    keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
-    best = cand
-    _, key, th, s0, _ = cand
-    for s in SCATTERING_GRID:
-        if abs(s - s0) < 1e-9:
-            continue
-        put(i, key, th, s)
-        err = per_link()
-        if float(err.mean()) < float(best[4].mean()):
-            best = (score(err - base), key, th, s, err)
-        params.load_state_dict(keep)
-    return best

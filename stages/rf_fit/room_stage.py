@@ -223,8 +223,6 @@ def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, na
     pred = training_predictor(links, torch.as_tensor(target_db), devices)
     decide, decide_db = (pred, target_db) if check is None else (
         training_predictor(check[0], torch.as_tensor(check[1])), check[1])   # device gains fit every link: no check
-    with torch.no_grad():
-        fitted_s = res.params.values().scattering.numpy().copy()
     taken = take_tabulated(decide, res.params, decide_db, freq_hz, names, margin=SE_MARGIN)
     for t in taken:
         tabulated[t.index] = t.key
@@ -236,7 +234,6 @@ def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, na
                      f"{freq_hz / 1e9:g} GHz, within {SE_MARGIN:g} standard error on {on}), taken as it: " + "; ".join(
                          f"{names[t.index]}: {t.key}"
                          + ("" if t.key == "metal" else f" {t.thickness_m * 100:.1f} cm")
-                         + ("" if abs(t.scattering - fitted_s[t.index]) < 1e-9 else f", S {t.scattering:.1f}")
                          + f" ({t.increase_se:+.1f} SE)" for t in taken)
                      + f"; training MAE {res.train_mae_db:.3f} dB")
     else:

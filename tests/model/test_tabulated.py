@@ -71,36 +71,6 @@ def test_a_material_the_links_cannot_tell_from_concrete_is_taken_as_concrete_and
     assert float(d.mean()) <= block_standard_error(d)
 
 
-def test_a_candidate_gets_its_own_scattering(monkeypatch):
-    """Links off 20 cm of concrete that scatters S = 0.4 (the specular power times 1 - S^2), fitted as a denser
-    slab with S = 0.5 that reflects about as much: concrete is taken, at S 0.4 from the grid; with the fitted S
-    alone (no grid) it is not, since at S 0.5 it reflects half a dB too little."""
-    import rfir_stages.model.tabulated as tabulated
-
-    rng = np.random.default_rng(0)
-    cos = torch.as_tensor(np.cos(rng.uniform(0.0, 1.3, 400)))
-    plain = _predictor(cos)
-
-    def pred(params: MaterialParams) -> torch.Tensor:
-        return plain(params) + 10 * torch.log10(1 - params.values().scattering[0] ** 2)
-
-    truth = _params(_concrete(), UNLISTED)
-    truth.set_values(0, scattering=0.4)
-    with torch.no_grad():
-        target = pred(truth) + torch.as_tensor(rng.normal(0.0, 0.5, (400, 1)))
-
-    def fitted() -> MaterialParams:
-        p = _params((6.0, 0.23, 0.2), UNLISTED)
-        p.set_values(0, scattering=0.5)
-        return p
-
-    taken = take_tabulated(pred, fitted(), target.numpy(), F, ["wall", "partition"])
-    assert [(t.index, t.key, round(t.scattering, 6)) for t in taken if t.index == 0] == [(0, "concrete", 0.4)]
-    monkeypatch.setattr(tabulated, "SCATTERING_GRID", ())
-    taken = take_tabulated(pred, fitted(), target.numpy(), F, ["wall", "partition"])
-    assert all(t.index != 0 for t in taken)
-
-
 def test_a_material_the_links_determine_stays_as_fitted():
     """With the fitted material the truth and quiet links, every tabulated candidate costs many standard errors."""
     pred, target = _links(_params(UNLISTED, UNLISTED), 400, 0.1)
