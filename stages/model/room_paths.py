@@ -212,22 +212,20 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
         raise ValueError(f"patch extent {extent!r}: expected one of {', '.join(PATCH_EXTENTS)}")
     raw = _labelled_planar_patches(geom, areas_m2, labels, coplanar_m, merge_scatter_factor)
     if extents is not None and len(np.asarray(extents["grid_offset"])) == len(raw.members):
-        return _patch_set(raw, geom, labels, {
+        return _patch_set(raw, labels, {
             **{f: np.asarray(extents[f]) for f in EXTENT_GRID_FIELDS[1:]},
             "grid": np.unpackbits(np.asarray(extents["grid"], np.uint8),
                                   count=int(extents["grid_cells"])).astype(bool)})
     x = geom.means.numpy()
     a = areas_m2.detach().numpy()
-    lab = None if labels is None else labels.numpy()
     if extent == "tiles":     # every surfel's cell, once: [G, 2, 3] unit axes and half-sides [G, 2] m
         rect = footprint_cells(geom.log_scales, geom.rotations, geom.normals, areas_m2.detach().double()).numpy()
         rect_half = np.linalg.norm(rect, axis=2)
         rect_axes = rect / rect_half.clip(1e-300)[:, :, None]
-    normals, points, us, vs, label, grids, offsets, shapes, origins, cells = [], [], [], [], [], [], [], [], [], []
+    grids, offsets, shapes, origins, cells = [], [], [], [], []
     offset = 0
     for p, idx in enumerate(raw.members):
-        n = raw.normal[p]
-        u, v = _patch_axes(n)
+        u, v = _patch_axes(raw.normal[p])
         rel = x[idx] - raw.point[p]
         uv = np.stack([rel @ u, rel @ v], 1)
         tile_m = float(np.median(np.sqrt(a[idx])))
@@ -249,27 +247,20 @@ def build_patch_set(geom: FrozenGeometry, areas_m2: torch.Tensor, labels: torch.
                                        max(int(round(TILE_CLOSING * tile_m / cell)), 1))
         else:
             occupied = _disk_occupancy(centres, uv, reach, cell)
-        normals.append(n)
-        points.append(raw.point[p])
-        us.append(u)
-        vs.append(v)
-        label.append(_patch_label(lab, idx))
         grids.append(occupied)
         offsets.append(offset)
         shapes.append(shape)
         origins.append(lo)
         cells.append(cell)
         offset += occupied.size
-    return PatchSet(np.asarray(normals).reshape(-1, 3), np.asarray(points).reshape(-1, 3), np.asarray(us).reshape(-1, 3),
-                    np.asarray(vs).reshape(-1, 3), raw.area, np.asarray(label, dtype=np.int64), raw.id,
-                    np.concatenate(grids) if grids else np.zeros(0, bool), np.asarray(offsets, dtype=np.int64),
-                    np.asarray(shapes, dtype=np.int64).reshape(-1, 2), np.asarray(origins).reshape(-1, 2),
-                    np.asarray(cells), raw.merge_tol_m)
+    return _patch_set(raw, labels, {"grid": np.concatenate(grids) if grids else np.zeros(0, bool),
+                                    "grid_offset": np.asarray(offsets), "grid_shape": np.asarray(shapes),
+                                    "grid_origin": np.asarray(origins), "cell_m": np.asarray(cells)})
 
 
-def _patch_set(raw: Patches, geom: FrozenGeometry, labels: torch.Tensor | None, grids: dict) -> PatchSet:
-    """The PatchSet of patches `raw` with their occupancy grids given (extent_grids' fields, the grid unpacked):
-    each patch's in-plane axes and label as build_patch_set makes them."""
+def _patch_set(raw: Patches, labels: torch.Tensor | None, grids: dict) -> PatchSet:
+    """The PatchSet of patches `raw` with their occupancy grids (extent_grids' fields, the grid unpacked), each
+    patch's in-plane axes (_patch_axes, as its grid was rasterised in) and label (_patch_label)."""
     lab = None if labels is None else labels.numpy()
     frames = [_patch_axes(raw.normal[p]) for p in range(len(raw.members))]
     label = [_patch_label(lab, idx) for idx in raw.members]
@@ -277,7 +268,8 @@ def _patch_set(raw: Patches, geom: FrozenGeometry, labels: torch.Tensor | None, 
                     np.asarray([u for u, _ in frames]).reshape(-1, 3), np.asarray([v for _, v in frames]).reshape(-1, 3),
                     raw.area, np.asarray(label, dtype=np.int64), raw.id, grids["grid"],
                     grids["grid_offset"].astype(np.int64), grids["grid_shape"].astype(np.int64).reshape(-1, 2),
-                    grids["grid_origin"].reshape(-1, 2), grids["cell_m"], raw.merge_tol_m)
+                    np.asarray(grids["grid_origin"], np.float64).reshape(-1, 2),
+                    np.asarray(grids["cell_m"], np.float64), raw.merge_tol_m)
 
 
 def _patch_label(lab: np.ndarray | None, idx: np.ndarray) -> int:
