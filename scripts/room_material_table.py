@@ -3,7 +3,8 @@
     python scripts/room_material_table.py RF.h5 MEASUREMENTS.h5 [--eps-ranges] [--json OUT.json]
 
 RF.h5 is an rf artifact of `rfir rf-fit` on RSSI data of a scene `rfir simulate` builds (the classroom);
-MEASUREMENTS.h5 the file it was fitted on. For each material (object class: desk_03 and desk_07 are
+MEASUREMENTS.h5 the file it was fitted on (its scene edits, `simulate.scene_edits`, are applied to the
+simulator's materials). For each material (object class: desk_03 and desk_07 are
 "desk"): the fit links (training/fit_rows) with a path that reflects off or crosses it, the fewest of
 any one object of the class, the fitted |Gamma(0)|, eps_r, sigma and thickness at the fitted
 frequency, the simulator's (its ITU-R P.2040 material and slab thickness), and whether issue targets
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_stages.simulate.truth import object_class, true_materials
+from rfir_stages.simulate.truth import measurement_scene_edits, object_class, true_materials
 
 TARGET_GAMMA = 0.1
 TARGET_EPS = 0.3
@@ -108,7 +109,7 @@ def main() -> None:
     fitted = material_rows(pred.mats, names, f)
     ranges = rf.get("material/gamma_normal_range")
     eps_r = eps_ranges(links, pred.mats, target, f) if args.eps_ranges else None
-    truth = true_materials(str(rf.attrs.get("scene", "classroom")), names, f)
+    truth = true_materials(str(rf.attrs.get("scene", "classroom")), names, f, measurement_scene_edits(meas))
     tabulated = [str(s) for s in np.atleast_1d(rf.free["model@attrs"].get("material_tabulated", [""] * len(names)))]
     out = []
     for i, (name, row) in enumerate(zip(names, fitted)):

@@ -1,10 +1,12 @@
 """The simulator's true materials of a scene, for reports that compare fitted materials with them.
 
-`true_materials(scene, names, freq_hz)` gives each object class's ITU-R P.2040 material, slab
+`true_materials(scene, names, freq_hz, scene_edits)` gives each object class's ITU-R P.2040 material, slab
 thickness, eps_r and sigma at the frequency, and |Gamma(0)|: the normal-incidence reflection of
 that slab (materials.normal_incidence_reflection, docs/physics.md section 8.2), which is what
 rf-fit reports for a fitted material. An object class is the object name without a trailing
-"_<number>" (desk_03 and desk_07 are "desk").
+"_<number>" (desk_03 and desk_07 are "desk"). `scene_edits` are the simulator's edits of the scene
+(`simulate.scene_edits`, recorded in a measurements file by `measurement_scene_edits`): a scene simulated
+with `wall_back:material:metal` has a metal back wall.
 """
 from __future__ import annotations
 
@@ -20,14 +22,22 @@ def object_class(name: str) -> str:
     return re.sub(r"_\d+$", "", name)
 
 
-def true_materials(scene_name: str, names: list[str], freq_hz: float) -> dict:
+def measurement_scene_edits(meas) -> list[str]:
+    """The scene edits a measurements artifact was simulated with (its `simulator` attribute
+    `scene_edits`, "; "-joined); [] when it has none."""
+    text = str((meas.free.get("simulator@attrs") or {}).get("scene_edits", ""))
+    return [e.strip() for e in text.split("; ") if e.strip()]
+
+
+def true_materials(scene_name: str, names: list[str], freq_hz: float, scene_edits: list[str] = ()) -> dict:
     """{class name: (ITU name, thickness m, eps_r, sigma S/m at freq_hz, |Gamma(0)|)} for the classes in
-    `names` of the simulator's scene `scene_name` (the first object of each class)."""
+    `names` of the simulator's scene `scene_name` after `scene_edits` (the first object of each class)."""
     from rfir_stages.model.materials import C0, itu_law, normal_incidence_reflection, permittivity
     from rfir_stages.simulate import build_scene
+    from rfir_stages.simulate.scene_edits import apply_scene_edits
 
     out = {}
-    for obj in build_scene(scene_name).objects:
+    for obj in apply_scene_edits(build_scene(scene_name), list(scene_edits)).objects:
         cls = object_class(obj.name)
         if cls not in names or cls in out:
             continue

@@ -37,3 +37,20 @@ def test_trio_truth_matches_slab_closed_form(freq_hz):
 
 def test_object_class_strips_number_suffix():
     assert object_class("desk_03") == "desk" and object_class("wall_back") == "wall_back"
+
+
+def test_truth_follows_the_simulators_scene_edits():
+    """A scene simulated with `wall_back:material:metal` has a metal back wall; the other walls stay concrete,
+    and the edits are read back from a measurements artifact's simulator attributes."""
+    from types import SimpleNamespace
+
+    from rfir_stages.simulate.truth import measurement_scene_edits
+
+    plain = true_materials("classroom", ["wall_back", "wall_front"], 2.4e9)
+    meas = SimpleNamespace(free={"simulator@attrs": {"scene_edits": "wall_back:material:metal; desk_0[0369]:delete"}})
+    edits = measurement_scene_edits(meas)
+    assert edits == ["wall_back:material:metal", "desk_0[0369]:delete"]
+    edited = true_materials("classroom", ["wall_back", "wall_front"], 2.4e9, edits)
+    assert plain["wall_back"][0] == "concrete" and edited["wall_back"][0] == "metal" and edited["wall_back"][4] > 0.99
+    assert edited["wall_front"] == plain["wall_front"]
+    assert measurement_scene_edits(SimpleNamespace(free={})) == []
