@@ -40,7 +40,10 @@ SWITCH_ROUNDS = 2
 
 
 def _raw(params: MaterialParams) -> tuple:
-    """The unconstrained tensors [N] of every material property (what the optimiser moves)."""
+    """The unconstrained tensors [N] of every property of one material (what the optimiser moves; a shared S
+    is no one material's)."""
+    if params.shared_scattering:
+        return params.t_eps, params.t_sig, params.t_th
     return params.t_eps, params.t_sig, params.t_s, params.t_th
 
 
@@ -79,6 +82,7 @@ def _switch_starts(params: MaterialParams, loss_now) -> bool:
             choice = None
             for start in STARTS:
                 _, eps, sig, s, th = start
+                s = None if params.shared_scattering else s     # a shared S is no one material's
                 params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
                 trial = loss_now()
                 if trial < best - 1e-9:
@@ -87,6 +91,7 @@ def _switch_starts(params: MaterialParams, loss_now) -> bool:
                 p[i] = v
             if choice is not None:
                 _, eps, sig, s, th = choice
+                s = None if params.shared_scattering else s
                 params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
                 switched = True
     return switched
@@ -109,6 +114,8 @@ class PhysicalFitConfig:
     # lowest final training loss wins (a start that leads after a few steps need not lead at the end), and with
     # more than one, each material may take its value from another start's fit where that lowers the loss
     starts_kept: int = 1
+    # one scattering coefficient S for every material (MaterialParams.shared_scattering; rf_fit.room.scattering)
+    shared_scattering: bool = False
 
 
 @dataclass
@@ -197,7 +204,8 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
     def new(start) -> MaterialParams:
         _, eps, sig, s, th = start
         params = MaterialParams(num_materials, eps_r=eps, sigma_1ghz=sig, scattering=s,
-                                thickness_m=None if cfg.half_space else th, sigma_exponent=cfg.sigma_exponent)
+                                thickness_m=None if cfg.half_space else th, sigma_exponent=cfg.sigma_exponent,
+                                shared_scattering=cfg.shared_scattering)
         for i, (p_eps, p_sig, p_th) in (priors or {}).items():
             params.set_values(i, eps_r=p_eps, sigma_1ghz=p_sig, thickness_m=p_th)
         if devices is not None:

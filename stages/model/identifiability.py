@@ -57,7 +57,9 @@ def normal_reflection_ranges(predict_db: Callable[[MaterialParams], torch.Tensor
     progress = progress or NullProgress()
     grid = [(eps, sig, th) for eps in EPS_R_GRID for sig in SIGMA_1GHZ_GRID for th in thicknesses]
     fitted_s = params.values().scattering.detach().numpy().copy()
-    total = sum(len({float(s), 0.0}) for s in fitted_s) * len(grid)
+    # S 0 as well as the fitted S for each material's own S; a shared S stays as fitted
+    variants = [sorted({float(s)} if params.shared_scattering else {float(s), 0.0}) for s in fitted_s]
+    total = sum(len(v) for v in variants) * len(grid)
     with torch.no_grad(), single_thread_torch(), progress.task("material ranges", total=total) as bar:
         def per_link() -> torch.Tensor:   # [M] squared dB error per link, averaged over frequencies
             return ((predict_db(params) - target) ** 2).reshape(len(target), -1).mean(1)
@@ -66,7 +68,7 @@ def normal_reflection_ranges(predict_db: Callable[[MaterialParams], torch.Tensor
         fitted = params.values().normal_reflection(f).abs()[:, 0].numpy()
         out = np.stack([fitted, fitted], 1)
         for i in range(params.num):
-            for s in sorted({float(fitted_s[i]), 0.0}):
+            for s in variants[i]:
                 for eps, sig, th in grid:
                     params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
                     d = per_link() - base

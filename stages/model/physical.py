@@ -341,11 +341,14 @@ class MaterialParams(nn.Module):
 
     eps_r = 1 + (EPS_R_MAX - 1) sigmoid(t_eps); log10 sigma_1GHz in LOG10_SIGMA via a sigmoid;
     S = sigmoid(t_s); thickness log-uniform in THICKNESS_M via a sigmoid (or half-spaces);
-    gain_db: a system gain in dB (learned only when asked)."""
+    gain_db: a system gain in dB (learned only when asked). shared_scattering: one S for every material,
+    sigmoid of the mean of t_s (t_s keeps one entry per material, so that states and swaps of a material's
+    values keep their shapes; set_values sets every entry)."""
 
     def __init__(self, num_materials: int, *, eps_r: float = 3.0, sigma_1ghz: float = 0.01, scattering: float = 0.1,
-                 thickness_m: float | None = 0.05, sigma_exponent: float = 1.0):
+                 thickness_m: float | None = 0.05, sigma_exponent: float = 1.0, shared_scattering: bool = False):
         super().__init__()
+        self.shared_scattering = bool(shared_scattering)
         full = lambda v: nn.Parameter(torch.full((num_materials,), float(v), dtype=torch.float64))  # noqa: E731
         self.t_eps = full(_logit_range(eps_r, 1.0, EPS_R_MAX))
         self.t_sig = full(_logit_range(math.log10(sigma_1ghz), *LOG10_SIGMA))
@@ -366,18 +369,18 @@ class MaterialParams(nn.Module):
             eps_r=_sigmoid_range(self.t_eps, 1.0, EPS_R_MAX),
             sigma_1ghz=10 ** _sigmoid_range(self.t_sig, *LOG10_SIGMA),
             sigma_exponent=self.sigma_exponent,
-            scattering=torch.sigmoid(self.t_s),
+            scattering=torch.sigmoid(self.t_s.mean()).expand(self.num) if self.shared_scattering else torch.sigmoid(self.t_s),
             thickness_m=None if self.half_space else torch.exp(_sigmoid_range(self.t_th, lo, hi)))
 
     def set_values(self, index: int, *, eps_r=None, sigma_1ghz=None, scattering=None, thickness_m=None) -> None:
-        """Set material `index` (a start of the fit or a prior)."""
+        """Set material `index` (a start of the fit or a prior); with shared_scattering, S of every material."""
         with torch.no_grad():
             if eps_r is not None:
                 self.t_eps[index] = _logit_range(float(eps_r), 1.0, EPS_R_MAX)
             if sigma_1ghz is not None:
                 self.t_sig[index] = _logit_range(math.log10(max(float(sigma_1ghz), 1e-12)), *LOG10_SIGMA)
             if scattering is not None:
-                self.t_s[index] = _logit_range(float(scattering), 0.0, 1.0)
+                self.t_s[slice(None) if self.shared_scattering else index] = _logit_range(float(scattering), 0.0, 1.0)
             if thickness_m is not None and not self.half_space:
                 lo, hi = (math.log(x) for x in THICKNESS_M)
                 self.t_th[index] = _logit_range(math.log(float(thickness_m)), lo, hi)

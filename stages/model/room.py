@@ -35,6 +35,10 @@ from .room_paths import (CELL_PER_TILE, FOOTPRINT_REACH, HIGHER_ORDER_MIN_AREA_M
 from .surfels import surfel_areas
 
 
+# rf_fit.room.scattering: one S for every material, or one per material
+SCATTERING_CHOICES = ("shared", "per_material")
+
+
 @dataclass
 class RoomSettings:
     """[rf_fit.room] settings (configs/rf_fit.toml documents each)."""
@@ -67,6 +71,9 @@ class RoomSettings:
     # the starting materials carried to the end of the fit (fit_physical.PhysicalFitConfig.starts_kept): a room's
     # dozen materials reach different optima from different starts
     starts_kept: int = 3
+    # "shared": one scattering coefficient S for every material, fitted; "per_material": one each (RSSI links see
+    # S mostly through the specular share sqrt(1 - S^2), which trades with |Gamma|: docs/physics.md 8.10)
+    scattering: str = "shared"
     # a gain per transmitter / receiver / both, fitted under a zero-mean prior (device_gains.py)
     device_gains: str = "off"
     device_gain_prior_db: float = 3.0

@@ -24,7 +24,7 @@ from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import (STARTS, PhysicalFitConfig, fit_materials, material_index,
                                              reflection_ranges)
 from rfir_stages.model.physical import PairSettings
-from rfir_stages.model.room import RoomGeometry, RoomSettings
+from rfir_stages.model.room import SCATTERING_CHOICES, RoomGeometry, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
@@ -89,6 +89,9 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
                           "must be >= 0")
     if settings.starts_kept < 1:
         raise ConfigError(f"rf_fit.room.starts_kept = {settings.starts_kept}: expected at least 1")
+    if settings.scattering not in SCATTERING_CHOICES:
+        raise ConfigError(f"rf_fit.room.scattering = {settings.scattering!r}: expected one of "
+                          f"{', '.join(SCATTERING_CHOICES)}")
     if settings.patch_extent not in PATCH_EXTENTS:
         raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
                           f"{', '.join(PATCH_EXTENTS)}")
@@ -96,7 +99,8 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
         raise ConfigError(f"rf_fit.room: device_gains must be \"auto\" or one of {', '.join(DEVICE_CHOICES)} and "
                           "device_gain_prior_db > 0")
     phys = dict(config.get("physical", {}) or {})
-    fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys}, starts_kept=settings.starts_kept)
+    fit_cfg = PhysicalFitConfig(**{k: phys[k] for k in FIT_KEYS if k in phys}, starts_kept=settings.starts_kept,
+                                shared_scattering=settings.scattering == "shared")
     return settings, fit_cfg, sharing
 
 
@@ -280,7 +284,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                         material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches "
                  f"({patch_grouping(settings, room.patches.merge_tol_m)}), "
-                 f"{len(rows)} training links, materials per {sharing} ({len(names)}), patch extents "
+                 f"{len(rows)} training links, materials per {sharing} ({len(names)}; scattering S "
+                 f"{'one for all' if settings.scattering == 'shared' else 'one per material'}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
                  f"interactions per path (reflections and surfaces crossed; {interactions_words(config, depth)}), "
