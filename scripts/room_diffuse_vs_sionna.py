@@ -8,9 +8,11 @@ its materials replaced by the simulator's (ITU-R P.2040 law and slab thickness o
 coefficient --scattering for all). The links: every --every-th receiver of transmitter id --tx. Sionna: depth 3,
 specular, refraction and diffuse reflection with --pattern (alpha_r 4 for the directive lobe), --samples rays per
 transmitter; its paths are split into those with no diffuse interaction (summed coherently) and those with one or
-more (summed in power), by how many diffuse and specular interactions they have. Keep --samples x receivers x 3
-under --max-paths (Sionna's path buffer): beyond it Sionna drops paths of both kinds without a word (1e6 rays at
-110 receivers lost 2-3 of every 4 diffuse paths' power and moved the specular sum by 1.4 dB on the mean link).
+more (summed in power), by how many diffuse and specular interactions they have. Sionna's path buffer
+(--max-paths) holds the paths of all receivers of a transmitter; overflowing, it drops paths of both kinds without a
+word (1e6 rays at 110 receivers and 1e7 lost 2-3 of every 4 diffuse paths' power and moved the specular sum by
+1.4 dB on the mean link): a setting is safe when doubling --max-paths changes nothing (the simulator's 30,000 rays
+and 1e7 were checked so, docs/simulate.md "Sionna's path buffer").
 
 Printed per transmitter: the share of Sionna's diffuse power by (diffuse, specular) interactions, the median of the
 model's diffuse power over Sionna's first-order diffuse and over all of it (dB), the diffuse share of each side's
@@ -30,12 +32,10 @@ import torch
 from rfir_cli.artifacts import read_artifact
 from rfir_stages.model.physical import MaterialValues
 from rfir_stages.model.room import RoomPredictor
-from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene, set_devices
+from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene
 from rfir_stages.simulate.scenes import build_scene
-from rfir_stages.simulate.solve import PhysicsEffects
 from rfir_stages.simulate.truth import measurement_scene_edits, true_materials
-
-SPECULAR, DIFFUSE = 1, 2        # sionna.rt.InteractionType values
+from room_paths_vs_sionna import DIFFUSE, SPECULAR, solve_paths
 
 
 def true_values(names: list[str], scene: str, edits: list[str], freq_hz: float, s: float, d: float) -> MaterialValues:
@@ -48,18 +48,7 @@ def true_values(names: list[str], scene: str, edits: list[str], freq_hz: float, 
 
 def sionna_split(scene, tx, rx, freq_hz: float, samples: int, max_paths: int) -> tuple[np.ndarray, dict]:
     """(coherent power of the paths without a diffuse interaction [R], {(diffuse, specular) counts: power [R]})."""
-    import sionna.rt as rt
-
-    set_devices(scene, tx[None], rx)
-    solver = rt.PathSolver()
-    solver.loop_mode = "evaluated"
-    phys = PhysicsEffects(max_depth=3, diffuse=True, refraction=True, samples_per_src=samples,
-                          max_num_paths_per_src=max_paths, combine="coherent")
-    paths = solver(scene, **phys.solver_kwargs(los=True))
-    a = (np.asarray(paths.a[0].numpy()) + 1j * np.asarray(paths.a[1].numpy()))[:, 0, 0, 0, :]
-    tau = np.asarray(paths.tau.numpy())[:, 0, :]
-    valid = np.asarray(paths.valid.numpy()).reshape(a.shape)
-    inter = np.asarray(paths.interactions.numpy())[:, :, 0, :]
+    a, tau, valid, inter, _ = solve_paths(scene, tx, rx, 3, samples, max_paths, diffuse=True)
     diffuse: dict = collections.defaultdict(lambda: np.zeros(len(rx)))
     field = np.zeros(len(rx), complex)
     for r in range(len(rx)):

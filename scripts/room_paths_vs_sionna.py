@@ -58,9 +58,10 @@ def kind_of(seq: tuple) -> str:
     return "+".join(sorted({object_class(s.split(":", 1)[1]) for s in seq})) or "direct"
 
 
-def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int, max_paths: int, diffuse: bool = False) -> list[dict]:
-    """Per receiver {interaction sequence: power} of Sionna's specular / refracted paths, and their coherent power
-    (diffuse: solved with diffuse reflection on, as rfir simulate does, and its diffuse paths left out)."""
+def solve_paths(scene, tx, rx, depth: int, samples: int, max_paths: int, diffuse: bool):
+    """Sionna's paths from one transmitter tx [3] to receivers rx [R, 3] (specular reflection and refraction up to
+    `depth` interactions, diffuse reflection when asked, no diffraction): (amplitudes [R, P] complex without the
+    carrier phase, delays [R, P] s, valid [R, P] bool, interaction types [depth, R, P], object ids [depth, R, P])."""
     import sionna.rt as rt
 
     set_devices(scene, tx[None], rx)
@@ -72,8 +73,14 @@ def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int, max_paths
     a = (np.asarray(paths.a[0].numpy()) + 1j * np.asarray(paths.a[1].numpy()))[:, 0, 0, 0, :]
     tau = np.asarray(paths.tau.numpy())[:, 0, :]
     valid = np.asarray(paths.valid.numpy()).reshape(a.shape)
-    inter = np.asarray(paths.interactions.numpy())[:, :, 0, :]
-    objs = np.asarray(paths.objects.numpy())[:, :, 0, :]
+    return (a, tau, valid, np.asarray(paths.interactions.numpy())[:, :, 0, :],
+            np.asarray(paths.objects.numpy())[:, :, 0, :])
+
+
+def sionna_paths(scene, tx, rx, freq: float, depth: int, samples: int, max_paths: int, diffuse: bool = False) -> list[dict]:
+    """Per receiver {interaction sequence: power} of Sionna's specular / refracted paths, and their coherent power
+    (diffuse: solved with diffuse reflection on, as rfir simulate does, and its diffuse paths left out)."""
+    a, tau, valid, inter, objs = solve_paths(scene, tx, rx, depth, samples, max_paths, diffuse)
     names = {obj.object_id: name for name, obj in scene.objects.items()}
     out = []
     for r in range(len(rx)):
