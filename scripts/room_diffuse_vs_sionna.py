@@ -34,7 +34,8 @@ from rfir_stages.model.physical import MaterialValues
 from rfir_stages.model.room import RoomPredictor
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene
 from rfir_stages.simulate.scenes import build_scene
-from rfir_stages.simulate.truth import measurement_scene_edits, true_materials
+from rfir_stages.simulate.scene_edits import apply_scene_edits, measurement_scene_edits
+from rfir_stages.simulate.truth import true_materials
 from room_paths_vs_sionna import DIFFUSE, SPECULAR, solve_paths
 
 
@@ -82,10 +83,7 @@ def main() -> None:
     edits = measurement_scene_edits(meas)
     mats = true_values(names, scene_name, edits, f, args.scattering, pred.mats.sigma_exponent)
     tx_all, rx_all, tid = np.asarray(meas["tx_pos"]), np.asarray(meas["rx_pos"]), np.asarray(meas["tx_id"])
-    spec = build_scene(scene_name)
-    if edits:
-        from rfir_stages.simulate.scene_edits import apply_scene_edits
-        apply_scene_edits(spec, edits)
+    spec = apply_scene_edits(build_scene(scene_name), edits)
     db = lambda x: 10 * np.log10(np.maximum(x, 1e-30))   # noqa: E731
     with tempfile.TemporaryDirectory() as tmp:
         scene = load_radio_scene(spec, Path(tmp), f, MaterialEffects(args.scattering, args.pattern, 4))

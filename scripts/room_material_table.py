@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_stages.simulate.truth import measurement_scene_edits, object_class, true_materials
+from rfir_stages.simulate.scene_edits import measurement_scene_edits
+from rfir_stages.simulate.truth import object_class, true_materials
 
 TARGET_GAMMA = 0.1
 TARGET_EPS = 0.3

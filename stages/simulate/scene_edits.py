@@ -49,6 +49,16 @@ def rotation_matrix(axis, angle_deg: float) -> np.ndarray:
     return np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * (k @ k)
 
 
+# how the simulator records the edits in a measurements file's `simulator` attribute `scene_edits`
+RECORD_SEPARATOR = "; "
+
+
+def measurement_scene_edits(meas) -> list[str]:
+    """The scene edits a measurements artifact was simulated with, in order; [] when it has none."""
+    text = str((meas.free.get("simulator@attrs") or {}).get("scene_edits", ""))
+    return [e.strip() for e in text.split(RECORD_SEPARATOR) if e.strip()]
+
+
 def apply_scene_edits(spec: SceneSpec, edits: list[str]) -> SceneSpec:
     """Apply `edits` (strings, module docstring) to spec in place and return it.
 

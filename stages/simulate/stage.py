@@ -13,6 +13,7 @@ from rfir_cli.progress import NullProgress
 
 from .antennas import horn_boresight_gain, horn_exponent
 from .measurement import MeasurementEffects, apply_measurement_effects
+from .scene_edits import RECORD_SEPARATOR, apply_scene_edits
 from .scenes import SceneSpec, build_scene, write_meshes
 from .settings import SimulateSettings, parse_settings
 from .solve import rcs_dbsm_from_gain
@@ -67,8 +68,6 @@ def run(scene: str, out_dir, config: dict | None = None, *, config_toml: str = "
         raise StageError(str(exc)) from None
     settings = parse_settings(config, quick=quick, scene=spec.name)
     if settings.scene_edits:
-        from .scene_edits import apply_scene_edits
-
         apply_scene_edits(spec, settings.scene_edits)
         spec.info["scene_edits"] = list(settings.scene_edits)
     out = Path(out_dir)
@@ -156,7 +155,7 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
     prov.extra = {"task": task, "effects": effects, "sim": {k: v for k, v in sim_attrs.items()
                                                               if not isinstance(v, np.ndarray)}}
     if settings.scene_edits:
-        sim_attrs = dict(sim_attrs, scene_edits="; ".join(settings.scene_edits))
+        sim_attrs = dict(sim_attrs, scene_edits=RECORD_SEPARATOR.join(settings.scene_edits))
     sim_group = {"@attrs": {**_flat_attrs(effects), **{k: v for k, v in sim_attrs.items()
                                                         if not isinstance(v, np.ndarray)}}}
     sim_group.update({k: v for k, v in sim_attrs.items() if isinstance(v, np.ndarray)})

@@ -5,7 +5,8 @@ thickness, eps_r and sigma at the frequency, and |Gamma(0)|: the normal-incidenc
 that slab (materials.normal_incidence_reflection, docs/physics.md section 8.2), which is what
 rf-fit reports for a fitted material. An object class is the object name without a trailing
 "_<number>" (desk_03 and desk_07 are "desk"). `scene_edits` are the simulator's edits of the scene
-(`simulate.scene_edits`, recorded in a measurements file by `measurement_scene_edits`): a scene simulated
+(`simulate.scene_edits`, read back from a measurements file by
+`scene_edits.measurement_scene_edits`): a scene simulated
 with `wall_back:material:metal` has a metal back wall.
 """
 from __future__ import annotations
@@ -20,13 +21,6 @@ import torch
 def object_class(name: str) -> str:
     """desk_03 -> desk; names without a numbered suffix are their own class."""
     return re.sub(r"_\d+$", "", name)
-
-
-def measurement_scene_edits(meas) -> list[str]:
-    """The scene edits a measurements artifact was simulated with (its `simulator` attribute
-    `scene_edits`, "; "-joined); [] when it has none."""
-    text = str((meas.free.get("simulator@attrs") or {}).get("scene_edits", ""))
-    return [e.strip() for e in text.split("; ") if e.strip()]
 
 
 def true_materials(scene_name: str, names: list[str], freq_hz: float, scene_edits: list[str] = ()) -> dict:

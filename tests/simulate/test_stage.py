@@ -13,6 +13,7 @@ pytest.importorskip("sionna.rt")
 from rfir_cli.artifacts import read_artifact  # noqa: E402
 from rfir_cli.context import GlobalOptions  # noqa: E402
 from rfir_stages.simulate import run  # noqa: E402
+from rfir_stages.simulate.scene_edits import measurement_scene_edits  # noqa: E402
 from rfir_stages.simulate.settings import _defaults  # noqa: E402
 
 
@@ -38,7 +39,7 @@ def test_rcs_quick_lego(tmp_path, check_quick_rcs_conventions):
 
 def test_rssi_quick_classroom_with_effects(tmp_path):
     cfg = _config(photos=False, measurement={"noise_db": 0.5, "gain_offset_db": -3.0},
-                  physics={"diffuse": False})
+                  physics={"diffuse": False}, scene_edits=["whiteboard:delete", "door:material:glass"])
     res = run("classroom", tmp_path, cfg, quick=True)
     art = read_artifact(res.measurements["rssi"], "measurements")
     d = art.data
@@ -50,6 +51,7 @@ def test_rssi_quick_classroom_with_effects(tmp_path):
     sim = art.free["simulator@attrs"]
     assert sim["measurement.noise_db"] == 0.5 and sim["measurement.gain_offset_db"] == -3.0
     assert not sim["physics.diffuse"]
+    assert measurement_scene_edits(art) == ["whiteboard:delete", "door:material:glass"]   # recorded, read back
     assert '"noise_db": 0.5' in art.provenance.to_attrs()["extra_json"]
 
 

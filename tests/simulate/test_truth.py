@@ -44,7 +44,7 @@ def test_truth_follows_the_simulators_scene_edits():
     and the edits are read back from a measurements artifact's simulator attributes."""
     from types import SimpleNamespace
 
-    from rfir_stages.simulate.truth import measurement_scene_edits
+    from rfir_stages.simulate.scene_edits import measurement_scene_edits
 
     plain = true_materials("classroom", ["wall_back", "wall_front"], 2.4e9)
     meas = SimpleNamespace(free={"simulator@attrs": {"scene_edits": "wall_back:material:metal; desk_0[0369]:delete"}})
