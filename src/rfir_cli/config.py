@@ -55,7 +55,7 @@ def _merge(base: dict, update: dict, origin: str, prefix: str = "") -> None:
                 raise ConfigError(f"'{dotted}' in {origin} must be a table")
             _merge(base[key], value, origin, dotted + ".")
         else:
-            base[key] = _coerce(base[key], value, dotted, origin)
+            base[key] = _check_range(base[key], _coerce(base[key], value, dotted, origin), dotted, origin)
 
 
 # keys whose default is "auto" and whose value may be a number instead
@@ -78,6 +78,34 @@ def _coerce(default, value, dotted: str, origin: str):
     elif type(default) is type(value):
         return value
     raise ConfigError(f"'{dotted}' in {origin} must be {type(default).__name__}, got {value!r}")
+
+
+# numeric keys whose default is not negative but whose value may be (an offset, a phase, "-1: every core")
+SIGNED = frozenset({"calibrate.sfm.num_threads", "simulate.measurement.gain_offset_db",
+                    "simulate.measurement.leakage_phase_deg", "simulate.measurement.aspect_offset_deg"})
+# words in a key that make it a share of a whole, in [0, 1]
+SHARE_WORDS = ("fraction", "opacity", "share")
+# words in a key whose value must be strictly positive (a step size, a prior's width)
+POSITIVE_WORDS = ("lr", "prior_db", "max_memory_gb", "huber_db")
+
+
+def _check_range(default, value, dotted: str, origin: str):
+    """Refuse a number outside the range its key implies: the default's sign (a count, a size or a time given
+    as 0 or more stays 0 or more, save SIGNED keys), [0, 1] for shares, > 0 for step sizes and widths."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or dotted in SIGNED:
+        return value
+    name = dotted.rsplit(".", 1)[-1]
+    words = name.split("_")
+    counted = dotted in AUTO_OR_NUMBER or (isinstance(default, (int, float)) and not isinstance(default, bool)
+                                           and default >= 0)
+    if counted and value < 0:
+        raise ConfigError(f"'{dotted}' in {origin} must be 0 or more, got {value!r}")
+    if any(w in words for w in SHARE_WORDS) and not 0 <= value <= 1:
+        raise ConfigError(f"'{dotted}' in {origin} is a share and must lie in [0, 1], got {value!r}")
+    positive = any(name == w or name.endswith("_" + w) or name.startswith(w + "_") for w in POSITIVE_WORDS)
+    if positive and not value > 0:
+        raise ConfigError(f"'{dotted}' in {origin} must be positive, got {value!r}")
+    return value
 
 
 def parse_override(text: str) -> dict:

@@ -64,3 +64,24 @@ def test_auto_or_number_keys_take_a_number_and_others_keep_their_type():
     assert resolve_config(None, [])["rf_fit"]["room"]["max_interactions"] == "auto"
     with pytest.raises(ConfigError, match="must be str"):
         resolve_config(None, ["rf_fit.antenna=3"])
+
+
+@pytest.mark.parametrize("override, message", [
+    ("fit.steps=-3", "'fit.steps' .* must be 0 or more, got -3"),
+    ("fit.lr=0", "'fit.lr' .* must be positive"),
+    ("fit.lr=-0.1", "must be 0 or more"),
+])
+def test_values_outside_their_keys_range_are_refused(config_dir, override, message):
+    with pytest.raises(ConfigError, match=message):
+        resolve_config(None, [override])
+
+
+def test_the_shipped_defaults_pass_their_own_range_checks_and_real_keys_are_checked():
+    """Every configs/*.toml default lies in its range (resolving them alone raises nothing), and the keys a
+    user mistypes most are refused out of range: a negative iteration count, a share above 1."""
+    resolve_config()
+    for override in ("rf_fit.physical.iterations=-3", "simulate.rssi.test_fraction=1.5",
+                     "rf_fit.room.device_gain_prior_db=0", "rf_fit.room.max_interactions=-1"):
+        with pytest.raises(ConfigError, match=override.split("=")[0]):
+            resolve_config(None, [override])
+    assert resolve_config(None, ["calibrate.sfm.num_threads=-1"])["calibrate"]["sfm"]["num_threads"] == -1
