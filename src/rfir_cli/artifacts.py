@@ -2,6 +2,11 @@
 
 Writes go to a temporary file in the target's folder and are renamed into place, so a crash or a
 kill never leaves a half-written file at the target path, nor damages an earlier artifact there.
+
+While a command runs (`begin_command` .. `end_command`, set up by the CLI's callback), no output is written
+over a file the command read as an input (`note_input`: read_artifact, Provenance.add_input), nor, without
+the global `--force`, over an existing file of another kind; commands call `check_output` before any work,
+and write_artifact checks again before it writes.
 """
 from __future__ import annotations
 
@@ -68,6 +73,112 @@ class Artifact:
             if self.free.get(group + "@attrs"):
                 out[group]["@attrs"] = dict(self.free[group + "@attrs"])
         return out
+
+
+@dataclass
+class _OutputGuard:
+    """What the running command read and wrote (resolved paths) and whether --force was given."""
+
+    active: bool = False
+    force: bool = False
+    inputs: set = field(default_factory=set)
+    written: set = field(default_factory=set)
+
+
+_GUARD = _OutputGuard()
+
+
+def _key(path: str | Path) -> str:
+    return os.path.realpath(os.fspath(path))
+
+
+def begin_command(force: bool = False) -> None:
+    """Start a command: forget earlier inputs and outputs; force: --force was given (an existing file of
+    another kind may be replaced; an input of the command never is)."""
+    global _GUARD
+    _GUARD = _OutputGuard(active=True, force=bool(force))
+
+
+def end_command() -> None:
+    """End the command started by begin_command (library calls outside a command are not guarded)."""
+    global _GUARD
+    _GUARD = _OutputGuard()
+
+
+def note_input(path: str | Path) -> None:
+    """Record that the running command read `path` (no effect outside a command, or for its own outputs)."""
+    if _GUARD.active and path is not None:
+        key = _key(path)
+        if key not in _GUARD.written:
+            _GUARD.inputs.add(key)
+
+
+def _existing_kind(path: Path) -> str | None:
+    """The kind of the rfir artifact at `path`; "" for any other existing file (or folder)."""
+    if path.is_dir():
+        return ""
+    try:
+        with open(path, "rb") as handle:
+            if handle.read(8) != _HDF5_SIGNATURE:
+                return ""
+        with h5py.File(path, "r") as h5:
+            found = h5.attrs.get("kind")
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError):
+        return ""
+    if isinstance(found, bytes):
+        found = found.decode(errors="replace")
+    return "" if found is None else str(found)
+
+
+def check_output(path: str | Path | None, kind: str | None = None, inputs: Iterable = ()) -> None:
+    """Refuse, with one line (InputFileError), an output `path` that would replace one of the command's inputs
+    (`inputs` here, or any noted so far; even with --force) or, without --force, an existing file of another
+    kind: for kind = an artifact kind, anything but an rfir artifact of that kind (an artifact of the same
+    kind is replaced: a rerun); for kind None (a PNG, JSON, CSV, TIFF or PLY beside an artifact), an HDF5
+    file. Call it before any work; the paths in `inputs` are noted as inputs."""
+    for p in inputs:
+        if p is not None:
+            note_input(p)
+    if path is None:
+        return
+    path = Path(path)
+    key = _key(path)
+    named = {_key(p) for p in inputs if p is not None}
+    if key in named or (_GUARD.active and key in _GUARD.inputs):
+        raise InputFileError("is an input of this command; refusing to write over it (choose another output name)",
+                             path=path)
+    if _GUARD.force or key in _GUARD.written or not (path.exists() or path.is_symlink()):
+        return
+    if path.is_dir():
+        raise InputFileError("is a folder; refusing to write a file there (choose another output name)", path=path)
+    found = _existing_kind(path)
+    if kind is None:
+        if found or _is_hdf5(path):
+            what = f"an rfir '{found}' artifact" if found else "an HDF5 file"
+            raise InputFileError(f"exists and is {what}; refusing to replace it (pass --force or choose another "
+                                 "name)", path=path)
+        return
+    if found == kind:
+        return
+    what = f"an rfir '{found}' artifact, not '{kind}'" if found else "not an rfir artifact"
+    raise InputFileError(f"exists and is {what}; refusing to replace it (pass --force or choose another name)",
+                         path=path)
+
+
+def _is_hdf5(path: Path) -> bool:
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(8) == _HDF5_SIGNATURE
+    except OSError:
+        return False
+
+
+def note_output(path: str | Path) -> None:
+    """Record a file the running command wrote (rewriting it later in the same command is allowed)."""
+    if _GUARD.active:
+        key = _key(path)
+        _GUARD.written.add(key)
+        _GUARD.inputs.discard(key)
 
 
 def _utc_now() -> str:
@@ -178,6 +289,8 @@ def write_artifact(path: str | Path, kind: str, data: Mapping[str, np.ndarray], 
     Raises SchemaError (naming the field) if the data breaks the schema; nothing is written then.
     """
     path = Path(path)
+    if _GUARD.active:   # the last line of defence; commands call check_output before any work
+        check_output(path, kind)
     attrs = dict(attrs or {})
     problems = check_data(kind, data, attrs, str(path))
     if problems:
@@ -212,6 +325,7 @@ def write_artifact(path: str | Path, kind: str, data: Mapping[str, np.ndarray], 
                         g.create_dataset(name, data=_to_h5(value, None))
             h5.require_group("provenance").attrs.update(provenance.to_attrs())
         os.replace(tmp, path)
+        note_output(path)
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -279,6 +393,7 @@ def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
 def read_artifact(path: str | Path, kind: str | Iterable[str] | None = None) -> Artifact:
     """Load and validate an artifact. Raises InputFileError / SchemaError with one clear line."""
     path = Path(path)
+    note_input(path)
     with _open(path) as h5:
         try:
             found, version = _header(h5, path, kind)

@@ -35,6 +35,7 @@ class GlobalOptions:
     device: str = "auto"
     seed: int = 0
     verbosity: int = 0
+    force: bool = False   # --force: an output may replace an existing file of another kind
 
     def config(self) -> dict:
         """The resolved config (all sections)."""

@@ -41,13 +41,20 @@ def main_callback(
     seed: Annotated[int, typer.Option("--seed", help="Random seed for every stage.")] = 0,
     verbose: Annotated[int, typer.Option("-v", "--verbose", count=True, help="More output; tracebacks on errors.")] = 0,
     quiet: Annotated[bool, typer.Option("-q", "--quiet", help="Only errors and final results.")] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="Let an output replace an existing file of another kind (never an input of the command).")] = False,
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Show the version.")] = False,
 ) -> None:
     """Global options apply to every command; put them before the command name."""
     if device not in ("auto", "cpu", "cuda"):
         raise typer.BadParameter(f"{device!r}: expected auto, cpu or cuda", param_hint="--device")
     ctx.obj = GlobalOptions(config_file=config, overrides=list(set_ or []), recipe=recipe, device=device,
-                            seed=seed, verbosity=-1 if quiet else verbose)
+                            seed=seed, verbosity=-1 if quiet else verbose, force=force)
+    # outputs never replace the command's inputs, nor (without --force) a file of another kind (artifacts.check_output)
+    from .artifacts import begin_command, end_command
+
+    begin_command(force)
+    ctx.call_on_close(end_command)
     # Resolve once now, so a bad --config/--set/--recipe fails before any work starts.
     run_guarded(ctx, ctx.obj.config)
 

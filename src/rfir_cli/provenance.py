@@ -66,7 +66,10 @@ class Provenance:
     extra: dict = field(default_factory=dict)
 
     def add_input(self, path: str | Path) -> None:
-        """Record an input file by its hash."""
+        """Record an input file by its hash (and, while a command runs, as a file no output may replace)."""
+        from .artifacts import note_input
+
+        note_input(path)
         self.inputs[str(path)] = sha256_file(path)
 
     def to_attrs(self) -> dict[str, str | float]:

@@ -30,8 +30,14 @@ def geom(
     opts = options(ctx)
 
     def work():
-        from rfir_stages.geom.stage import run
+        from rfir_stages.geom.stage import run, side_paths
 
+        from ..artifacts import check_output
+
+        # before any training: no output (the artifact, SCENE.ply, SCENE_mesh.ply) over an input or another kind
+        check_output(out, "scene", inputs=[calib, gt_mesh])
+        for side in side_paths(Path(out))[:2]:
+            check_output(side, None, inputs=[calib, gt_mesh])
         table = dict(opts.config().get("geom", {}))
         if iterations is not None:
             table["iterations"] = int(iterations)

@@ -67,6 +67,9 @@ def mesh_gaussians(
     from rfir_stages.geom.mesh_io import object_spacings, read_ply_mesh, surfels_per_object, without_contact_faces
 
     def work():
+        from ..artifacts import check_output
+
+        check_output(out, "scene", inputs=[mesh])   # before any work: never over the mesh, nor another kind
         if not spacing_m > 0:
             raise ConfigError(f"--spacing must be positive, got {spacing_m}")
         if object_cells < 0:
