@@ -11,12 +11,12 @@ from dataclasses import dataclass, field
 from typing import Callable, TypeVar
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn, \
     TimeRemainingColumn
 
 from .config import resolve_config, to_toml
+from .consoles import Console   # never hard-wrapped when piped (consoles.py)
 from .errors import ConfigError, RfirError
 from .progress import LineProgress
 

@@ -8,6 +8,7 @@ import typer
 
 from . import __version__
 from .context import GlobalOptions, run_guarded
+from .help_format import RfirGroup
 
 # A command is listed here only once it works end to end.
 COMMANDS = ("info", "check", "import_", "simulate", "calibrate", "geom", "mesh_gaussians", "rf_fit", "predict", "predict_rssi",
@@ -22,6 +23,10 @@ app = typer.Typer(
     rich_markup_mode=None,   # help as written: rich markup would turn "sector:A:B" into an emoji
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
+    cls=RfirGroup,           # click-style help: SCENE, --tx X,Y,Z (help_format.py)
+    epilog="\b\nExit codes (errors.py):\n  0    ok\n  1    error\n  2    input file: missing, unreadable or not "
+           "what the command expects\n  3    schema: wrong kind, version or field\n  4    configuration or option\n"
+           "  5    stage: no trustworthy result\n  70   internal error\n  130  interrupted",
 )
 
 
@@ -34,11 +39,14 @@ def _version(value: bool) -> None:
 @app.callback()
 def main_callback(
     ctx: typer.Context,
-    config: Annotated[Optional[str], typer.Option("--config", help="TOML file overriding configs/ defaults.")] = None,
-    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Override one key: section.key=value (repeatable).")] = None,
-    recipe: Annotated[Optional[str], typer.Option("--recipe", help="Named recipe from configs/recipes/ (e.g. demo).")] = None,
-    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
-    seed: Annotated[int, typer.Option("--seed", help="Random seed for every stage.")] = 0,
+    config: Annotated[Optional[str], typer.Option("--config", metavar="FILE",
+            help="TOML file overriding configs/ defaults.")] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", metavar="SECTION.KEY=VALUE",
+            help="Override one key: section.key=value (repeatable).")] = None,
+    recipe: Annotated[Optional[str], typer.Option("--recipe", metavar="NAME",
+            help="Named recipe from configs/recipes/ (e.g. demo).")] = None,
+    device: Annotated[str, typer.Option("--device", metavar="auto|cpu|cuda", help="auto, cpu or cuda.")] = "auto",
+    seed: Annotated[int, typer.Option("--seed", metavar="INTEGER", help="Random seed for every stage.")] = 0,
     verbose: Annotated[int, typer.Option("-v", "--verbose", count=True, help="More output; tracebacks on errors.")] = 0,
     quiet: Annotated[bool, typer.Option("-q", "--quiet", help="Only errors and final results.")] = False,
     force: Annotated[bool, typer.Option(

@@ -33,6 +33,7 @@ COMMANDS = _commands()
 
 def _flat(text: str) -> str:
     """Words joined by single spaces, without the borders of rich's help panels."""
+    text = re.sub(r"(?<=\w)-\n\s+(?=\w)", "-", text)     # a line broken after a hyphen ("in-\n  process")
     return " ".join(re.sub("[\u2500-\u257f]", " ", text).split())
 
 

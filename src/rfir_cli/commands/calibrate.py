@@ -17,19 +17,21 @@ def register(app: typer.Typer) -> None:
 def calibrate(
     ctx: typer.Context,
     images: Annotated[Path, typer.Argument(help="Folder of photos (one camera, all the same size).")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Calibration artifact to write (.h5).")] = Path("calib.h5"),
+    out: Annotated[Path, typer.Option("-o", "--out", metavar="FILE",
+            help="Calibration artifact to write (.h5).")] = Path("calib.h5"),
     poses: Annotated[Optional[Path], typer.Option(
-        "--poses", help="Known camera centres: a `cameras` artifact (.h5, from simulate) or a name,x,y,z CSV.")] = None,
+        "--poses", metavar="FILE",
+                help="Known camera centres: a `cameras` artifact (.h5, from simulate) or a name,x,y,z CSV.")] = None,
     points: Annotated[Optional[Path], typer.Option(
-        "--points", help="Known 3D points: CSV of label,x,y,z,image,u,v (one line per observation).")] = None,
+        "--points", metavar="CSV", help="Known 3D points: CSV of label,x,y,z,image,u,v (one line per observation).")] = None,
     markers: Annotated[Optional[Path], typer.Option(
-        "--markers", help="ArUco marker layout: CSV of id,size_m,x,y,z,yaw_deg (markers lying flat).")] = None,
+        "--markers", metavar="CSV", help="ArUco marker layout: CSV of id,size_m,x,y,z,yaw_deg (markers lying flat).")] = None,
     subset: Annotated[Optional[int], typer.Option(
-        "--subset", help="Use only this many --poses references, evenly spread (0: all).")] = None,
+        "--subset", metavar="N", help="Use only this many --poses references, evenly spread (0: all).")] = None,
     intrinsics_from: Annotated[Optional[Path], typer.Option(
-        "--intrinsics-from", help="A `cameras` artifact whose shared intrinsics are known and kept fixed.")] = None,
+        "--intrinsics-from", metavar="FILE", help="A `cameras` artifact whose shared intrinsics are known and kept fixed.")] = None,
     colmap_model: Annotated[Optional[Path], typer.Option(
-        "--colmap-model", help="Import this COLMAP sparse model instead of running SfM.")] = None,
+        "--colmap-model", metavar="DIR", help="Import this COLMAP sparse model instead of running SfM.")] = None,
     no_metric: Annotated[bool, typer.Option(
         "--no-metric", help="Allow an artifact without metric scale (arbitrary SfM frame).")] = False,
 ) -> None:

@@ -1,12 +1,15 @@
-"""`rfir check ARTIFACT...`: validate files against the schema; exit non-zero on the first bad one."""
+"""`rfir check ARTIFACT...`: validate files against the schema; every file is checked and reported, the exit
+code is the worst file's (the highest: 2 unreadable, 3 invalid)."""
 from __future__ import annotations
 
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 
 from ..context import console, err_console, run_guarded
-from ..errors import SchemaError
+from ..errors import RfirError, SchemaError
+from ..text import plural
 
 
 def register(app: typer.Typer) -> None:
@@ -15,23 +18,32 @@ def register(app: typer.Typer) -> None:
 
 def check(
     ctx: typer.Context,
-    artifacts: Annotated[list[str], typer.Argument(help="Artifacts (.h5) to validate.")],
-    kind: Annotated[Optional[str], typer.Option("--kind", help="Require this artifact kind.")] = None,
+    artifacts: Annotated[list[str], typer.Argument(metavar="ARTIFACT", help="Artifacts (.h5) to validate.")],
+    kind: Annotated[Optional[str], typer.Option("--kind", metavar="KIND", help="Require this artifact kind.")] = None,
 ) -> None:
-    """Validate artifacts: kind, schema version, required datasets, shapes, dtypes, finite values."""
+    """Validate artifacts: kind, schema version, required datasets, shapes, dtypes, finite values.
+
+    Every file is checked and reported; the exit code is the worst file's (2 unreadable, 3 invalid)."""
     from ..artifacts import validate_artifact
 
     def work():
-        bad = 0
+        bad, worst = 0, 0
         for path in artifacts:
-            problems = validate_artifact(path, kind)
+            try:
+                problems, code = validate_artifact(path, kind), SchemaError.exit_code
+            except RfirError as exc:      # missing, unreadable, or not the --kind asked for
+                if len(artifacts) == 1:
+                    raise
+                problems, code = [str(exc)], exc.exit_code
             if problems:
-                bad += 1
+                bad, worst = bad + 1, max(worst, code)
                 for problem in problems:
-                    err_console.print(f"[red]invalid:[/red] {problem}", highlight=False, soft_wrap=True)
+                    err_console.print(f"[red]invalid:[/red] {escape(problem)}", highlight=False, soft_wrap=True)
             else:
-                console.print(f"[green]ok[/green] {path}", highlight=False)
+                console.print(f"[green]ok[/green] {escape(path)}", highlight=False, soft_wrap=True)
         if bad:
-            raise SchemaError(f"{bad} of {len(artifacts)} artifact(s) failed validation")
+            failed = RfirError(f"{bad} of {plural(len(artifacts), 'artifact')} failed validation")
+            failed.exit_code = worst
+            raise failed
 
     run_guarded(ctx, work)

@@ -18,11 +18,12 @@ def diagnose(
     model: Annotated[Path, typer.Argument(help="rf artifact, or a predictions / measurements artifact of the same "
                                                "links (any method's prediction, e.g. a ray tracer's).")],
     measurements: Annotated[Path, typer.Argument(help="measurements artifact to explain.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Report folder: report.md, results.json, effects.json, PNGs.")],
+    out: Annotated[Path, typer.Option("-o", "--out", metavar="DIR",
+            help="Report folder: report.md, results.json, effects.json, PNGs.")],
     geometry: Annotated[Optional[Path], typer.Option(
-        "--geometry", help="scene or rf artifact whose Gaussians say which links are shadowed (default: MODEL "
+        "--geometry", metavar="FILE", help="scene or rf artifact whose Gaussians say which links are shadowed (default: MODEL "
                            "when it is an rf artifact).")] = None,
-    max_effects: Annotated[int, typer.Option("--max-effects", help="Stop after naming this many effects.")] = 4,
+    max_effects: Annotated[int, typer.Option("--max-effects", metavar="N", help="Stop after naming this many effects.")] = 4,
 ) -> None:
     """Break the residual down, name the missing effect from the catalogue, add it, refit, repeat."""
     opts = options(ctx)

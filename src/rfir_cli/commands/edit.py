@@ -20,21 +20,23 @@ def register(app: typer.Typer) -> None:
 def edit(
     ctx: typer.Context,
     rf: Annotated[Path, typer.Argument(help="rf artifact to edit (from `rfir rf-fit`).")],
-    out: Annotated[Optional[Path], typer.Option("-o", "--out", help="Edited rf artifact to write (.h5); not the input.")] = None,
+    out: Annotated[Optional[Path], typer.Option("-o", "--out", metavar="FILE",
+            help="Edited rf artifact to write (.h5); not the input.")] = None,
     select: Annotated[Optional[list[str]], typer.Option(
-        "--select", help="box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX | obox:CX,CY,CZ,HX,HY,HZ[,YAW,PITCH,ROLL] | "
+        "--select", metavar="SELECTION", help="box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX | obox:CX,CY,CZ,HX,HY,HZ[,YAW,PITCH,ROLL] | "
                          "sphere:CX,CY,CZ,R | label:NAME | all (repeatable, paired with --op in order).")] = None,
     op: Annotated[Optional[list[str]], typer.Option(
-        "--op", help="translate:DX,DY,DZ | rotate:AX,AY,AZ,DEG[,PX,PY,PZ] | delete | duplicate:DX,DY,DZ | "
+        "--op", metavar="OP", help="translate:DX,DY,DZ | rotate:AX,AY,AZ,DEG[,PX,PY,PZ] | delete | duplicate:DX,DY,DZ | "
                      "material:NAME (an ITU-R P.2040 material, e.g. metal) | label:NAME (repeatable).")] = None,
     script: Annotated[Optional[Path], typer.Option(
-        "--script", help="TOML edit script: a list of edit tables with select and op keys (docs/edit.md).")] = None,
+        "--script", metavar="FILE", help="TOML edit script: a list of edit tables with select and op keys (docs/edit.md).")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List what each edit selects; write nothing.")] = False,
     allow_empty: Annotated[bool, typer.Option("--allow-empty", help="Skip edits whose selection is empty.")] = False,
     plot: Annotated[Optional[Path], typer.Option(
-        "--plot", help="Before/after top-view PNG of the Gaussians, and PLOT_radio.png: the radio change.")] = None,
+        "--plot", metavar="FILE", help="Before/after top-view PNG of the Gaussians, and PLOT_radio.png: the radio change.")] = None,
     map_tx: Annotated[Optional[str], typer.Option(
-        "--map-tx", help="X,Y,Z (m): the transmitter of the radio-map change of an RSSI model (with --plot).")] = None,
+        "--map-tx", metavar="X,Y,Z",
+                help="X,Y,Z (m): the transmitter of the radio-map change of an RSSI model (with --plot).")] = None,
 ) -> None:
     """Edit the Gaussians of an rf artifact; predict the edited scene with `rfir predict` (no new measurements)."""
     opts = options(ctx)

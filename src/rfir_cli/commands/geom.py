@@ -17,13 +17,15 @@ def register(app: typer.Typer) -> None:
 def geom(
     ctx: typer.Context,
     calib: Annotated[Path, typer.Argument(help="Calibration artifact (calib.h5 from `rfir calibrate`).")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Scene artifact to write (.h5).")] = Path("scene.h5"),
-    iterations: Annotated[Optional[int], typer.Option("--iterations", help="Training steps (geom.iterations).")] = None,
-    width: Annotated[Optional[int], typer.Option("--width", help="Training image width in px (geom.max_image_width).")] = None,
+    out: Annotated[Path, typer.Option("-o", "--out", metavar="FILE", help="Scene artifact to write (.h5).")] = Path("scene.h5"),
+    iterations: Annotated[Optional[int], typer.Option("--iterations", metavar="N",
+            help="Training steps (geom.iterations).")] = None,
+    width: Annotated[Optional[int], typer.Option("--width", metavar="PX",
+            help="Training image width in px (geom.max_image_width).")] = None,
     gt_mesh: Annotated[Optional[Path], typer.Option(
-        "--gt-mesh", help="Ground-truth mesh (.ply) for the normal and Chamfer metrics (default: auto).")] = None,
+        "--gt-mesh", metavar="FILE", help="Ground-truth mesh (.ply) for the normal and Chamfer metrics (default: auto).")] = None,
     checkpoint: Annotated[Optional[Path], typer.Option(
-        "--checkpoint", help="Checkpoint file (default: OUT.ckpt.pt).")] = None,
+        "--checkpoint", metavar="FILE", help="Checkpoint file (default: OUT.ckpt.pt).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the checkpoint when it exists.")] = False,
 ) -> None:
     """Train Gaussians with normals on calibrated photos; write SCENE.h5, SCENE.ply, SCENE_mesh.ply, SCENE_renders/."""

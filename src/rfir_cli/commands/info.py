@@ -16,17 +16,25 @@ def register(app: typer.Typer) -> None:
 
 def info(
     ctx: typer.Context,
-    artifact: Annotated[Optional[str], typer.Argument(help="An rfir artifact (.h5).")] = None,
+    artifact: Annotated[Optional[str], typer.Argument(
+        metavar="ARTIFACT", help="An rfir artifact (.h5); required unless --tracer.")] = None,
     tracer: Annotated[bool, typer.Option("--tracer", help="Show the ray tracer back-end in use.")] = False,
 ) -> None:
-    """Summarise an artifact: kind, version, producer, provenance, datasets with shapes and units."""
+    """Summarise an artifact: kind, version, producer, provenance, datasets with shapes and units.
+
+    \b
+    rfir info ARTIFACT            describe an artifact
+    rfir info --tracer            the ray tracer back-end
+    rfir info --tracer ARTIFACT   both
+    """
 
     def work():
         if tracer:
             _show_tracer()
         if artifact is None:
             if not tracer:
-                raise ConfigError("give an ARTIFACT to describe, or --tracer")
+                raise ConfigError("missing ARTIFACT: `rfir info ARTIFACT` describes an artifact, "
+                                  "`rfir info --tracer` the tracer back-end")
             return
         from ..artifacts import describe_artifact
 

@@ -37,18 +37,18 @@ def _parse_list(text: Optional[str], what: str) -> Optional[list[float]]:
 def predict_rcs(
     ctx: typer.Context,
     rf: Annotated[Path, typer.Argument(help="rf artifact from `rfir rf-fit`.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="predictions artifact to write (.h5).")],
+    out: Annotated[Path, typer.Option("-o", "--out", metavar="FILE", help="predictions artifact to write (.h5).")],
     measurements: Annotated[Optional[Path], typer.Option(
-        "--measurements", help="Measurements to predict and compare with (their rows and split).")] = None,
+        "--measurements", metavar="FILE", help="Measurements to predict and compare with (their rows and split).")] = None,
     aspects: Annotated[Optional[str], typer.Option(
-        "--aspects", help="Degrees: '0:360:1' or '0,90,180'; with --measurements also '0:90' ([0, 90) of the "
+        "--aspects", metavar="DEGREES", help="Degrees: '0:360:1' or '0,90,180'; with --measurements also '0:90' ([0, 90) of the "
                           "measured rows).")] = None,
-    ranges: Annotated[Optional[str], typer.Option("--range", "--ranges", help="Metres: '3' or '2,3,5'.")] = None,
+    ranges: Annotated[Optional[str], typer.Option("--range", "--ranges", metavar="METRES", help="Metres: '3' or '2,3,5'.")] = None,
     freqs: Annotated[Optional[str], typer.Option(
-        "--freq", "--freqs", help="Hz: '2.4e9' (fitted ones; any inside the band of a wideband model).")] = None,
-    plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for PNG plots.")] = None,
+        "--freq", "--freqs", metavar="HZ", help="Hz: '2.4e9' (fitted ones; any inside the band of a wideband model).")] = None,
+    plots: Annotated[Optional[Path], typer.Option("--plots", metavar="DIR", help="Folder for PNG plots.")] = None,
     results: Annotated[Optional[Path], typer.Option(
-        "--results", help="JSON with metrics (default: OUT with .json when --measurements).")] = None,
+        "--results", metavar="FILE", help="JSON with metrics (default: OUT with .json when --measurements).")] = None,
 ) -> None:
     """Predict monostatic RCS versus aspect, range and frequency; compare on the test split when measured."""
     opts = options(ctx)

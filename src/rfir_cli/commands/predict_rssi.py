@@ -19,9 +19,10 @@ def predict_rssi(
     ctx: typer.Context,
     rf: Annotated[Path, typer.Argument(help="rf artifact from `rfir rf-fit` on task 'rssi' measurements.")],
     out: Annotated[Optional[Path], typer.Option("-o", "--out", help="predictions artifact (default: RF stem + _rssi.h5).")] = None,
-    tx: Annotated[Optional[str], typer.Option("--tx", help="Transmitter position 'X,Y,Z' in metres.")] = None,
-    rx: Annotated[Optional[Path], typer.Option("--rx", help="CSV of receiver positions x,y,z in metres.")] = None,
-    grid: Annotated[Optional[str], typer.Option("--grid", help="'HEIGHT,STEP' in metres: receivers on a floor-plan grid.")] = None,
+    tx: Annotated[Optional[str], typer.Option("--tx", metavar="X,Y,Z", help="Transmitter position 'X,Y,Z' in metres.")] = None,
+    rx: Annotated[Optional[Path], typer.Option("--rx", metavar="CSV", help="CSV of receiver positions x,y,z in metres.")] = None,
+    grid: Annotated[Optional[str], typer.Option("--grid", metavar="HEIGHT,STEP",
+            help="'HEIGHT,STEP' in metres: receivers on a floor-plan grid.")] = None,
     measurements: Annotated[Optional[Path], typer.Option(
         "--measurements", help="RSSI measurements: without --tx, score every row on the model's test split.")] = None,
     plots: Annotated[Optional[Path], typer.Option("--plots", help="Folder for heatmap and FoV PNGs.")] = None,

@@ -18,22 +18,24 @@ def rf_fit(
     ctx: typer.Context,
     scene: Annotated[Path, typer.Argument(help="Scene artifact (Gaussians + normals), or an rf artifact to refit.")],
     measurements: Annotated[Path, typer.Argument(help="Measurements artifact; the training rows of --split are fitted.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="rf artifact to write (.h5).")],
+    out: Annotated[Path, typer.Option("-o", "--out", metavar="FILE", help="rf artifact to write (.h5).")],
     iterations: Annotated[Optional[int], typer.Option(
         "--iterations", help="Adam steps of the material fit (rf_fit.physical.iterations).")] = None,
     freq_hz: Annotated[Optional[list[float]], typer.Option(
-        "--freq", "--freq-hz", help="Fit only these frequencies in Hz (repeatable; default: all in the file).")] = None,
+        "--freq", "--freq-hz", metavar="HZ",
+                help="Fit only these frequencies in Hz (repeatable; default: all in the file).")] = None,
     range_m: Annotated[Optional[str], typer.Option(
-        "--range", help="Fit only rows at these ranges in metres: '3' or '2,3' (default: all).")] = None,
+        "--range", metavar="METRES", help="Fit only rows at these ranges in metres: '3' or '2,3' (default: all).")] = None,
     aspects: Annotated[Optional[str], typer.Option(
-        "--aspects", help="Fit only rows at these aspects in degrees: '0:90' ([0, 90)), '315:45', '45', "
+        "--aspects", metavar="DEGREES", help="Fit only rows at these aspects in degrees: '0:90' ([0, 90)), '315:45', '45', "
                           "comma-joined (default: all).")] = None,
     checkpoint: Annotated[Optional[Path], typer.Option(
-        "--checkpoint", help="Checkpoint file; the model selection is recorded in CHECKPOINT.selection "
+        "--checkpoint", metavar="FILE", help="Checkpoint file; the model selection is recorded in CHECKPOINT.selection "
                              "(default: OUT.ckpt.pt).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Reuse the recorded model selection of the same run.")] = False,
     split: Annotated[Optional[str], typer.Option(
-        "--split", help="Train/test protocol (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m).")] = None,
+        "--split", metavar="PROTOCOL",
+                help="Train/test protocol (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m).")] = None,
 ) -> None:
     """Fit the materials (eps_r, sigma, thickness, scattering S) of the physical model (geometry frozen)."""
     t_start = time.time()   # the recorded wall time covers the whole command

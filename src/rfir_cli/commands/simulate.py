@@ -20,16 +20,17 @@ def simulate(
     out: Annotated[Path, typer.Argument(help="Output folder (created).")],
     quick: Annotated[bool, typer.Option("--quick", help="Reduced sizes (few aspects, receivers, views).")] = False,
     task: Annotated[Optional[list[str]], typer.Option(
-        "--task", help="rssi, rcs or wideband (repeatable); default from the scene.")] = None,
+        "--task", metavar="TASK", help="rssi, rcs or wideband (repeatable); default from the scene.")] = None,
     no_photos: Annotated[bool, typer.Option("--no-photos", help="Skip the photo rendering.")] = False,
     rcs_backend: Annotated[Optional[str], typer.Option(
-        "--rcs-backend", help="Solver of the rcs/wideband tasks: sionna (ray tracing, GO) or po (physical optics); "
+        "--rcs-backend", metavar="sionna|po",
+                help="Solver of the rcs/wideband tasks: sionna (ray tracing, GO) or po (physical optics); "
                               "default simulate.rcs_backend.")] = None,
     workers: Annotated[Optional[int], typer.Option(
-        "--workers", help="Processes for the Sionna rcs/wideband solves (1 = in-process); "
+        "--workers", metavar="N", help="Processes for the Sionna rcs/wideband solves (1 = in-process); "
                           "default simulate.workers.")] = None,
     scene_edit: Annotated[Optional[list[str]], typer.Option(
-        "--scene-edit", help="Edit the scene before simulating (repeatable, in order): NAMES:OP, e.g. "
+        "--scene-edit", metavar="NAMES:OP", help="Edit the scene before simulating (repeatable, in order): NAMES:OP, e.g. "
                              "'whiteboard:delete', 'wall_back:material:metal', 'desk_0[0369]:translate:0,1,0'.")] = None,
 ) -> None:
     """Simulate SCENE: write meshes/, images/ + cameras.h5, and measurements.h5 into OUT."""
