@@ -17,12 +17,14 @@ Change history
   read as none when absent).
 - 1.5.0 (2026-11-26): optional root attribute edge_waves of `rf` (on / off: the model includes the edge
   waves of its planar patches; read as off when absent).
+- 1.6.0 (2026-12-07): optional sample_count and sample_std_db of `measurements` (repeated rows of a
+  link averaged on import; read as one sample, no spread, when absent).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.5.0"
+SCHEMA_VERSION = "1.6.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -120,6 +122,10 @@ _register(KindSpec(
         F("tx_id", "int", ("L",), "", "transmitter index", required=False),
         F("rx_id", "int", ("L",), "", "receiver index", required=False),
         F("split", "int", ("L",), "", "0 = train, 1 = test, -1 = unassigned", required=False),
+        F("sample_count", "int", ("L",), "", "rows averaged into each link (import --average; the fewest of the "
+          "link's frequencies when they differ); absent: one row each", required=False),
+        F("sample_std_db", "float", ("L", "F"), "dB", "standard deviation (ddof 1) of the averaged rows' power_db per "
+          "link and frequency (import --average; 0 for a single row)", required=False),
         F("scene_bounds", "float", (2, 3), "m", "axis-aligned bounds (min, max) of the scene", required=False, frame="world"),
     ),
     required_attrs=("task", "scene"),

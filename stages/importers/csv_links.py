@@ -4,8 +4,12 @@ Columns (header required, any order): tx_x, tx_y, tx_z, rx_x, rx_y, rx_z [m], fr
 power_db [dB; its meaning is the set-up's `power`: path gain, RCS in dBsm or RSSI in dBm];
 optional phase_rad [rad], aspect_deg [deg], range_m [m], rcs_dbsm [dBsm], tx_id, rx_id, split
 (train/test/0/1). Rows sharing (tx, rx, aspect, range) form one link; every link needs every
-frequency. `# key = value` lines before the header, a sidecar TOML and import flags state the
-measurement set-up (meas_setup.py).
+frequency. Repeated rows of one link and frequency with different values are refused unless an
+average is asked for (AVERAGES: "mean-db" averages the dB values, "mean-power" the linear powers;
+the rows per link and their spread are stored as sample_count and sample_std_db). `# key = value`
+lines before the header, a sidecar TOML and import flags state the measurement set-up
+(meas_setup.py); units.py reads other units and column names, split.py writes a split, sanity.py
+refuses values whose units look wrong.
 """
 from __future__ import annotations
 
@@ -23,9 +27,15 @@ from rfir_cli.provenance import Provenance
 
 from rfir_cli.physics.closed_forms import rcs_from_path_gain
 
+from rfir_cli.errors import ConfigError
+
 from .meas_setup import MeasurementSetup, boresight_gain, header_options, resolve_setup, split_header
 from .rows import RowProblems, check_metres
+from .sanity import check_units
+from .split import HELP as SPLIT_HELP
+from .split import assign_split, parse_split
 from .tasks import check_turntable, detect_task
+from .units import RECEIVED_POWER_UNITS, Units, parse_columns, resolve_units
 
 REQUIRED = ("tx_x", "tx_y", "tx_z", "rx_x", "rx_y", "rx_z", "freq_hz", "power_db")
 OPTIONAL_FLOATS = ("phase_rad", "aspect_deg", "range_m", "rcs_dbsm")
@@ -33,6 +43,9 @@ ABSENT_OK = ("phase_rad",)             # a cell of these may be empty: not measu
 ABSENT_WORDS = ("", "nan", "na", "n/a")
 OPTIONAL_INTS = ("tx_id", "rx_id")
 SPLIT_WORDS = {"train": 0, "0": 0, "test": 1, "1": 1, "": -1, "-1": -1}
+COLUMNS = REQUIRED + OPTIONAL_FLOATS + OPTIONAL_INTS + ("split",)
+AVERAGES = ("mean-db", "mean-power")
+AVERAGE_HINT = "repeated samples of one link: pass --average mean-db or --average mean-power to average them"
 
 
 @dataclass
@@ -57,13 +70,22 @@ def _number(text: str, line: int, column: str, problems: RowProblems) -> float:
     return value
 
 
-def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
+def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Units | None = None,
+                   columns: dict | None = None, average: str | None = None) -> dict:
     """Parse and validate a links CSV. Returns the `measurements` datasets, the header's set-up
-    options (`options`: key -> text) and the present optional columns.
+    options (`options`: key -> text), the present optional columns and the rows read (`rows`).
 
+    position_scale [m per file unit] (units.position_scale when units are given); units: the power
+    and frequency units of the file (units.py; default dB and Hz); columns: {rfir column: the
+    file's header} for columns named differently; average: None (refuse repeated rows with
+    different values) or one of AVERAGES.
     Raises InputFileError naming the file and every bad row (up to a few) if anything is wrong.
     """
     path = Path(path)
+    units = units or Units(position_scale=position_scale)
+    columns = dict(columns or {})
+    if average is not None and average not in AVERAGES:
+        raise ConfigError(f"--average {average!r}: expected {' or '.join(AVERAGES)}")
     problems = RowProblems(str(path))
     try:
         text = path.read_bytes().decode("utf-8-sig")
@@ -84,13 +106,18 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
         rows = list(reader)
     except csv.Error as exc:
         raise InputFileError(f"not a readable CSV file ({exc})", path=path) from None
-    missing = [c for c in REQUIRED if c not in header]
-    if missing:
-        raise InputFileError(f"missing required column(s): {', '.join(missing)} (header: {', '.join(header) or 'empty'})",
+    absent = [f"--column {name}={source}" for name, source in columns.items() if source not in header]
+    if absent:
+        raise InputFileError(f"{', '.join(absent)}: no such column in the file (header: {', '.join(header) or 'empty'})",
                              path=path)
+    named = set(header) | set(columns)
+    missing = [c for c in REQUIRED if c not in named]
+    if missing:
+        raise InputFileError(f"missing required column(s): {', '.join(missing)} (header: {', '.join(header) or 'empty'}; "
+                             f"a column named otherwise: --column {missing[0]}=NAME)", path=path)
     if not rows:
         raise InputFileError("no data rows", path=path)
-    present = [c for c in OPTIONAL_FLOATS + OPTIONAL_INTS + ("split",) if c in header]
+    present = [c for c in OPTIONAL_FLOATS + OPTIONAL_INTS + ("split",) if c in named]
     records = []
     for index, raw in enumerate(rows):
         line = offset + index + 2  # the column header is line offset + 1
@@ -99,6 +126,7 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
                          if None in raw else f"line {line}: fewer values than the {len(header)} columns")
             continue
         row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+        row.update({name: row[source] for name, source in columns.items()})
         rec = {c: _number(row[c], line, c, problems) for c in REQUIRED + tuple(c for c in OPTIONAL_FLOATS if c in present)
                if not (c in ABSENT_OK and row[c].lower() in ABSENT_WORDS)}
         rec.update({c: math.nan for c in ABSENT_OK if c in present and c not in rec})   # absent, never 0.0
@@ -114,13 +142,21 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0) -> dict:
             if word not in SPLIT_WORDS:
                 problems.add(f"line {line}, column split: {row['split']!r} is not train/test/0/1")
             rec["split"] = SPLIT_WORDS.get(word, -1)
+        if units.power != "dB" and math.isfinite(rec["power_db"]):
+            value = units.to_dbm(rec["power_db"])
+            if not math.isfinite(value):
+                problems.add(f"line {line}, column power_db: {row['power_db']!r} is not a positive power in {units.power} "
+                             "(--power-unit)")
+            rec["power_db"] = value
+        rec["freq_hz"] = rec["freq_hz"] * units.freq_scale
         if math.isfinite(rec["freq_hz"]) and rec["freq_hz"] < 1e6:
-            problems.add(f"line {line}, column freq_hz: {rec['freq_hz']:g} Hz is below 1 MHz: give Hz, not GHz or MHz")
+            problems.add(f"line {line}, column freq_hz: {rec['freq_hz']:g} Hz is below 1 MHz: give Hz, not GHz or MHz "
+                         "(or pass --freq-unit GHz or MHz)")
         rec["_line"] = line
         records.append((line, rec))
     problems.raise_if_any()
-    out = _assemble(path, records, present, problems, position_scale)
-    out.update(options=options, present=present)
+    out = _assemble(path, records, present, problems, units.position_scale, average)
+    out.update(options=options, present=present, rows=len(records))
     return out
 
 
@@ -129,24 +165,51 @@ def _link_key(rec: dict) -> tuple:
     return tuple(rec[c] for c in REQUIRED[:6]) + tuple(rec.get(c, 0.0) for c in ("aspect_deg", "range_m"))
 
 
-def _assemble(path: Path, records: list, present: list, problems: RowProblems, scale: float) -> dict:
-    """Group rows into links x frequencies, refusing conflicting duplicates and missing cells."""
+def _mean(values: np.ndarray, column: str, average: str) -> float:
+    """The average of one column's samples: phases circularly (absent ones skipped), dB values by
+    `average` (mean-db: their mean; mean-power: 10 log10 of the mean linear power)."""
+    if column == "phase_rad":
+        finite = values[np.isfinite(values)]
+        return float(np.angle(np.exp(1j * finite).mean())) if finite.size else math.nan
+    if average == "mean-power":
+        peak = float(values.max())
+        return peak + 10.0 * math.log10(float(np.mean(10.0 ** ((values - peak) / 10.0))))
+    return float(values.mean())
+
+
+def _assemble(path: Path, records: list, present: list, problems: RowProblems, scale: float,
+              average: str | None = None) -> dict:
+    """Group rows into links x frequencies, refusing missing cells, and conflicting duplicates unless
+    `average` is given (then repeated rows are averaged: sample_count, sample_std_db)."""
     freqs = sorted({rec["freq_hz"] for _, rec in records})
     freq_index = {f: i for i, f in enumerate(freqs)}
     link_keys: dict[tuple, int] = {}
     cells: dict[tuple, tuple] = {}
+    samples: dict[tuple, list] = {}
     value_cols = ["power_db"] + [c for c in ("phase_rad", "rcs_dbsm") if c in present]
     for line, rec in records:
         link = link_keys.setdefault(_link_key(rec), len(link_keys))
         cell = (link, freq_index[rec["freq_hz"]])
         values = tuple(rec[c] for c in value_cols)
+        if average is not None:
+            samples.setdefault(cell, []).append(values)
         if cell in cells:
             first_line, first_values = cells[cell]
-            if not all(a == b or (a != a and b != b) for a, b in zip(first_values, values)):   # NaN: both absent
+            if average is None and not all(a == b or (a != a and b != b) for a, b in zip(first_values, values)):
                 problems.add(f"lines {first_line} and {line}: the same link and frequency with different values "
                              f"({', '.join(f'{c}={a:g} vs {b:g}' for c, a, b in zip(value_cols, first_values, values) if a != b)})")
+                problems.hint(AVERAGE_HINT)
             continue
         cells[cell] = (line, values)
+    count = std = None
+    if average is not None:
+        count = np.zeros((len(link_keys), len(freqs)), np.int64)
+        std = np.zeros((len(link_keys), len(freqs)))
+        for cell, got in samples.items():
+            arr = np.asarray(got, np.float64)                         # [samples, value columns]
+            cells[cell] = (cells[cell][0], tuple(_mean(arr[:, j], c, average) for j, c in enumerate(value_cols)))
+            count[cell] = len(got)
+            std[cell] = float(np.std(arr[:, 0], ddof=1)) if len(got) > 1 else 0.0
     n_links, n_freqs = len(link_keys), len(freqs)
     if len(cells) != n_links * n_freqs:
         have: dict[int, tuple[int, set]] = {}
@@ -186,40 +249,113 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
             data[c] = np.array([int(r[c]) for r in ordered], dtype=np.int64)
     if "split" in present:
         data["split"] = np.array([r["split"] for r in ordered], dtype=np.int64)
-    return {"data": data, "lines": np.array([r["_line"] for r in ordered], dtype=np.int64)}
+    if average is not None:
+        data["sample_count"] = count.min(axis=1)
+        data["sample_std_db"] = std
+    return {"data": data, "lines": np.array([r["_line"] for r in ordered], dtype=np.int64),
+            "cell_counts": count}
 
 
 def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx_power_dbm: float | None = None,
                position_scale: float = 1.0, config_toml: str = "", antenna: str | None = None,
                antenna_tx: str | None = None, antenna_rx: str | None = None, polarisation: str | None = None,
-               power: str | None = None, task: str | None = None) -> CsvImportResult:
+               power: str | None = None, task: str | None = None, average: str | None = None,
+               split: str | None = None, seed: int = 0, power_unit: str | None = None, freq_unit: str | None = None,
+               position_unit: str | None = None, columns: list[str] | None = None,
+               position_scale_given: bool | None = None) -> CsvImportResult:
     """Validate a links CSV and write a `measurements` artifact (nothing is written on any error).
 
     The set-up (antenna..power, tx_power_dbm) comes from the flags given here, else the sidecar
     TOML, else the CSV's `# key = value` lines (meas_setup.py). power "rssi": power_db is received
     power in dBm, converted to path gain; "rcs": power_db is RCS in dBsm, converted to path gain
     by the radar equation with the antennas' boresight gains (needs range_m).
-    position_scale: multiply coordinates and ranges by this (0.001 for millimetres).
+    position_scale: metres per file unit (0.001 for millimetres; must be positive), the same as
+    position_unit "m", "cm" or "mm"; position_scale_given: whether the caller stated it (default:
+    when it is not 1), which turns off the centimetre check.
     task: "rcs", "wideband" or "rssi" instead of the detected one (tasks.detect_task).
+    average: None (repeated rows of a link with different values are refused), "mean-db" or
+    "mean-power" (averaged; sample_count, sample_std_db stored).
+    split: a protocol (split.py: "random:0.2", "holdout-tx:N", "block:SIZE") written as the split
+    column, deterministic for `seed`; refused when the file has a split column.
+    power_unit, freq_unit: the file's units (units.py); columns: "NAME=CSVNAME" texts.
+    Unit sanity (sanity.py) is checked before writing. Raises InputFileError (the file) or
+    ConfigError (a flag); nothing is written then.
     """
     path = Path(path)
-    parsed = read_links_csv(path, position_scale)
+    if position_scale_given is None:
+        position_scale_given = position_scale != 1.0
+    units = resolve_units(power_unit, freq_unit, position_unit, position_scale if position_scale_given else None)
+    protocol = parse_split(split) if split is not None else None
+    mapping = parse_columns(columns, COLUMNS)
+    if units.power in RECEIVED_POWER_UNITS:
+        if power not in (None, "rssi"):
+            raise ConfigError(f"--power-unit {units.power} is received power, which goes with --power rssi "
+                              f"(not --power {power}) and --tx-power-dbm")
+        power = "rssi"
+    parsed = read_links_csv(path, units=units, columns=mapping, average=average)
     data, present = parsed["data"], parsed["present"]
+    if protocol is not None and "split" in present:
+        raise ConfigError(f"--split {split}: the file already has a split column; drop --split to keep it, or "
+                          "remove the column to split anew")
     setup = resolve_setup(path, parsed["options"], {
         "antenna": antenna, "antenna_tx": antenna_tx, "antenna_rx": antenna_rx, "polarisation": polarisation,
         "power": power, "tx_power_dbm": tx_power_dbm})
+    raw_db = np.array(data["path_gain_db"], copy=True)
     _apply_power(path, data, setup)
     task_name, task_rule = detect_task(present + (["rcs_dbsm"] if setup.power == "rcs" else []), data["freq_hz"],
                                        task, str(path))
     if "aspect_deg" in present:
         check_turntable(data, parsed["lines"], str(path))
+    check_units(data, raw_db, setup, task_name, parsed["lines"], units.given, str(path))
+    notes = [f"task {task_name}: {task_rule}", "set-up: " + setup.describe()]
+    assumed = _assumptions(setup, units)
+    if assumed:
+        notes.append("assumed (no flag given): " + "; ".join(assumed))
+    if average is not None:
+        notes.append(_average_note(parsed, average))
+    split_note = ""
+    if protocol is not None:
+        data["split"], split_note = assign_split(data, protocol, seed, task_name)
+        notes.append(split_note)
+    elif "split" not in present:
+        notes.append(f"no split column: every link is training; pass --split {SPLIT_HELP} to hold out links")
     prov = Provenance(stage="import", config_toml=config_toml,
-                      extra={"format": "csv", "position_scale": position_scale, "setup_origin": setup.origin})
+                      extra={"format": "csv", "position_scale": units.position_scale, "setup_origin": setup.origin,
+                             "power_unit": units.power, "freq_unit": units.freq_name, "columns": mapping,
+                             "average": average or "none",
+                             "split": (split or "file") if "split" in data else "none",
+                             "split_seed": seed if protocol is not None else None})
     prov.add_input(path)
     attrs = {"task": task_name, "scene": scene, **setup.attrs}
     target = write_artifact(out, "measurements", data, attrs=attrs, provenance=prov)
-    return CsvImportResult(target, data["tx_pos"].shape[0], data["freq_hz"].size, task_name,
-                           notes=[f"task {task_name}: {task_rule}", "set-up: " + setup.describe()])
+    return CsvImportResult(target, data["tx_pos"].shape[0], data["freq_hz"].size, task_name, notes=notes)
+
+
+def _assumptions(setup: MeasurementSetup, units: Units) -> list[str]:
+    """The import's readings that no flag, sidecar or header stated, each with the flag that changes it."""
+    out = []
+    if setup.origin.get("power") == "default" and "power" not in units.given:
+        out.append("power_db is path gain in dB (received power in dBm: --power rssi --tx-power-dbm P; "
+                   "linear: --power-unit mW|W)")
+    if "position" not in units.given:
+        out.append("positions in metres (--position-unit cm|mm)")
+    if "freq" not in units.given:
+        out.append("freq_hz in Hz (--freq-unit kHz|MHz|GHz)")
+    return out
+
+
+def _average_note(parsed: dict, average: str) -> str:
+    """One line: how many links were averaged from how many rows, and their spread."""
+    data, counts = parsed["data"], parsed["cell_counts"]
+    rows, links = int(parsed["rows"]), int(counts.shape[0])
+    repeated = counts > 1
+    if not repeated.any():
+        return f"average {average}: {rows} rows, {links} links, no repeated samples (sample_count 1)"
+    spread = data["sample_std_db"][repeated]
+    return (f"average {average}: {links} links x {counts.shape[1]} frequencies averaged from {rows} rows "
+            f"({int(repeated.any(axis=1).sum())} links repeated, {int(counts.min())}-{int(counts.max())} samples "
+            f"per cell; spread median {float(np.median(spread)):.2f} dB, max {float(spread.max()):.2f} dB; stored as "
+            "sample_count, sample_std_db)")
 
 
 def _apply_power(path: Path, data: dict, setup: MeasurementSetup) -> None:

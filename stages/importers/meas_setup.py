@@ -175,7 +175,7 @@ def resolve_setup(csv_path: Path, header: dict, flags: dict) -> MeasurementSetup
     if power not in POWERS:
         raise InputFileError(f"power {merged['power']!r}: expected {', '.join(POWERS)}", path=where)
     if power == "rssi" and "tx_power_dbm" not in setup.attrs:
-        raise InputFileError("power = rssi needs tx_power_dbm (the transmit power in dBm)", path=where)
+        raise InputFileError("power = rssi needs tx_power_dbm (the transmit power in dBm: pass --tx-power-dbm P)", path=where)
     if power != "rssi" and "tx_power_dbm" in setup.attrs:
         raise InputFileError(f"tx_power_dbm is given but power = {power} (tx_power_dbm goes with power = rssi)",
                              path=where)

@@ -20,6 +20,7 @@ from rfir_cli.provenance import Provenance
 
 from .csv_links import CsvImportResult
 from .rows import RowProblems, check_metres
+from .units import check_position_scale
 
 MISSING_DBM = -100.0
 
@@ -94,6 +95,7 @@ def import_nerf2_ble(folder: str | Path, out: str | Path, *, freq_hz: float = 2.
     path_gain_db = RSSI [dBm] - tx_power_dbm (the beacons' transmit power is not in the data set).
     """
     folder = Path(folder)
+    position_scale = check_position_scale(position_scale)
     if not folder.is_dir():
         raise InputFileError("not a folder (expected NeRF2's BLE layout)", path=folder)
     gateways = _read_gateways(folder / "gateway_position.yml")

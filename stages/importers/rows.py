@@ -13,9 +13,15 @@ class RowProblems:
     path: str
     shown: int = 6
     problems: list[str] = field(default_factory=list)
+    hints: list[str] = field(default_factory=list)
 
     def add(self, message: str) -> None:
         self.problems.append(message)
+
+    def hint(self, message: str) -> None:
+        """A remedy printed once after the problems (e.g. the flag that fixes them)."""
+        if message not in self.hints:
+            self.hints.append(message)
 
     def raise_if_any(self) -> None:
         """Raise one InputFileError naming the file, the count and the first few problems."""
@@ -24,7 +30,8 @@ class RowProblems:
         head = "; ".join(self.problems[: self.shown])
         more = f"; ... and {len(self.problems) - self.shown} more" if len(self.problems) > self.shown else ""
         noun = "problem" if len(self.problems) == 1 else "problems"
-        raise InputFileError(f"{len(self.problems)} {noun}, nothing written: {head}{more}", path=self.path)
+        hint = "".join(f"; {h}" for h in self.hints)
+        raise InputFileError(f"{len(self.problems)} {noun}, nothing written: {head}{more}{hint}", path=self.path)
 
 
 def check_metres(positions, what: str, problems: RowProblems, max_abs_m: float = 1000.0) -> None:
@@ -34,4 +41,4 @@ def check_metres(positions, what: str, problems: RowProblems, max_abs_m: float =
     if positions.size and np.nanmax(np.abs(positions)) > max_abs_m:
         worst = float(np.nanmax(np.abs(positions)))
         problems.add(f"{what} reach {worst:g}, which looks like millimetres or centimetres: rfir expects metres "
-                     f"(rescale the file, or pass --position-scale 0.001 for millimetres)")
+                     f"(pass --position-unit mm or --position-unit cm, or rescale the file)")
