@@ -1,7 +1,7 @@
 """Read a triangle mesh (PLY) with an optional per-face `label`, for `rfir mesh-gaussians`."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +11,14 @@ from rfir_cli.errors import InputFileError
 
 @dataclass
 class Mesh:
-    """vertices [V, 3] m, faces [F, 3] int, labels [F] int or None, label_names {label: name}."""
+    """vertices [V, 3] m, faces [F, 3] int, labels [F] int or None, label_names {label: name}; notes: what reading
+    assumed (a turned axis), one line each."""
 
     vertices: np.ndarray
     faces: np.ndarray
     labels: np.ndarray | None
     label_names: dict[int, str]
+    notes: list[str] = field(default_factory=list)
 
 
 def read_ply_mesh(path: str | Path) -> Mesh:
@@ -119,4 +121,5 @@ def without_contact_faces(mesh: Mesh) -> tuple[Mesh, np.ndarray]:
     contact = contact_faces(mesh.vertices, mesh.faces, mesh.labels)
     if not contact.any():
         return mesh, np.zeros(0, np.int64)
-    return Mesh(mesh.vertices, mesh.faces[~contact], mesh.labels[~contact], mesh.label_names), mesh.labels[contact]
+    return (Mesh(mesh.vertices, mesh.faces[~contact], mesh.labels[~contact], mesh.label_names, mesh.notes),
+            mesh.labels[contact])
