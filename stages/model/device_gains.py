@@ -10,8 +10,12 @@ Gaussian dB errors of variance s^2 the negative log posterior per link is
 
 where s^2 is taken as the current mean squared residual (detached), so a device seen by few links
 keeps a gain near 0 and a device the data never saw (an unseen receiver, a new transmitter of a
-radio map) gets exactly 0, the prior mean. Devices are keyed by position (rounded to 1 mm), so
-prediction needs no ids: a position the fit saw gets its gain, any other position none.
+radio map) gets exactly 0, the prior mean.
+
+Devices are told apart by the file's tx_id / rx_id where it has them (a receiver carried to many positions
+is one device), else by position (rounded to 1 mm). A device with one position gets its gain wherever a
+link starts or ends there; a side with one device (the one roaming receiver) gets its gain on every link.
+Which sides get gains ("auto") is decided by validation on held-out positions (choose_device_gains).
 """
 from __future__ import annotations
 
@@ -33,21 +37,24 @@ class DeviceGains(nn.Module):
 
     positions: {side: [D, 3] m}; index: {side: [M] int64}, each fit link's device on that side."""
 
-    def __init__(self, which: str, tx_m: np.ndarray, rx_m: np.ndarray, prior_db: float):
+    def __init__(self, which: str, tx_m: np.ndarray, rx_m: np.ndarray, prior_db: float,
+                 tx_id: np.ndarray | None = None, rx_id: np.ndarray | None = None):
         super().__init__()
         if which not in CHOICES:
             raise ValueError(f"device gains {which!r} unknown ({', '.join(CHOICES)})")
         if not prior_db > 0:
             raise ValueError("the device gains' prior standard deviation must be > 0 dB")
         self.prior_db = float(prior_db)
-        self.positions, self.index = {}, {}
+        self.positions, self.index, self.ids = {}, {}, {}
         self.gains = nn.ParameterDict()
-        for side, pts in zip(SIDES, (tx_m, rx_m)):
+        for side, pts, ids in zip(SIDES, (tx_m, rx_m), (tx_id, rx_id)):
             if which in (side, "both"):
-                uniq, inv = np.unique(_keys(pts), axis=0, return_inverse=True)
-                self.positions[side] = uniq
-                self.index[side] = torch.as_tensor(inv.reshape(-1), dtype=torch.int64)
-                self.gains[side] = nn.Parameter(torch.zeros(len(uniq), dtype=torch.float64))
+                uniq, inv, pos = device_index(pts, ids)
+                self.positions[side] = pos
+                if ids is not None:
+                    self.ids[side] = uniq
+                self.index[side] = torch.as_tensor(inv, dtype=torch.int64)
+                self.gains[side] = nn.Parameter(torch.zeros(len(pos), dtype=torch.float64))
 
     @property
     def num_devices(self) -> int:
@@ -71,20 +78,61 @@ class DeviceGains(nn.Module):
         for side, g in self.gains.items():
             out[f"device_{side}_pos_m"] = self.positions[side]
             out[f"device_{side}_gain_db"] = g.detach().numpy().copy()
+            if side in self.ids:
+                out[f"device_{side}_id"] = np.asarray(self.ids[side], np.int64)
         return out
+
+
+def device_index(points_m: np.ndarray, ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(keys [D], device of each link [M] int64, position of each device [D, 3] m) of links at points_m
+    [M, 3] m: devices are the distinct ids [M] where given, else the distinct positions (1 mm). A device
+    seen at more than one position (a roaming receiver) has position NaN: it matches no position later."""
+    keys = _keys(points_m)
+    if ids is None:
+        uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+        return uniq, inv.reshape(-1), uniq
+    uniq, inv = np.unique(np.asarray(ids).reshape(-1), return_inverse=True)
+    inv = inv.reshape(-1)
+    pos = np.full((len(uniq), 3), np.nan)
+    for d in range(len(uniq)):
+        at = np.unique(keys[inv == d], axis=0)
+        if len(at) == 1:
+            pos[d] = at[0]
+    return uniq, inv, pos
 
 
 def gains_at(table: dict, tx_m: np.ndarray, rx_m: np.ndarray) -> tuple[np.ndarray, int]:
     """(gain [N] dB of links tx_m / rx_m [N, 3] from a `DeviceGains.table()`, number of link ends that
-    matched a fitted device): a device position the fit saw adds its gain, any other adds 0."""
+    matched a fitted device): a device position the fit saw adds its gain; on a side with one device
+    told apart by id (one receiver carried about), that device's gain applies to every link; any other
+    link end adds 0."""
     out = np.zeros(len(np.asarray(tx_m).reshape(-1, 3)))
     matched = 0
     for side, pts in zip(SIDES, (tx_m, rx_m)):
         pos, gain = table.get(f"device_{side}_pos_m"), table.get(f"device_{side}_gain_db")
         if pos is None or gain is None or len(gain) == 0:
             continue
-        lookup = {tuple(p): float(g) for p, g in zip(np.asarray(pos, np.float64), np.asarray(gain, np.float64))}
-        add = np.asarray([lookup.get(tuple(k), np.nan) for k in _keys(pts)])
+        if f"device_{side}_id" in table and len(gain) == 1:
+            add = np.full(len(out), float(np.asarray(gain)[0]))
+        else:
+            lookup = {tuple(p): float(g) for p, g in zip(np.asarray(pos, np.float64), np.asarray(gain, np.float64))
+                      if np.isfinite(p).all()}
+            add = np.asarray([lookup.get(tuple(k), np.nan) for k in _keys(pts)])
         matched += int(np.isfinite(add).sum())
         out += np.nan_to_num(add, nan=0.0)
     return out, matched
+
+
+def ridge_gains(residual_db: np.ndarray, index: dict, prior_db: float, sweeps: int = 30) -> dict:
+    """Device gains {side: [D] dB} that minimise the fit's device terms for fixed materials: mean over links of
+    (residual - g_tx - g_rx)^2 plus the prior (DeviceGains.penalty), solved side by side (each side's gains
+    have the closed form g_d = sum_{links of d} r / (n_d + s^2 / prior^2), s^2 the mean squared residual).
+    residual_db [M]: measured minus predicted; index {side: [M] int64 device of each link}."""
+    r = np.asarray(residual_db, np.float64)
+    lam = float(np.mean(r ** 2)) / prior_db ** 2
+    gains = {side: np.zeros(int(idx.max()) + 1 if len(idx) else 0) for side, idx in index.items()}
+    for _ in range(sweeps if len(index) > 1 else 1):
+        for side, idx in index.items():
+            rest = r - sum(gains[o][index[o]] for o in index if o != side)
+            gains[side] = np.bincount(idx, rest, len(gains[side])) / (np.bincount(idx, None, len(gains[side])) + lam)
+    return gains

@@ -90,8 +90,8 @@ def test_bad_device_gains_setting_is_one_line(with_gains):
 
 def test_auto_device_gains_are_off_for_ideal_simulated_devices_and_on_for_measured_data():
     """device_gains = "auto" (the default): off where the file records rfir's simulator and no measured-like
-    transform (ideal devices), both for measured-like and measured data (no simulator recorded); a value
-    given is taken as given."""
+    transform (ideal devices), chosen by validation for measured-like and measured data (no simulator
+    recorded); a value given is taken as given."""
     from types import SimpleNamespace
 
     from rfir_stages.rf_fit.room_stage import device_words, ideal_devices, room_config
@@ -102,22 +102,23 @@ def test_auto_device_gains_are_off_for_ideal_simulated_devices_and_on_for_measur
     assert [ideal_devices(m) for m in (simulated, measured_like, measured)] == [True, False, False]
     auto = {"room": {}}
     assert room_config(auto, 3, ideal=True)[0].device_gains == "off"
-    assert room_config(auto, 3, ideal=False)[0].device_gains == "both"
+    assert room_config(auto, 3, ideal=False)[0].device_gains == "validate"
     assert room_config({"room": {"device_gains": "tx"}}, None, ideal=True)[0].device_gains == "tx"
     assert room_config({"room": {"device_gains": "off"}}, None, ideal=False)[0].device_gains == "off"
-    assert "ideal devices" in device_words(auto, True) and "measured data" in device_words(auto, False)
+    assert "ideal devices" in device_words(auto, True) and "validation" in device_words(auto, False)
     assert device_words({"room": {"device_gains": "rx"}}, False) == "rf_fit.room.device_gains"
 
 
 def test_measured_data_get_device_gains_by_default_and_say_so(with_gains):
     """A file that records no simulator (measured data) with transmitter offsets: every setting at its default
-    fits a gain per device, prints why, and stores the gains in the model."""
+    chooses a gain per transmitter by validation on held-out receiver positions (per-position receiver gains
+    carry to none of them), prints why, and stores the gains in the model."""
     d = with_gains
     write_measurements(d / "measured.h5", tx_gain_db=TX_GAIN_DB, simulated=False)
     r = CliRunner().invoke(app, ["--set", "rf_fit.physical.iterations=60", "--set", "rf_fit.physical.start_iterations=15",
                                  "rf-fit", str(d / "scene.h5"), str(d / "measured.h5"), "-o", str(d / "rf_auto.h5")])
     assert r.exit_code == 0, r.output
-    assert "device gains per both (prior 3 dB) (auto: measured data" in r.output
+    assert "device gains: tx (auto: validated on" in r.output, r.output
     model = read_artifact(d / "rf_auto.h5", "rf").free.get("model", {})
     tx, _, _, _ = links()
     got, _ = gains_at(model, tx, np.full_like(tx, 99.0))
