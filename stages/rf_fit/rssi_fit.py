@@ -37,7 +37,14 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     geom = geometry_from_artifact(scene)
     where = str(measurements_path)
     check_overlap(geom, meas, where)
-    rows, held = training_rows(meas, cfg, seed, where)
+    check_positions_in_extent(geom, meas, where)
+    if cfg["split"] == "file" and meas.get("split") is None:
+        rows, held = np.arange(len(np.asarray(meas["tx_pos"]))), np.zeros(0, np.int64)
+        progress.log("the measurements have no split column: every link trains the model and none is held out "
+                     "to score it (rfir import csv --split random:0.2 holds links out)")
+    else:
+        rows, held = training_rows(meas, cfg, seed, where)
+    rows = _rows_with_length(meas, rows, where, progress)
     freqs = np.asarray(meas["freq_hz"], np.float64)
     col = 0
     if config.get("freqs_hz"):
@@ -56,6 +63,43 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     return run_room(scene, meas, geom, rows, held, tx, rx, float(freqs[col]), target_db, scene_path,
                     measurements_path, out_path, config, render_cfg, cfg, seed=seed, config_toml=config_toml,
                     progress=progress, t_start=t_start)
+
+
+MIN_LINK_M = 1e-3   # a transmitter and a receiver closer than this are one point: no direction, no path
+
+
+def _rows_with_length(meas, rows: np.ndarray, where: str, progress) -> np.ndarray:
+    """The rows whose transmitter and receiver are at least MIN_LINK_M apart; the others (a link from a point
+    to itself) are left out with a warning that counts them, and a file of only such links is refused."""
+    length = np.linalg.norm(np.asarray(meas["tx_pos"])[rows] - np.asarray(meas["rx_pos"])[rows], axis=1)
+    short = length < MIN_LINK_M
+    if not short.any():
+        return rows
+    if short.all():
+        raise InputFileError("every training link has its transmitter at its receiver (closer than 1 mm)", path=where)
+    progress.log(f"warning: {where}: {int(short.sum())} of {len(rows)} training links have the transmitter at the "
+                 f"receiver (closer than 1 mm; the first is row {int(rows[short][0])}): left out")
+    return rows[~short]
+
+
+def check_positions_in_extent(geom, meas, where: str, share: float = 0.5) -> None:
+    """Refuse measurements whose antennas mostly lie far outside the geometry's extent (the Gaussians' box grown
+    by a quarter of its size and 1 m each way): positions in another unit (cm, mm) or of another scene."""
+    lo, hi = geom.means.min(0).values.numpy(), geom.means.max(0).values.numpy()
+    grow = 0.25 * (hi - lo) + 1.0
+    pts = np.concatenate([np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)])
+    outside = np.any((pts < lo - grow) | (pts > hi + grow), axis=1)
+    if outside.mean() <= share:
+        return
+    reach = float(np.abs(pts).max())
+    size = float(np.abs(np.concatenate([lo, hi])).max())
+    hint = ""
+    for unit, factor in (("cm", 100.0), ("mm", 1000.0)):
+        if 0.3 * factor * size < reach < 3 * factor * size:
+            hint = f": positions in {unit}? (rfir import csv --position-unit {unit})"
+    raise InputFileError(f"{int(outside.sum())} of {len(pts)} antenna positions lie outside the geometry's extent "
+                         f"{np.round(lo, 2).tolist()}..{np.round(hi, 2).tolist()} m (they reach {reach:.3g}){hint or ': measurements of another scene, or in another unit?'}",
+                         path=where)
 
 
 def _rows_clear_of_geometry(geom, meas, rows: np.ndarray, where: str, min_clearance_m: float, progress) -> np.ndarray:
