@@ -154,6 +154,14 @@ def test_each_format_gives_the_room(tmp_path, writer, suffix, labelled):
 def test_obj_without_groups_is_unlabelled_and_labels_drive_room_preset(tmp_path):
     art, _ = read_back(write_obj(tmp_path / "plain.obj", groups=False))
     assert art.get("gaussians/labels") is None
+    art, output = read_back(write_obj(tmp_path / "plain.obj", groups=False), "--preset", "room")
+    assert "no labels (one object per label), so --preset room goes without --object-cells and " \
+           "--drop-contact-faces (every face at --spacing 0.5" in output
+    assert "left out" not in output and art.get("gaussians/labels") is None
+    result = runner.invoke(app, ["mesh-gaussians", str(tmp_path / "plain.obj"), "-o", str(tmp_path / "p.h5"),
+                                 "--preset", "room", "--object-cells", "12"])     # asked for: refused
+    assert result.exit_code == 2 and "--object-cells needs a per-face 'label'" in result.output
+    assert not (tmp_path / "p.h5").exists()
     # with groups the room preset's object cells and dropped contact faces work: the desk's bottom rests on the floor
     art, output = read_back(write_obj(tmp_path / "room.obj"), "--preset", "room")
     assert "left out 2 faces" in output and "desk_00 2" in output and "(preset room)" in output

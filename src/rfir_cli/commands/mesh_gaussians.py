@@ -1,4 +1,5 @@
-"""`rfir mesh-gaussians MESH.ply -o scene.h5`: surfel Gaussians tiled on a known mesh.
+"""`rfir mesh-gaussians MESH -o scene.h5 [--preset room|object]`: surfel Gaussians tiled on a known mesh
+(PLY, OBJ, STL, glTF/GLB: rfir_stages.geom.mesh_formats).
 
 For users who already have geometry (CAD, LiDAR, simulate's ground truth): it skips the photo
 stages and gives rf-fit a `scene` artifact directly.
@@ -82,20 +83,22 @@ def mesh_gaussians(
         "(furniture in a room) get about N surfels across; 0: every face at --spacing. Default: the preset's "
         "(room 12, object 0).")] = None,
     rectangles_flag: Annotated[Optional[bool], typer.Option(
-        "--rectangles/--no-rectangles", help="Tile each pair of triangles that forms a rectangle (a box's face, a wall panel) as "
-        "the rectangle's cells, at most spacing / 2 a side, so that surfaces end at their edges: for rooms "
+        "--rectangles/--no-rectangles", help="Tile each pair of triangles that forms a rectangle (a box's face, a wall "
+        "panel) as the rectangle's cells, at most spacing / 2 a side, so that surfaces end at their edges: for rooms "
         "(docs/rssi.md). Off: every face split into smaller triangles (the tiling the RCS checks were made on). "
         "Default: the preset's (room on, object off).")] = None,
     drop_contact_faces_flag: Annotated[Optional[bool], typer.Option(
-        "--drop-contact-faces/--no-drop-contact-faces", help="Leave out the faces of a labelled mesh that rest against another object's "
-        "surface (a box's bottom on the floor: hidden; rfir_stages.geom.contact_faces): for rooms (docs/rssi.md). "
+        "--drop-contact-faces/--no-drop-contact-faces", help="Leave out the faces of a labelled mesh that rest against "
+        "another object's surface (a box's bottom on the floor: hidden; rfir_stages.geom.contact_faces): for rooms (docs/rssi.md). "
         "Off: every face kept (as the RCS checks were made). Default: the preset's (room on, object off).")] = None,
     preset: Annotated[Optional[str], typer.Option(
-        "--preset", help="room: --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces (docs/rssi.md); "
+        "--preset", metavar="room|object",
+        help="room: --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces (docs/rssi.md); "
         "object: --spacing 0.03, no object cells, rectangles or dropped faces (the RCS tiling; also the default). "
         "Flags given as well override the preset's.")] = None,
     up: Annotated[Optional[str], typer.Option(
-        "--up", help="Axis that points up in the mesh file, z or y (turned to rfir's z up). Default: y for glTF, "
+        "--up", metavar="z|y", help="Axis that points up in the mesh file, z or y (turned to rfir's z up). Default: y "
+        "for glTF, "
         "z for the rest.")] = None,
 ) -> None:
     """Tile a mesh with flat Gaussians (normals from the faces) and write a scene artifact."""
@@ -107,6 +110,7 @@ def mesh_gaussians(
         preset, spacing_m_flag, object_cells_flag, rectangles_flag, drop_contact_faces_flag))
 
     def work():
+        nonlocal object_cells, drop_contact_faces
         from ..artifacts import check_output
 
         check_output(out, "scene", inputs=[mesh])   # before any work: never over the mesh, nor another kind
@@ -117,6 +121,15 @@ def mesh_gaussians(
         data = read_mesh(mesh, up)
         for note in data.notes:
             console.print(f"{mesh}: {note}", highlight=False, markup=False, soft_wrap=True)
+        unset = [name for name, value, flag in (("--object-cells", object_cells, object_cells_flag),
+                                                 ("--drop-contact-faces", drop_contact_faces, drop_contact_faces_flag))
+                 if value and flag is None]
+        if data.labels is None and unset:      # the preset's, not asked for: left out with a line
+            object_cells = object_cells if object_cells_flag is not None else 0
+            drop_contact_faces = drop_contact_faces if drop_contact_faces_flag is not None else False
+            console.print(f"{mesh}: no labels (one object per label), so --preset {preset} goes without "
+                          f"{' and '.join(unset)} (every face at --spacing {spacing_m:g}, every face kept)",
+                          highlight=False, markup=False, soft_wrap=True)
         if preset is None and spacing_m_flag is None:
             count = estimated_count(data, spacing_m)
             if count > LARGE_COUNT:
