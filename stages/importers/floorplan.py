@@ -201,7 +201,7 @@ def check_options(height_m: float, slab_m: float, walls_kind: str) -> None:
         raise ConfigError(f"--slab must be positive, got {slab_m:g}")
 
 
-def floorplan_mesh(walls: list[Wall], height_m: float, slab_m: float = 0.2, walls_kind: str = "box",
+def floorplan_mesh(walls: list[Wall], height_m: float, slab_m: float = 0.2, walls_kind: str = "sheet",
                    floor_material: str | None = None, ceiling_material: str | None = None) -> FloorplanMesh:
     """The room's mesh: each wall (box or sheet, module docstring), then the floor (top at z = 0) and the ceiling
     (bottom at z = height_m [m]) over the walls' bounding box, slab_m [m] thick."""
@@ -267,7 +267,7 @@ def _check_replace(out: Path, labels_path: Path) -> None:
 
 
 def import_floorplan(csv_path: str | Path, out: str | Path, height_m: float, slab_m: float = 0.2,
-                     walls_kind: str = "box", floor_material: str | None = None,
+                     walls_kind: str = "sheet", floor_material: str | None = None,
                      ceiling_material: str | None = None, overwrite: bool = False) -> FloorplanResult:
     """Read the plan, build its mesh, and write OUT (.ply: float x, y, z per vertex, an int `label` per vertex and
     per face) and labels.json beside it (label -> name, as `rfir simulate` writes it and mesh-gaussians reads it).

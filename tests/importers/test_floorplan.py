@@ -34,6 +34,8 @@ TALL = [2.7] * 5 + [1.3]
 def run_import(tmp_path, text=TWO_ROOMS, *flags):
     plan = tmp_path / "walls.csv"
     plan.write_text(text)
+    if "--walls" not in flags:      # the box tests; sheet (the default) is asked for by name where tested
+        flags = ("--walls", "box", *flags)
     return runner.invoke(app, ["import", "floorplan", str(plan), "-o", str(tmp_path / "room.ply"), "--height",
                                str(HEIGHT), *flags])
 
@@ -125,6 +127,16 @@ def test_sheet_walls(tmp_path):
     assert np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2].min() > 0   # the floor faces up
     tri = mesh.vertices[mesh.faces[mesh.labels == 7]]
     assert np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2].max() < 0   # the ceiling down
+
+
+def test_sheet_walls_are_the_default(tmp_path):
+    """The room model reads each surface as one slab: a wall is one sheet unless a box is asked for."""
+    plan = tmp_path / "walls.csv"
+    plan.write_text(TWO_ROOMS)
+    result = runner.invoke(app, ["import", "floorplan", str(plan), "-o", str(tmp_path / "room.ply"),
+                                 "--height", str(HEIGHT)])
+    assert result.exit_code == 0, result.output
+    assert len(read_ply_mesh(tmp_path / "room.ply").faces) == 2 * 8
 
 
 HEAD = "x0,y0,x1,y1,thickness_m,material\n"

@@ -30,8 +30,9 @@ def import_floorplan_command(
         "--height", metavar="METRES", help="Room height [m]: the walls' default height and the ceiling's underside.")],
     slab_m: Annotated[float, typer.Option("--slab", metavar="METRES", help="Floor and ceiling thickness [m].")] = 0.2,
     walls: Annotated[str, typer.Option(
-        "--walls", metavar="box|sheet", help="box: each wall a closed box of its thickness; sheet: one two-sided "
-        "rectangle on its centre line (floor and ceiling one rectangle each).")] = "box",
+        "--walls", metavar="sheet|box", help="sheet: one two-sided rectangle on each wall's centre line (floor and "
+        "ceiling one rectangle each), as the room model reads a surface: one slab of the wall's material; box: each "
+        "wall a closed box of its thickness (for renders: the room model would cross each wall as two slabs).")] = "sheet",
     floor_material: Annotated[Optional[str], typer.Option(
         "--floor-material", metavar="NAME", help="Name the floor's material (label floor_<material>, e.g. concrete: "
         "rf-fit starts it there); default: label 'floor'.")] = None,
