@@ -295,7 +295,7 @@ def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx
     parsed = read_links_csv(path, units=units, columns=mapping, average=average)
     data, present = parsed["data"], parsed["present"]
     if protocol is not None and "split" in present:
-        raise ConfigError(f"--split {split}: the file already has a split column; drop --split to keep it, or "
+        raise ConfigError(f"--split {split!r}: the file already has a split column; drop --split to keep it, or "
                           "remove the column to split anew")
     setup = resolve_setup(path, parsed["options"], {
         "antenna": antenna, "antenna_tx": antenna_tx, "antenna_rx": antenna_rx, "polarisation": polarisation,
@@ -349,11 +349,11 @@ def _average_note(parsed: dict, average: str) -> str:
     data, counts = parsed["data"], parsed["cell_counts"]
     rows, links = int(parsed["rows"]), int(counts.shape[0])
     repeated = counts > 1
+    head = f"average {average}: {links} links x {counts.shape[1]} frequencies averaged from {rows} rows"
     if not repeated.any():
-        return f"average {average}: {rows} rows, {links} links, no repeated samples (sample_count 1)"
+        return head + " (no repeated samples: sample_count 1)"
     spread = data["sample_std_db"][repeated]
-    return (f"average {average}: {links} links x {counts.shape[1]} frequencies averaged from {rows} rows "
-            f"({int(repeated.any(axis=1).sum())} links repeated, {int(counts.min())}-{int(counts.max())} samples "
+    return (f"{head} ({int(repeated.any(axis=1).sum())} links repeated, {int(counts.min())}-{int(counts.max())} samples "
             f"per cell; spread median {float(np.median(spread)):.2f} dB, max {float(spread.max()):.2f} dB; stored as "
             "sample_count, sample_std_db)")
 

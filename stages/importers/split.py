@@ -72,11 +72,11 @@ def assign_split(data: dict, protocol: SplitProtocol, seed: int, task: str) -> t
     datasets (tx_pos, rx_pos [L, 3] m, optional tx_id). Raises ConfigError when the protocol does not
     fit the task or the links (one line naming --split)."""
     if protocol.kind in RSSI_ONLY and task != "rssi":
-        raise ConfigError(f"--split {protocol.text}: {protocol.kind} is for the rssi task (links between placed "
+        raise ConfigError(f"--split {protocol.text!r}: {protocol.kind} is for the rssi task (links between placed "
                           f"antennas), this file's task is {task}: use random:SHARE")
     n = len(np.asarray(data["tx_pos"]))
     if n < 2:
-        raise ConfigError(f"--split {protocol.text}: the file has {n} link; a split needs at least 2")
+        raise ConfigError(f"--split {protocol.text!r}: the file has {n} link; a split needs at least 2")
     rng = np.random.default_rng(seed)
     split = np.zeros(n, np.int64)
     if protocol.kind == "random":
@@ -87,7 +87,7 @@ def assign_split(data: dict, protocol: SplitProtocol, seed: int, task: str) -> t
         tx = _transmitters(data)
         n_tx, held = int(tx.max()) + 1, int(protocol.value)
         if held >= n_tx:
-            raise ConfigError(f"--split {protocol.text}: the file has {n_tx} transmitter{'s' * (n_tx != 1)}; "
+            raise ConfigError(f"--split {protocol.text!r}: the file has {n_tx} transmitter{'s' * (n_tx != 1)}; "
                               f"holding out {held} leaves none to train on")
         chosen = rng.permutation(n_tx)[:held]
         split[np.isin(tx, chosen)] = 1
@@ -99,7 +99,7 @@ def assign_split(data: dict, protocol: SplitProtocol, seed: int, task: str) -> t
         block = block.ravel()
         counts = np.bincount(block)
         if counts.size < 2:
-            raise ConfigError(f"--split {protocol.text}: every receiver falls in one {size:g} m square: "
+            raise ConfigError(f"--split {protocol.text!r}: every receiver falls in one {size:g} m square: "
                               "pick a smaller SIZE")
         target, n_test, chosen = protocol.share * n, 0, []
         for b in rng.permutation(counts.size):

@@ -5,8 +5,10 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 
 from ..context import console, options, run_guarded
+from ..text import plural
 
 import_app = typer.Typer(help="Bring real measurements in (CSV links, NeRF2 BLE).", no_args_is_help=True,
                          rich_markup_mode=None)
@@ -28,9 +30,9 @@ def _given(ctx: typer.Context, name: str) -> bool:
 
 def _report(result) -> None:
     for note in result.notes:
-        console.print(note, highlight=False, markup=False, soft_wrap=True)
-    console.print(f"[green]wrote[/green] {result.path}: {result.links} links x {result.freqs} frequencies, "
-                  f"task {result.task}", highlight=False)
+        console.print(note, highlight=False, markup=False, emoji=False, soft_wrap=True)
+    console.print(f"[green]wrote[/green] {escape(str(result.path))}: {plural(result.links, 'link')} x {plural(result.freqs, 'frequency')}, "
+                  f"task {result.task}", highlight=False, emoji=False)
 
 
 @import_app.command("csv")
