@@ -19,6 +19,7 @@ import numpy as np
 
 from rfir_cli.errors import ConfigError
 from rfir_cli.progress import NullProgress
+from rfir_cli.text import plural
 
 from .breakdown import AXIS, LARGE_R2, analyse, plot
 from .data import load_rows
@@ -167,8 +168,8 @@ def _write_model(rf_path: Path, out_path: Path, effects_json: list, config_toml:
 def _report_md(r: dict) -> str:
     info = r["info"]
     lines = [f"# Diagnosis of {info['model']}", "", f"**{r['headline']}**", "",
-             f"Measurements: `{info['measurements']}` ({info['task']}, {info['num_links']} links x {info['num_freqs']} "
-             f"frequencies; {info['num_train']} train / {info['num_test']} held-out rows, {info['split']}).", "",
+             f"Measurements: `{info['measurements']}` ({info['task']}, {plural(info['num_links'], 'link')} x "
+             f"{plural(info['num_freqs'], 'frequency')}; {info['num_train']} train / {info['num_test']} held-out rows, {info['split']}).", "",
              "## Gap", "", "| step | named effect | confidence | held-out MAE before | after | parameters |",
              "|---|---|---|---|---|---|"]
     for s in r["steps"]:

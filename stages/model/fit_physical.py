@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from rfir_cli.progress import NullProgress
+from rfir_cli.text import plural
 from rfir_stages.po.geometry import single_thread_torch
 
 from .device_gains import DeviceGains
@@ -127,6 +128,7 @@ class PhysicalFitResult:
     start: str
     wall_time_s: float
     extra: dict = field(default_factory=dict)
+    steps: int = 0   # Adam steps run in all: every start's, the switch rounds', the fit's (more than cfg.iterations)
 
 
 def predict_db(agg: AggregatedPairs, params: MaterialParams, floor_power: float = 0.0) -> torch.Tensor:
@@ -223,6 +225,7 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
             groups.append({"params": list(devices.gains.values()), "lr": 0.2})
         opt = torch.optim.Adam(groups)
         best, best_state, curve = math.inf, None, []
+        steps_run[0] += steps
         for _ in range(steps):
             opt.zero_grad()
             loss = objective(params)
@@ -239,8 +242,17 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
             best, best_state = final, snapshot(params)
         return best, best_state, curve
 
+    steps_run = [0]
     starts = () if initial is not None else STARTS
     kept = 1 if initial is not None else max(1, min(int(cfg.starts_kept), len(STARTS)))
+    num_data = int(torch.isfinite(target).sum())
+    unknowns = _num_unknowns(num_materials, cfg, devices)
+    if num_data < unknowns and initial is None:    # (a fit continued from another was told already)
+        values = plural(len(target), "training link") + ("" if target.ndim < 2 or target.shape[1] == 1 else
+                                                         f" x {plural(target.shape[1], 'frequency')}")
+        progress.log(f"warning: {label}: {values} for {unknowns} unknowns "
+                     f"({_unknowns_words(num_materials, cfg, devices)}): the links cannot determine them all "
+                     "(many fits match them alike); measure more links or fit fewer materials")
     cross_steps = cfg.iterations // 2 if kept > 1 else 0     # the fit on after materials crossed between starts
     total = (len(starts) * cfg.start_iterations + kept * (SWITCH_ROUNDS * cfg.start_iterations + cfg.iterations)
              + cross_steps)
@@ -290,7 +302,29 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
                              time.time() - t0,
                              {"start_losses": {t[1][0]: t[0] for t in tried},
                               "final_losses": {t[1][0]: t[0] for t in finals},
-                              "crossed_materials": crossed, "crossed_loss": crossed_loss})
+                              "crossed_materials": crossed, "crossed_loss": crossed_loss,
+                              "num_data": num_data, "num_unknowns": unknowns},
+                             steps=steps_run[0])
+
+
+def _num_unknowns(num_materials: int, cfg: PhysicalFitConfig, devices: DeviceGains | None) -> int:
+    """The values a fit adjusts: eps_r, sigma (and thickness, and S) per material, S once when shared, the
+    system gain when fitted, one gain per device."""
+    per_material = 2 + (0 if cfg.half_space else 1) + (0 if cfg.shared_scattering else 1)
+    return (num_materials * per_material + int(cfg.shared_scattering) + int(cfg.fit_gain)
+            + (devices.num_devices if devices is not None else 0))
+
+
+def _unknowns_words(num_materials: int, cfg: PhysicalFitConfig, devices: DeviceGains | None) -> str:
+    words = [plural(num_materials, "material") + " x " + ("eps_r, sigma" + ("" if cfg.half_space else ", thickness")
+                                                         + ("" if cfg.shared_scattering else ", S"))]
+    if cfg.shared_scattering:
+        words.append("one S")
+    if cfg.fit_gain:
+        words.append("the system gain")
+    if devices is not None and devices.num_devices:
+        words.append(plural(devices.num_devices, "device gain"))
+    return "; ".join(words)
 
 
 def label_class_names(label_names: list[str]) -> list[str]:

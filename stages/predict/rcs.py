@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_cli.errors import ConfigError, StageError
+from rfir_cli.errors import ConfigError, SchemaError, StageError
 from rfir_cli.physics.closed_forms import rcs_from_path_gain
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
@@ -34,6 +34,7 @@ from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, baselines_beating_model, range_baselines
 from .flashes import flash_defaults, score_flashes
 from .plots import attribute_views, rcs_vs_aspect
+from .rssi_model_io import ROOM_KIND
 from .wideband import default_freqs, is_band_fit, spectrum_plots
 
 
@@ -79,6 +80,9 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     if results_path is not None:
         _assert_not_input(Path(results_path), [rf_path, measurements_path])
     rf = read_artifact(rf_path, "rf")
+    if str(rf.attrs.get("task", "")) == "rssi" or str(rf.free.get("model@attrs", {}).get("model_kind", "")) == ROOM_KIND:
+        raise SchemaError("holds an RSSI model (rf-fit on task 'rssi' measurements), not an RCS one: predict it with "
+                          "`rfir predict rssi`", path=rf_path)
     require_physical(rf)
     geom = geometry_from_artifact(rf)
     centre = scene_centre(geom).numpy()

@@ -18,6 +18,10 @@ def require_room_model(rf) -> None:
     if kind in OLD_KINDS:
         raise SchemaError(f"holds {OLD_KINDS[kind]} (model_kind {kind!r}), which rfir does not predict (RSSI is "
                           "predicted by the room model); re-run `rfir rf-fit` on its RSSI measurements", path=rf.path)
+    task = str(rf.attrs.get("task", ""))
+    if kind != ROOM_KIND and task in ("rcs", "wideband"):
+        raise SchemaError(f"holds an RCS model (rf-fit on task {task!r} measurements), not an RSSI one: predict it "
+                          "with `rfir predict rcs`", path=rf.path)
     if kind != ROOM_KIND:
         raise SchemaError("not an RSSI model (fit it on task 'rssi' measurements with `rfir rf-fit`)", path=rf.path)
 

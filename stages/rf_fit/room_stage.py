@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from rfir_cli.artifacts import write_artifact
+from rfir_cli.text import plural, standard_errors
 from rfir_cli.errors import ConfigError
 from rfir_cli.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
@@ -212,6 +213,7 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     res.extra = {**first.extra, "continued_from_mae_db": res.initial_mae_db}
     res.loss_curve = np.concatenate([first.loss_curve, res.loss_curve])
     res.initial_mae_db, res.wall_time_s = first.initial_mae_db, first.wall_time_s + res.wall_time_s
+    res.steps += first.steps
     res.start = first.start
     return res
 
@@ -232,13 +234,13 @@ def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, na
         tabulated[t.index] = t.key
     with torch.no_grad():
         res.train_mae_db = float((pred(res.params) - torch.as_tensor(target_db)).abs().mean())
-    on = "the links it was fitted on" if check is None else f"{len(check[1])} training links the fit did not use"
+    on = "the links it was fitted on" if check is None else f"{plural(len(check[1]), 'training link')} the fit did not use"
     if taken:
         progress.log(f"materials the training links cannot tell from a tabulated one (ITU-R P.2040 at "
                      f"{freq_hz / 1e9:g} GHz, within {SE_MARGIN:g} standard error on {on}), taken as it: " + "; ".join(
                          f"{names[t.index]}: {t.key}"
                          + ("" if t.key == "metal" else f" {t.thickness_m * 100:.1f} cm")
-                         + f" ({t.increase_se:+.1f} SE)" for t in taken)
+                         + f" ({standard_errors(t.increase_se)})" for t in taken)
                      + f"; training MAE {res.train_mae_db:.3f} dB")
     else:
         progress.log(f"no fitted material is within one standard error of a tabulated one (ITU-R P.2040) on {on}: "
@@ -284,7 +286,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                         material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches "
                  f"({patch_grouping(settings, room.patches.merge_tol_m)}), "
-                 f"{len(rows)} training links, materials per {sharing} ({len(names)}; scattering S "
+                 f"{plural(len(rows), 'training link')}, materials per {sharing} ({len(names)}; scattering S "
                  f"{'one for all' if settings.scattering == 'shared' else 'one per material'}), patch extents "
                  f"{settings.patch_extent}, reflections up to order "
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
@@ -401,7 +403,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
                      "(rf_fit.room.reflection_ranges)")
     return RfFitResult(out_path, geom.num, int(len(rows)), [float(freq_hz)], res.train_mae_db, res.initial_mae_db,
-                       fit_cfg.iterations, time.time() - t_start, trace_s, room.provider.name,
+                       res.steps, time.time() - t_start, trace_s, room.provider.name,
                        {"trace": trace_s, "fit": res.wall_time_s}, materials=table,
                        warnings=([f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
                        + bounds)

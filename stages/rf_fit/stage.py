@@ -25,6 +25,7 @@ from rfir_cli.artifacts import read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
+from rfir_cli.text import plural
 from rfir_stages.model.band import aggregate_chunk
 from rfir_stages.model.fit_physical import material_index, reflection_ranges
 from rfir_stages.model.sampling import cell_size_m, coarse_surfels_warning
@@ -52,7 +53,7 @@ class RfFitResult:
     freqs_hz: list
     train_mae_db: float
     initial_mae_db: float
-    iterations: int
+    iterations: int       # Adam steps the final fit ran in all (its starts, switch rounds and rf_fit.physical.iterations)
     wall_time_s: float
     trace_time_s: float
     occlusion: str
@@ -166,7 +167,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     t0 = time.time()
     provider = make_provider(str(config.get("occlusion", "auto")), geom, render_cfg.alpha_min, device) \
         if render_cfg.visibility else None
-    progress.log(f"rf-fit: {geom.num} Gaussians, {links.num} training links x {len(freqs)} frequencies, "
+    progress.log(f"rf-fit: {geom.num} Gaussians, {plural(links.num, 'training link')} x {plural(len(freqs), 'frequency')}, "
                  f"occlusion {getattr(provider, 'name', 'off')}, antenna {ant.kind}, physical model: polarisation "
                  f"{pair_settings.polarisation}, sigma ~ f^{fit_cfg.sigma_exponent:g}, double bounces "
                  f"{'on' if pair_settings.second_order else 'off'}, triple bounces "
@@ -372,7 +373,7 @@ def _run_physical(physical: PhysicalSetup, selection: dict, target: np.ndarray, 
         for r in table[:12])
         + (f" (+{len(table) - 12} more)" if len(table) > 12 else ""))
     return RfFitResult(out_path, num_gaussians, int(len(rows)), freqs.tolist(), result.train_mae_db,
-                       result.initial_mae_db, phys_cfg.iterations, time.time() - t_start, trace_s,
+                       result.initial_mae_db, result.steps, time.time() - t_start, trace_s,
                        "off" if not pair_settings.visibility else "traced", timings, selection, table, warnings)
 
 

@@ -9,6 +9,7 @@ from rich.table import Table
 
 from ..context import RichReporter, console, options, run_guarded
 from ..errors import ConfigError
+from ..text import plural
 
 predict_app = typer.Typer(help="Predict radio quantities from a fitted rf artifact.", no_args_is_help=True,
                          rich_markup_mode=None)
@@ -70,7 +71,7 @@ def predict_rcs(
                            seed=opts.seed, config_toml=opts.config_toml(), progress=reporter)
 
     r = run_guarded(ctx, work)
-    console.print(f"[green]wrote[/green] {r.path}: {r.num_links} links x {len(r.freqs_hz)} freq "
+    console.print(f"[green]wrote[/green] {r.path}: {plural(r.num_links, 'link')} x {len(r.freqs_hz)} freq "
                   f"({r.render_time_s:.1f} s rendering)", highlight=False)
     m = r.metrics
     if "mae_db" in m:

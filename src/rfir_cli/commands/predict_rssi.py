@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 
 from ..context import RichReporter, comma_numbers, console, err_console, options, run_guarded
+from ..text import plural
 from .predict import predict_app
 
 
@@ -48,7 +49,7 @@ def predict_rssi(
     r = run_guarded(ctx, work)
     for w in r.warnings:
         err_console.print(f"[yellow]warning:[/yellow] {w}", highlight=False, soft_wrap=True)
-    console.print(f"[green]wrote[/green] {r.path}: {r.num_links} links at {r.freq_hz / 1e9:g} GHz "
+    console.print(f"[green]wrote[/green] {r.path}: {plural(r.num_links, 'link')} at {r.freq_hz / 1e9:g} GHz "
                   f"({r.predict_time_s:.2f} s predicting, {r.wall_time_s:.2f} s in all)", highlight=False)
     m = r.metrics
     if "mae_db" in m:

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from ..context import RichReporter, console, options, run_guarded
+from ..text import plural
 
 
 def register(app: typer.Typer) -> None:
@@ -20,10 +21,13 @@ def rf_fit(
     measurements: Annotated[Path, typer.Argument(help="Measurements artifact; the training rows of --split are fitted.")],
     out: Annotated[Path, typer.Option("-o", "--out", metavar="FILE", help="rf artifact to write (.h5).")],
     iterations: Annotated[Optional[int], typer.Option(
-        "--iterations", help="Adam steps of the material fit (rf_fit.physical.iterations).")] = None,
+        "--iterations", metavar="N",
+        help="Adam steps of the material fit from its best start (rf_fit.physical.iterations). Every starting "
+             "material and each round of switching starts runs rf_fit.physical.start_iterations steps before them, "
+             "so the fit runs more steps in all; the total is printed at the end.")] = None,
     freq_hz: Annotated[Optional[list[float]], typer.Option(
         "--freq", "--freq-hz", metavar="HZ",
-                help="Fit only these frequencies in Hz (repeatable; default: all in the file).")] = None,
+        help="Fit only these frequencies in Hz (repeatable; default: all in the file).")] = None,
     range_m: Annotated[Optional[str], typer.Option(
         "--range", metavar="METRES", help="Fit only rows at these ranges in metres: '3' or '2,3' (default: all).")] = None,
     aspects: Annotated[Optional[str], typer.Option(
@@ -61,9 +65,9 @@ def rf_fit(
     r = run_guarded(ctx, work)
     from rfir_stages.rf_fit.stage import sharing_words
 
-    console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {r.num_train_links} training links x "
-                  f"{len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
-                  f"{r.iterations} steps ({_timing_text(r.wall_time_s, r.timings_s)}, {r.occlusion})"
+    console.print(f"[green]wrote[/green] {r.path}: {r.num_gaussians} Gaussians, {plural(r.num_train_links, 'training link')} "
+                  f"x {len(r.freqs_hz)} freq; train MAE {r.initial_mae_db:.2f} -> {r.train_mae_db:.2f} dB in "
+                  f"{plural(r.iterations, 'Adam step')} ({_timing_text(r.wall_time_s, r.timings_s)}, {r.occlusion})"
                   + (f"; {sharing_words(r.selection['sharing_selected'])}" if r.selection else ""),
                   highlight=False)
     for w in r.warnings:
