@@ -115,5 +115,8 @@ def _adopt(command) -> None:
         command.__class__ = RfirGroup
     elif type(command) is TyperCommand:
         command.__class__ = RfirCommand
+    for param in getattr(command, "params", []):
+        if param.param_type_name == "argument" and not param.metavar:
+            param.metavar = value_name(param)     # errors name it as help does: "Missing argument 'SCENE'"
     for sub in getattr(command, "commands", {}).values():
         _adopt(sub)

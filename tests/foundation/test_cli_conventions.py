@@ -45,6 +45,8 @@ def test_usage_lines_name_the_arguments():
     assert "--tx X,Y,Z" in rssi and "--grid HEIGHT,STEP" in rssi
     top = runner.invoke(app, ["--help"]).output
     assert "--config FILE" in top and "--set SECTION.KEY=VALUE" in top
+    missing = runner.invoke(app, ["rf-fit", "scene.h5"])
+    assert missing.exit_code == 2 and "Missing argument 'MEASUREMENTS'" in missing.output
 
 
 def test_info_says_the_artifact_is_required_unless_tracer():
