@@ -170,6 +170,8 @@ def test_split_holdout_tx_holds_out_whole_transmitters(tmp_path, links, held, se
 @given(links=surveys(min_links=6, max_links=12), size=st.floats(0.5, 3.0), seed=st.integers(0, 1000))
 def test_split_block_holds_out_whole_receiver_squares(tmp_path, links, size, seed):
     out = tmp_path / "m.h5"
+    if out.exists():
+        out.unlink()                                     # left by an earlier example
     result = run("--seed", seed, "import", "csv", write_csv(tmp_path, rows_of(links)), "-o", out,
                  "--split", f"block:{size}")
     squares = {tuple(np.floor(np.round(rx[:2], 6) / size)) for _, rx, _, _ in links}
@@ -433,3 +435,27 @@ def test_a_plausible_survey_imports_and_names_its_assumptions(tmp_path):
     result = run("import", "csv", tmp_path / "links.csv", "-o", tmp_path / "m.h5", "--power", "path_gain",
                  "--position-unit", "m", "--freq-unit", "Hz")
     assert "assumed" not in result.stdout
+
+
+FLAG_SETS = st.lists(st.sampled_from([
+    ("--average", "mean-db"), ("--average", "mean-power"), ("--split", "random:0.3"), ("--split", "holdout-tx:1"),
+    ("--split", "block:2"), ("--power-unit", "mW"), ("--power-unit", "dBm"), ("--freq-unit", "GHz"),
+    ("--position-unit", "cm"), ("--position-scale", "0"), ("--column", "power_db=rssi"), ("--tx-power-dbm", "20"),
+    ("--power", "rcs"), ("--split", "block:1:0.5"), ("--column", "rx_x=x"),
+]), max_size=4, unique_by=lambda f: f[0])
+
+
+@PROPS
+@given(links=surveys(max_repeats=2), flags=FLAG_SETS, junk=st.sampled_from(["", "0,0,1,3,0,1,2.4e9,abc", "1,2"]))
+def test_any_flag_combination_is_a_valid_artifact_or_one_line(tmp_path, links, flags, junk):
+    out = tmp_path / "m.h5"
+    if out.exists():
+        out.unlink()
+    rows = rows_of(links) + ([junk] if junk else [])
+    result = run("import", "csv", write_csv(tmp_path, rows), "-o", out, *[a for f in flags for a in f])
+    assert "Traceback" not in result.stdout + result.stderr and "internal error" not in result.stderr, result.stderr
+    if result.exit_code:
+        assert_refused(result, result.exit_code, out=out)
+        assert result.exit_code in (2, 4)
+    else:
+        assert validate_artifact(out) == []
