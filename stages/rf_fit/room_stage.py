@@ -10,7 +10,7 @@ new link.
 from __future__ import annotations
 
 import time
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numpy as np
 import torch
@@ -23,12 +23,13 @@ from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import (STARTS, PhysicalFitConfig, fit_materials, material_index,
-                                             reflection_ranges)
+                                             reflection_ranges, training_predictor)
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import SCATTERING_CHOICES, RoomGeometry, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
+from .device_choice import DeviceChoice, choose_device_gains
 from .physical_stage import attach_ranges, bound_warnings, range_words
 
 MODEL_KIND = "rssi_physical"
@@ -58,11 +59,11 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
     max_interactions = "auto" (the default): `depth`, the interactions per path the measurements were
     simulated to (simulated_depth), where they record one (max_order is lowered to it if above), else
     room_paths.MAX_INTERACTIONS; interactions_words says which. device_gains = "auto" (the default): "off"
-    for data from ideal devices (`ideal`, from ideal_devices), else "both" (measured data: every radio has
-    its own gain); device_words says which."""
+    for data from ideal devices (`ideal`, from ideal_devices), else "validate" (measured data: run_room
+    chooses by validation on held-out positions, device_choice.py); device_words says which."""
     table = dict(config.get("room", {}) or {})
     if table.get("device_gains", "auto") == "auto":
-        table["device_gains"] = "off" if ideal else "both"
+        table["device_gains"] = "off" if ideal else "validate"
     interactions = table.pop("max_interactions", "auto")
     if interactions == "auto":
         if depth is not None:
@@ -96,7 +97,7 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
     if settings.patch_extent not in PATCH_EXTENTS:
         raise ConfigError(f"rf_fit.room.patch_extent = {settings.patch_extent!r}: expected one of "
                           f"{', '.join(PATCH_EXTENTS)}")
-    if settings.device_gains not in DEVICE_CHOICES or not settings.device_gain_prior_db > 0:
+    if settings.device_gains not in DEVICE_CHOICES + ("validate",) or not settings.device_gain_prior_db > 0:
         raise ConfigError(f"rf_fit.room: device_gains must be \"auto\" or one of {', '.join(DEVICE_CHOICES)} and "
                           "device_gain_prior_db > 0")
     phys = dict(config.get("physical", {}) or {})
@@ -119,7 +120,7 @@ def device_words(config: dict, ideal: bool) -> str:
     if (config.get("room", {}) or {}).get("device_gains", "auto") != "auto":
         return "rf_fit.room.device_gains"
     return ("auto: simulated with ideal devices" if ideal else
-            "auto: measured data, or simulated data given device gains; rf_fit.room.device_gains = \"off\" for none")
+            "auto: measured data, or simulated data given device gains: chosen by validation on held-out positions")
 
 
 def _higher_orders(settings: RoomSettings) -> str:
@@ -266,6 +267,21 @@ def _log_crossing(res, progress) -> None:
                      f"{min(res.extra['final_losses'].values()):.4g} -> {res.extra['crossed_loss']:.4g} (after fitting on)")
 
 
+def _choose_devices(links, room, settings: RoomSettings, names: list[str], tx, rx, ids: dict, target_db: np.ndarray,
+                    fit_cfg: PhysicalFitConfig, priors: dict, progress, seed: int) -> DeviceChoice:
+    """device_choice.choose_device_gains on the traced fit links: the materials fitted without gains (one start
+    carried through, the system gain fitted) on the links away from the held-out positions."""
+    quick = replace(fit_cfg, fit_gain=True, starts_kept=1)
+
+    def fit_without_gains(rows: np.ndarray) -> np.ndarray:
+        progress.log(f"device gains: fitting without them on {len(rows)} of {len(tx)} links to validate them")
+        res = fit_room_materials(links.select_links(torch.as_tensor(rows)), room, settings, len(names),
+                                 target_db[rows, None], quick, progress, priors, None)
+        with torch.no_grad():
+            return training_predictor(links, torch.as_tensor(target_db[:, None]))(res.params)[:, 0].numpy()
+    return choose_device_gains(tx, rx, ids, target_db, settings.device_gain_prior_db, fit_without_gains, seed)
+
+
 def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,
              measurements_path, out_path, config: dict, render_cfg, cfg: dict, *, seed: int, config_toml: str,
              progress, t_start: float):
@@ -295,10 +311,13 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{settings.polarisation}, isotropic antennas, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "
                  + ("off" if settings.device_gains == "off" else
+                    "chosen by validation" if settings.device_gains == "validate" else
                     f"per {settings.device_gains} (prior {settings.device_gain_prior_db:g} dB)")
                  + f" ({device_words(config, ideal)})")
+    ids = {side: (None if meas.get(f"{side}_id") is None else np.asarray(meas[f"{side}_id"])[rows])
+           for side in ("tx", "rx")}
     fit = np.arange(len(tx))
-    if settings.device_gains != "off" and 0 < settings.fit_links < len(tx):
+    if settings.device_gains not in ("off", "validate") and 0 < settings.fit_links < len(tx):
         # every device's gain needs its own links: a subsample leaves a few per device
         progress.log(f"device gains on: fitting on all {len(tx)} training links (rf_fit.room.fit_links = "
                      f"{settings.fit_links} applies without device gains)")
@@ -314,8 +333,23 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if priors:
         progress.log("starting values from material names (ITU-R P.2040 at 1 GHz): " + "; ".join(
             f"{names[i]}: eps_r {e:g}, sigma {g:g} S/m, {t * 100:g} cm" for i, (e, g, t) in priors.items()))
+    if settings.device_gains == "validate":
+        choice = _choose_devices(links, room, settings, names, tx[fit], rx[fit], {k: None if v is None else v[fit]
+                                 for k, v in ids.items()}, target_db[fit], fit_cfg, priors, progress, seed)
+        settings = replace(settings, device_gains=choice.which)
+        progress.log(f"device gains: {choice.which} ({choice.reason})")
+        if choice.which != "off" and len(fit) < len(tx):
+            fit = np.arange(len(tx))
+            progress.log(f"device gains on: fitting on all {len(tx)} training links")
+            links = room.links(tx, rx, np.full(len(fit), freq_hz))
     devices = None if settings.device_gains == "off" else DeviceGains(
-        settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db)
+        settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db,
+        *(None if ids[s] is None else ids[s][fit] for s in ("tx", "rx")))
+    if devices is not None and devices.num_devices > len(fit) / 5:   # under 5 links a gain: they fit the noise
+        progress.log(f"warning: {plural(devices.num_devices, 'device gain')} for {plural(len(fit), 'training link')}: "
+                     "a gain per device "
+                     "fits the links it has and carries to no other position (rf_fit.room.device_gains = auto "
+                     "chooses by validation)")
     res = fit_room_materials(links, room, settings, len(names), target_db[fit, None], fit_cfg, progress, priors,
                              devices)
     tabulated = [""] * len(names)
