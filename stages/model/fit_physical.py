@@ -136,23 +136,46 @@ def predict_db(agg: AggregatedPairs, params: MaterialParams, floor_power: float 
     return 10 * torch.log10(agg.power(params.values(), params.gain_db) + floor_power)
 
 
-def _loss(pred_db, target, cfg: PhysicalFitConfig):
+def _loss(pred_db, target, cfg: PhysicalFitConfig, weights: torch.Tensor | None = None):
+    """The fit's loss; weights [M, 1] (mean 1) weight each link's error (link_weights), None: all alike."""
     if cfg.loss == "db_huber":
-        return torch.nn.functional.smooth_l1_loss(pred_db, target, beta=cfg.huber_db)
-    return ((pred_db - target) ** 2).mean()
+        per = torch.nn.functional.smooth_l1_loss(pred_db, target, beta=cfg.huber_db, reduction="none")
+    else:
+        per = (pred_db - target) ** 2
+    return per.mean() if weights is None else (per * weights).mean()
+
+
+MODEL_ERROR_DB = 2.0   # the model's own error per link, beside a measurement's: what no averaging removes
+
+
+def link_weights(sample_count: np.ndarray | None, sample_std_db: np.ndarray | None) -> np.ndarray | None:
+    """Weights [M, 1] (mean 1) of links whose measured dB is the mean of sample_count [M] samples of spread
+    sample_std_db [M] or [M, K] dB: the inverse of the link's error variance, MODEL_ERROR_DB^2 + std^2 / n, so
+    that a link averaged from many samples counts more than a single noisy one, and no link counts more than
+    the model's own error allows. None when the file records no sample counts."""
+    if sample_count is None:
+        return None
+    n = np.maximum(np.asarray(sample_count, np.float64).reshape(-1), 1.0)
+    std = np.zeros_like(n) if sample_std_db is None else np.asarray(sample_std_db, np.float64).reshape(len(n), -1)
+    std = np.nan_to_num(np.mean(std, axis=1) if std.ndim == 2 else std, nan=0.0)
+    w = 1.0 / (MODEL_ERROR_DB ** 2 + std ** 2 / n)
+    return (w / w.mean())[:, None]
 
 
 def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig,
                   progress=None, label: str = "physical", priors: dict | None = None,
-                  devices: DeviceGains | None = None, initial: MaterialParams | None = None) -> PhysicalFitResult:
+                  devices: DeviceGains | None = None, initial: MaterialParams | None = None,
+                  weights: np.ndarray | None = None) -> PhysicalFitResult:
     """Fit `num_materials` materials (the N of `agg`, or any model with the same `power`) so that the
     predicted path gain [M, K] dB matches target_db. priors: {material index: (eps_r, sigma at 1 GHz,
     thickness m)}, each such material's value at every start (a name that says "glass"). devices:
     per-device gains fitted beside the materials under their prior (device_gains.py), reset at each start;
     the fitted values are left in `devices`. initial: materials to continue from (a fit of a simpler model
-    of the same links) instead of the starts; the devices then continue from their values too."""
+    of the same links) instead of the starts; the devices then continue from their values too. weights [M, 1]:
+    each link's weight in the loss (link_weights), None: all alike."""
     with single_thread_torch():   # a step is many small tensor ops: thread hand-offs cost more than they save
-        return _fit_materials(agg, num_materials, target_db, cfg, progress, label, priors, devices, initial)
+        return _fit_materials(agg, num_materials, target_db, cfg, progress, label, priors, devices, initial,
+                              weights)
 
 
 def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | None = None):
@@ -179,15 +202,16 @@ def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: n
 
 def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig, progress, label: str,
                    priors: dict | None, devices: DeviceGains | None,
-                   initial: MaterialParams | None = None) -> PhysicalFitResult:
+                   initial: MaterialParams | None = None, weights: np.ndarray | None = None) -> PhysicalFitResult:
     progress = progress or NullProgress()
     t0 = time.time()
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
+    weight = None if weights is None else torch.as_tensor(np.asarray(weights, np.float64)).reshape(-1, 1)
     pred = training_predictor(agg, target, devices)
 
     def objective(params: MaterialParams) -> torch.Tensor:
         p = pred(params)
-        loss = _loss(p, target, cfg)
+        loss = _loss(p, target, cfg, weight)
         if devices is not None:
             loss = loss + devices.penalty(((p - target) ** 2).mean().detach(), len(target))
         return loss

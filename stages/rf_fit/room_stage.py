@@ -22,8 +22,8 @@ from rfir_cli.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains
-from rfir_stages.model.fit_physical import (STARTS, PhysicalFitConfig, fit_materials, material_index,
-                                             reflection_ranges, training_predictor)
+from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
+                                             material_index, reflection_ranges, training_predictor)
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.room import SCATTERING_CHOICES, RoomGeometry, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
@@ -186,7 +186,7 @@ def name_priors(names: list[str]) -> dict:
 
 
 def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_materials: int, target_db: np.ndarray,
-                       fit_cfg: PhysicalFitConfig, progress, priors: dict, devices):
+                       fit_cfg: PhysicalFitConfig, progress, priors: dict, devices, weights: np.ndarray | None = None):
     """fit_physical.fit_materials on the traced links; where the third order reflects off desk-sized patches
     (third_order_small_reflections), first without those paths, then with them from there: with them from the
     starts alone, the classroom's fit ended in a poorer optimum than the materials of the fit without them give
@@ -199,16 +199,16 @@ def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_ma
     extra = links.paths.small_third_order(room.patches.area, settings.third_order_min_area_m2)
     if settings.third_order_small_reflections <= 0 or not bool(extra.any()):
         res = fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room",
-                            priors=priors, devices=devices)
+                            priors=priors, devices=devices, weights=weights)
         _log_crossing(res, progress)
         return res
     progress.log(f"fitting first without the {int(extra.sum())} third-order paths off patches under "
                  f"{settings.third_order_min_area_m2:g} m^2, then with them from there")
     first = fit_materials(links.select_paths(~extra), num_materials, target_db, fit_cfg, progress,
-                          label="physical room, without them", priors=priors, devices=devices)
+                          label="physical room, without them", priors=priors, devices=devices, weights=weights)
     _log_crossing(first, progress)
     res = fit_materials(links, num_materials, target_db, fit_cfg, progress, label="physical room, with them",
-                        priors=priors, devices=devices, initial=first.params)
+                        priors=priors, devices=devices, initial=first.params, weights=weights)
     # one fit as rf-fit reports it and stores it: from the first step's start, its loss curve through both steps,
     # in the time of both
     res.extra = {**first.extra, "continued_from_mae_db": res.initial_mae_db}
@@ -350,8 +350,14 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      "a gain per device "
                      "fits the links it has and carries to no other position (rf_fit.room.device_gains = auto "
                      "chooses by validation)")
+    count, spread = meas.get("sample_count"), meas.get("sample_std_db")
+    weights = link_weights(None if count is None else np.asarray(count)[rows][fit],
+                           None if spread is None else np.asarray(spread)[rows][fit])
+    if weights is not None:
+        progress.log(f"links weighted by their sample count and spread (1 / ({MODEL_ERROR_DB:g}^2 + std^2 / n) dB^-2; "
+                     f"weights {weights.min():.2f} .. {weights.max():.2f} about a mean of 1)")
     res = fit_room_materials(links, room, settings, len(names), target_db[fit, None], fit_cfg, progress, priors,
-                             devices)
+                             devices, weights)
     tabulated = [""] * len(names)
     if settings.tabulated_materials:
         t_tab = time.time()

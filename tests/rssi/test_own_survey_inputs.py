@@ -56,3 +56,42 @@ def test_a_file_without_a_split_column_trains_on_every_link_and_says_so(room):
     assert r.exit_code == 0, r.output
     assert "no split column: every link trains the model" in r.output
     assert "120 training links" in r.output
+
+
+def test_link_weights_are_the_inverse_error_variance_about_a_mean_of_one():
+    from rfir_stages.model.fit_physical import MODEL_ERROR_DB, link_weights
+
+    assert link_weights(None, None) is None
+    w = link_weights(np.array([1, 16, 1]), np.array([[4.0], [4.0], [0.0]]))[:, 0]
+    want = 1 / (MODEL_ERROR_DB ** 2 + np.array([16.0, 1.0, 0.0]))
+    np.testing.assert_allclose(w, want / want.mean())
+    assert w.mean() == pytest.approx(1.0) and w[0] < w[1] < w[2]
+
+
+def test_averaged_links_weight_the_fit_toward_the_well_measured_ones(room):
+    """Half the links are single noisy samples 6 dB off (n 1, spread 8 dB), half the mean of 30 samples (spread
+    1 dB): weighted by their counts and spreads, the fit follows the well-measured half."""
+    from rfir_cli.artifacts import read_artifact
+    from rfir_stages.model.room import RoomPredictor
+
+    tx, rx, ti, ri = links()
+    t, r = tx[ti], rx[ri]
+    gain = reference_gain_db(t, r, 2.4e9)
+    noisy = np.arange(len(t)) % 2 == 1
+    measured = gain + np.where(noisy, 6.0, 0.0)
+    base = {"tx_pos": t, "rx_pos": r, "freq_hz": np.array([2.4e9]), "path_gain_db": measured[:, None],
+            "split": np.zeros(len(t), np.int64)}
+    write_artifact(room / "plain.h5", "measurements", base, attrs={"task": "rssi", "scene": "own"})
+    write_artifact(room / "avg.h5", "measurements",
+                   {**base, "sample_count": np.where(noisy, 1, 30).astype(np.int64),
+                    "sample_std_db": np.where(noisy, 8.0, 1.0)[:, None]}, attrs={"task": "rssi", "scene": "own"})
+    errors = {}
+    for name in ("plain", "avg"):
+        out = room / f"rf_{name}.h5"
+        res = _fit(room, room / f"{name}.h5", out)
+        assert res.exit_code == 0, res.output
+        assert ("links weighted by their sample count" in res.output) == (name == "avg")
+        model = read_artifact(out, "rf")
+        pred = RoomPredictor(model).path_gain_db(t, r)
+        errors[name] = float(np.abs(pred - gain)[~noisy].mean())
+    assert errors["avg"] < errors["plain"] - 0.5, errors
