@@ -15,6 +15,7 @@ from rfir_stages.rf_fit.links import _enclosed
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 
 MAX_NAMED = 5
+CHECK_BLOCK = 4096   # points checked at a time (memory ~ CHECK_BLOCK x a few kB)
 
 
 def max_response(geom: FrozenGeometry, points: np.ndarray, chunk: int = 256) -> np.ndarray:
@@ -65,13 +66,19 @@ def check_points(geom: FrozenGeometry, points: np.ndarray, what: str, bounds, to
     if outside.size:
         out.append(f"{outside.size} {what} position(s) outside the scene's bounds {np.round(lo, 2).tolist()}.."
                    f"{np.round(hi, 2).tolist()} m: {_name(points, outside)} (extrapolation)")
-    inside_mask = max_response(geom, points) >= touch_response
+    inside_mask = np.zeros(len(points), dtype=bool)
     step = max(1, 2_000_000 // max(geom.num, 1))
-    pts = torch.as_tensor(points)
-    if provider is not None and len(pts):
-        inside_mask |= enclosed(provider, geom, pts).numpy()
-    elif len(pts):
-        inside_mask |= torch.cat([_enclosed(geom, pts[i:i + step]) for i in range(0, len(pts), step)]).numpy()
+    # in blocks of points: the six traced rays of each point and their hits take kilobytes a point, so a whole
+    # fine grid at once would need gigabytes
+    for lo in range(0, len(points), CHECK_BLOCK):
+        block = points[lo:lo + CHECK_BLOCK]
+        mask = max_response(geom, block) >= touch_response
+        pts = torch.as_tensor(block)
+        if provider is not None:
+            mask |= enclosed(provider, geom, pts).numpy()
+        else:
+            mask |= torch.cat([_enclosed(geom, pts[i:i + step]) for i in range(0, len(pts), step)]).numpy()
+        inside_mask[lo:lo + len(block)] = mask
     inside = np.flatnonzero(inside_mask)
     if inside.size:
         out.append(f"{inside.size} {what} position(s) inside walls or objects: {_name(points, inside)}")
