@@ -288,7 +288,7 @@ def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx
     protocol = parse_split(split) if split is not None else None
     mapping = parse_columns(columns, COLUMNS)
     if units.power in RECEIVED_POWER_UNITS:
-        if power not in (None, "rssi"):
+        if power is not None and str(power).strip().lower() != "rssi":
             raise ConfigError(f"--power-unit {units.power} is received power, which goes with --power rssi "
                               f"(not --power {power}) and --tx-power-dbm")
         power = "rssi"
@@ -313,7 +313,6 @@ def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx
         notes.append("assumed (no flag given): " + "; ".join(assumed))
     if average is not None:
         notes.append(_average_note(parsed, average))
-    split_note = ""
     if protocol is not None:
         data["split"], split_note = assign_split(data, protocol, seed, task_name)
         notes.append(split_note)
