@@ -8,8 +8,12 @@ Two uses:
   model was fitted with are scored beside the log-distance and multi-wall baselines fitted on the
   training rows (rssi_baselines.py) and written to a results JSON (default: the output with .json).
 Both write a `predictions` artifact; `--plots` adds the FoV renders of |Gamma|, angle(Gamma), R.
-Positions outside the scene's bounds or inside the geometry are warned about (named); a request
-whose memory estimate exceeds `predict.rssi.max_memory_gb` is refused before any work.
+Maps may be for several transmitters (a map each, the best server, the coverage above a threshold), in
+received power [dBm] with a transmit power, and written as CSV / NPZ / TIFF beside the artifact
+(rssi_maps.py); receivers closer than `predict.rssi.min_tx_distance_m` to a transmitter are left out
+of its map. Positions outside the scene's bounds or inside the geometry are warned about (named); a
+request whose memory estimate (memory_estimate_bytes) exceeds `predict.rssi.max_memory_gb` is refused
+before any work, and receivers are checked and evaluated in blocks. No output replaces an input.
 """
 from __future__ import annotations
 
@@ -96,14 +100,15 @@ def read_points_csv(path) -> np.ndarray:
 
 
 # Memory of a map request, measured as the peak resident memory of `rfir predict rssi --grid` (with plots and
-# every map file) on the reduced test room: 0.28, 0.49, 0.68 GB above the program's own at 1.2k, 13k and 53k
-# points. Per point: the surfaces crossed from it to each diffuse cell, kept for later transmitters
-# (room_diffuse.CellCrossings: 2 kB a point on that room, at most CROSSING_CACHE_BYTES in all), and about
-# BYTES_PER_POINT for the positions, values, checks, files and plots; blocks of POINTS_PER_BLOCK receivers are
-# checked and evaluated at a time, so the tracing's memory does not grow with the map.
+# every map file) on the reduced test room: 0.56, 0.78, 0.96 and 1.22 GB at 1.2k, 13k, 53k and 120k points.
+# Fixed: the program itself (about 0.3 GB) and a block's tracing. Per point: the surfaces crossed from it to each
+# diffuse cell, kept for later transmitters (room_diffuse.CellCrossings: 2 kB a point on that room, at most
+# CROSSING_CACHE_BYTES in all), and about BYTES_PER_POINT for the positions, values, checks, files and plots;
+# blocks of POINTS_PER_BLOCK receivers are checked and evaluated at a time, so the tracing's memory does not
+# grow with the map.
 BYTES_PER_POINT = 2_500
 CROSSING_CACHE_BYTES = 256e6
-FIXED_BYTES = 384 * 2**20
+FIXED_BYTES = 640 * 2**20
 POINTS_PER_BLOCK = 8192
 
 
