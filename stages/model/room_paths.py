@@ -440,9 +440,38 @@ class RoomPaths:
 # ---------------------------------------------------------------------------------------------------
 # tracing the paths
 # ---------------------------------------------------------------------------------------------------
+SOURCE_ROWS = 2_000_000   # (transmitter, sequence) rows built at once: a group of transmitters at a time
+
+
 def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np.ndarray, order: int,
                      min_m: float = 1e-4, small: np.ndarray | None = None,
                      max_small: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """_transmitter_paths (below) for groups of distinct transmitters at a time, so that the rows of candidate
+    sequences held at once stay near SOURCE_ROWS (transmitters x candidates^order): third order off a hundred
+    patches from a survey's hundred transmitter positions is about 10^8 rows, tens of GB at once. Same returns,
+    ordered by patch sequence, then link."""
+    tx = np.asarray(tx, dtype=np.float64)
+    sources, link_source = np.unique(tx, axis=0, return_inverse=True)
+    link_source = link_source.reshape(-1)
+    group = max(1, SOURCE_ROWS // max(1, len(cand)) ** order)
+    if len(sources) <= group:
+        return _transmitter_paths(tx, rx, patches, cand, order, min_m, small, max_small)
+    rx = np.asarray(rx, dtype=np.float64)
+    parts = []
+    for g0 in range(0, len(sources), group):
+        sel = np.flatnonzero((link_source >= g0) & (link_source < g0 + group))
+        link, seq, pts = _transmitter_paths(tx[sel], rx[sel], patches, cand, order, min_m, small, max_small)
+        parts.append((sel[link], seq, pts))
+    links = np.concatenate([p[0] for p in parts])
+    seq = np.concatenate([p[1] for p in parts]).reshape(-1, order)
+    pts = np.concatenate([p[2] for p in parts]).reshape(-1, order, 3)
+    srt = np.lexsort([links] + [seq[:, k] for k in range(order - 1, -1, -1)])
+    return links[srt], seq[srt], pts[srt]
+
+
+def _transmitter_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np.ndarray, order: int,
+                       min_m: float = 1e-4, small: np.ndarray | None = None,
+                       max_small: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Specular paths Tx -> patch_1 -> ... -> patch_order -> Rx over sequences of `cand` (no patch twice in a
     row, nor a patch and one coplanar with it). small [len(cand)] bool: candidates of which a sequence may hold
     at most `max_small` (None: no limit).

@@ -689,3 +689,28 @@ def test_sequences_dropped_before_pairing_hold_no_path(monkeypatch):
         assert len(full[0]) > 100
         for a, b in zip(full, pruned[order]):
             np.testing.assert_array_equal(a, b)
+
+
+def test_paths_traced_a_group_of_transmitters_at_a_time_are_the_paths_traced_at_once(monkeypatch):
+    """reflection_paths splits the distinct transmitters into groups (SOURCE_ROWS) so that a survey's hundred
+    transmitter positions do not build every third-order sequence at once: one transmitter per group gives the
+    same paths, points and order as all at once."""
+    import rfir_stages.model.room_paths as rp
+
+    size = 4.0
+    plates = [plate_mesh((0.0, size / 2, size / 2), (0, 1, 0), (0, 0, 1), size, size),
+              plate_mesh((size / 2, 0.0, size / 2), (1, 0, 0), (0, 0, 1), size, size),
+              plate_mesh((size / 2, size / 2, 0.0), (1, 0, 0), (0, 1, 0), size, size)]
+    patches, _ = _room(plates, spacing=1.0, extent="tiles")
+    rng = np.random.default_rng(0)
+    tx = np.repeat(rng.uniform(0.5, 3.5, (5, 3)), 3, axis=0)
+    rx = rng.uniform(0.5, 3.5, (15, 3))
+    cand = np.arange(patches.num)
+    for order in (1, 2, 3):
+        whole = rp.reflection_paths(tx, rx, patches, cand, order)
+        monkeypatch.setattr(rp, "SOURCE_ROWS", 1)
+        grouped = rp.reflection_paths(tx, rx, patches, cand, order)
+        monkeypatch.undo()
+        assert len(whole[0]) > 0
+        for a, b in zip(whole, grouped):
+            np.testing.assert_array_equal(a, b)
