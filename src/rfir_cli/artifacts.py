@@ -147,10 +147,10 @@ def check_output(path: str | Path | None, kind: str | None = None, inputs: Itera
     if key in named or (_GUARD.active and key in _GUARD.inputs):
         raise InputFileError("is an input of this command; refusing to write over it (choose another output name)",
                              path=path)
-    if _GUARD.force or key in _GUARD.written or not (path.exists() or path.is_symlink()):
-        return
     if path.is_dir():
         raise InputFileError("is a folder; refusing to write a file there (choose another output name)", path=path)
+    if _GUARD.force or key in _GUARD.written or not (path.exists() or path.is_symlink()):
+        return
     found = _existing_kind(path)
     if kind is None:
         if found or _is_hdf5(path):

@@ -88,6 +88,14 @@ def test_output_onto_a_file_that_is_no_artifact_needs_force(tmp_path):
     assert read_artifact(notes).kind == "scene"
 
 
+def test_output_onto_a_folder_is_refused_even_with_force(tmp_path):
+    mesh = panel_ply(tmp_path / "room.ply")
+    folder = tmp_path / "scene.h5"
+    folder.mkdir()
+    assert_refused(invoke("--force", "mesh-gaussians", mesh, "-o", folder), folder, "is a folder")
+    assert folder.is_dir() and not list(folder.iterdir())
+
+
 def test_rerun_onto_an_artifact_of_the_same_kind_is_allowed(tmp_path):
     csv = tmp_path / "x.csv"
     csv.write_text(CSV)
@@ -119,3 +127,12 @@ def test_outside_a_command_the_library_is_not_guarded_and_the_guard_ends(tmp_pat
         assert out.read_bytes() == before
     finally:
         artifacts.end_command()
+
+
+def test_geom_side_ply_never_replaces_the_ground_truth_mesh(tmp_path):
+    # `geom` writes OUT.ply beside OUT.h5: with -o room.h5 that is the --gt-mesh room.ply; refused before training
+    mesh = panel_ply(tmp_path / "room.ply")
+    before = mesh.read_bytes()
+    r = invoke("--force", "geom", tmp_path / "calib.h5", "--gt-mesh", mesh, "-o", tmp_path / "room.h5")
+    assert_refused(r, mesh, "input of this command")
+    assert mesh.read_bytes() == before and not (tmp_path / "room.h5").exists()
