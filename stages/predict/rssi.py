@@ -395,9 +395,10 @@ def _floor_xy(pred: RoomPredictor) -> np.ndarray:
 
 def _map_plots(folder: Path, pred: RoomPredictor, rf, txs_map, rx, maps, measured, kept, tx_power_dbm,
                threshold_dbm) -> list:
-    """Heatmaps of a map request (points left out of a map blank): each transmitter's map (rssi_predicted.png for one, rssi_predicted_txI.png for
-    several), measured and error for one measured transmitter, the best server (several), the coverage (with a
-    threshold) and the FoV attribute renders from the first transmitter."""
+    """Heatmaps of a map request (points left out of a map blank): each transmitter's map (rssi_predicted.png
+    for one, rssi_predicted_txI.png for several), measured and error for one measured transmitter, the best
+    server (several), the coverage (with a threshold) and the FoV attribute renders from the first transmitter.
+    Colour bars say the unit: received power [dBm] with tx_power_dbm, else path gain [dB]."""
     floor = _floor_xy(pred)
     dbm = tx_power_dbm is not None
     label = "received power [dBm]" if dbm else "path gain [dB]"
