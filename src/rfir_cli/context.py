@@ -135,7 +135,7 @@ def run_guarded(ctx: typer.Context, work: Callable[[], T]) -> T:
         if verbosity > 0:
             traceback.print_exc()
         # escaped: a message quotes file contents, which may look like markup ("[/]")
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", markup=True, highlight=False, soft_wrap=True)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", markup=True, emoji=False, highlight=False, soft_wrap=True)
         raise typer.Exit(exc.exit_code) from None
     except KeyboardInterrupt:
         err_console.print("[red]interrupted[/red]")
@@ -146,7 +146,7 @@ def run_guarded(ctx: typer.Context, work: Callable[[], T]) -> T:
         if verbosity > 0:
             traceback.print_exc()
         err_console.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))} "
-                          "(run with -v for the traceback)",
+                          "(run with -v for the traceback)", emoji=False,
                           soft_wrap=True, highlight=False)
         raise typer.Exit(70) from None
 

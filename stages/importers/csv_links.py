@@ -42,8 +42,9 @@ OPTIONAL_FLOATS = ("phase_rad", "aspect_deg", "range_m", "rcs_dbsm")
 ABSENT_OK = ("phase_rad",)             # a cell of these may be empty: not measured on that row
 ABSENT_WORDS = ("", "nan", "na", "n/a")
 OPTIONAL_INTS = ("tx_id", "rx_id")
+SAMPLE_COLUMNS = ("sample_count", "sample_std_db")   # a file of links averaged already: samples per link, spread [dB]
 SPLIT_WORDS = {"train": 0, "0": 0, "test": 1, "1": 1, "": -1, "-1": -1}
-COLUMNS = REQUIRED + OPTIONAL_FLOATS + OPTIONAL_INTS + ("split",)
+COLUMNS = REQUIRED + OPTIONAL_FLOATS + OPTIONAL_INTS + SAMPLE_COLUMNS + ("split",)
 AVERAGES = ("mean-db", "mean-power")
 AVERAGE_HINT = "repeated samples of one link: pass --average mean-db or --average mean-power to average them"
 
@@ -117,7 +118,13 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Unit
                              f"a column named otherwise: --column {missing[0]}=NAME)", path=path)
     if not rows:
         raise InputFileError("no data rows", path=path)
-    present = [c for c in OPTIONAL_FLOATS + OPTIONAL_INTS + ("split",) if c in named]
+    present = [c for c in OPTIONAL_FLOATS + OPTIONAL_INTS + SAMPLE_COLUMNS + ("split",) if c in named]
+    if average is not None and any(c in present for c in SAMPLE_COLUMNS):
+        raise ConfigError("--average: the file's sample_count / sample_std_db columns say its links are averaged "
+                          "already; drop --average")
+    ignored = [h for h in header if h and h not in COLUMNS and h not in columns.values()]
+    id_names = {c: _id_numbers([(r.get(columns.get(c, c)) or "").strip() for r in rows]) for c in OPTIONAL_INTS
+                if c in named}
     records = []
     for index, raw in enumerate(rows):
         line = offset + index + 2  # the column header is line offset + 1
@@ -130,8 +137,17 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Unit
         rec = {c: _number(row[c], line, c, problems) for c in REQUIRED + tuple(c for c in OPTIONAL_FLOATS if c in present)
                if not (c in ABSENT_OK and row[c].lower() in ABSENT_WORDS)}
         rec.update({c: math.nan for c in ABSENT_OK if c in present and c not in rec})   # absent, never 0.0
-        for c in OPTIONAL_INTS:
+        for c in SAMPLE_COLUMNS:
             if c in present:
+                value = _number(row[c], line, c, problems)
+                if math.isfinite(value) and (value < 0 or (c == "sample_count" and (value < 1 or value != int(value)))):
+                    problems.add(f"line {line}, column {c}: {row[c]!r} is not " + (
+                        "a whole number of samples (1 or more)" if c == "sample_count" else "a spread of 0 dB or more"))
+                rec[c] = value
+        for c in OPTIONAL_INTS:
+            if c in present and id_names.get(c):
+                rec[c] = float(id_names[c][row[c]])
+            elif c in present:
                 value = _number(row[c], line, c, problems)
                 if math.isfinite(value) and (value != int(value) or abs(value) >= 2**62):
                     problems.add(f"line {line}, column {c}: {row[c]!r} is not an integer")
@@ -156,8 +172,20 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Unit
         records.append((line, rec))
     problems.raise_if_any()
     out = _assemble(path, records, present, problems, units.position_scale, average)
-    out.update(options=options, present=present, rows=len(records))
+    out.update(options=options, present=present, rows=len(records), ignored=ignored,
+               id_names={c: m for c, m in id_names.items() if m})
     return out
+
+
+def _id_numbers(values: list[str]) -> dict[str, int]:
+    """{name: number} for an id column that holds names ("sensor11", "p000"): numbered 0.. in sorted order;
+    {} when every value is a number (read as given)."""
+    try:
+        for v in values:
+            float(v)
+        return {}
+    except ValueError:
+        return {name: i for i, name in enumerate(sorted(set(values)))}
 
 
 def _link_key(rec: dict) -> tuple:
@@ -249,6 +277,10 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
             data[c] = np.array([int(r[c]) for r in ordered], dtype=np.int64)
     if "split" in present:
         data["split"] = np.array([r["split"] for r in ordered], dtype=np.int64)
+    if "sample_count" in present:
+        data["sample_count"] = np.array([int(r["sample_count"]) for r in ordered], dtype=np.int64)
+    if "sample_std_db" in present:
+        data["sample_std_db"] = np.repeat(np.array([r["sample_std_db"] for r in ordered])[:, None], n_freqs, axis=1)
     if average is not None:
         data["sample_count"] = count.min(axis=1)
         data["sample_std_db"] = std
@@ -313,6 +345,13 @@ def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx
         notes.append("assumed (no flag given): " + "; ".join(assumed))
     if average is not None:
         notes.append(_average_note(parsed, average))
+    for c, names in parsed["id_names"].items():
+        shown = ", ".join(f"{k} -> {v}" for k, v in list(names.items())[:3])
+        notes.append(f"{c} holds names: numbered 0..{len(names) - 1} in sorted order ({shown}"
+                     f"{', ...' if len(names) > 3 else ''})")
+    if parsed["ignored"]:
+        notes.append(f"columns not read by rfir: {', '.join(parsed['ignored'])} (columns: docs/artifacts.md; a "
+                     "column named otherwise: --column NAME=COLUMN)")
     if protocol is not None:
         data["split"], split_note = assign_split(data, protocol, seed, task_name)
         notes.append(split_note)
