@@ -41,6 +41,10 @@ def calibrate(
     opts = options(ctx)
 
     def work():
+        from ..artifacts import check_output
+
+        # before SfM: the artifact replaces neither an input nor a file of another kind (without --force)
+        check_output(out, "calib", inputs=[poses, points, markers, intrinsics_from])
         config = opts.config()
         calib_options = CalibrateOptions.from_config(config.get("calibrate", {}), seed=opts.seed)
         inputs = CalibrateInputs(images, out, poses=poses, points=points, markers=markers,
