@@ -72,6 +72,20 @@ class DeviceGains(nn.Module):
         total = sum((g ** 2).sum() for g in self.gains.values())
         return residual_mse / self.prior_db ** 2 * total / max(num_links, 1)
 
+    @torch.no_grad()
+    def centre(self) -> float:
+        """Move each side's mean gain out of the gains and return their sum [dB], to be added to the system gain:
+        every link has one device a side, so its prediction is unchanged, and the gains become offsets of mean 0
+        about the system gain, the prior's choice along the one direction the links cannot see (an unseen
+        device then gets the system gain alone, not the fitted devices' common level)."""
+        moved = 0.0
+        for g in self.gains.values():
+            if g.numel():
+                mean = float(g.mean())
+                g -= mean
+                moved += mean
+        return moved
+
     def table(self) -> dict:
         """{"<side>_pos_m": [D, 3], "<side>_gain_db": [D]} of the fitted sides (artifact fields)."""
         out = {}

@@ -358,6 +358,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      f"weights {weights.min():.2f} .. {weights.max():.2f} about a mean of 1)")
     res = fit_room_materials(links, room, settings, len(names), target_db[fit, None], fit_cfg, progress, priors,
                              devices, weights)
+    if devices is not None:
+        with torch.no_grad():
+            res.params.gain_db += devices.centre()
     tabulated = [""] * len(names)
     if settings.tabulated_materials:
         t_tab = time.time()

@@ -131,3 +131,15 @@ def test_a_walk_survey_scores_on_unseen_positions_as_the_better_of_gains_on_and_
     assert "device_rx_gain_db" not in model, "a gain per receiver position was fitted"
     assert auto <= min(off, both) + 0.2, (auto, off, both)
     assert "warning: 52 device gains for 192 training links" in out_both
+
+
+def test_centring_moves_the_gains_common_level_into_the_system_gain_and_keeps_every_link():
+    tx, rx, ti, ri = walk(num_rx=6)
+    dev = DeviceGains("both", tx, rx, 3.0, tx_id=ti)
+    dev.gains["tx"].data[:] = dev.gains["tx"].data.new_tensor([-5.0, -3.0, -4.0, -6.0])
+    dev.gains["rx"].data[:] = 1.0 + dev.gains["rx"].data.new_tensor(np.arange(6.0))
+    before = dev.link_db().detach().numpy().copy()
+    moved = dev.centre()
+    assert moved == pytest.approx(-4.5 + 3.5)
+    np.testing.assert_allclose(dev.link_db().detach().numpy() + moved, before)
+    assert abs(float(dev.gains["tx"].mean())) < 1e-12 and abs(float(dev.gains["rx"].mean())) < 1e-12
