@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.artifacts import check_output, read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError, StageError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
@@ -68,6 +68,7 @@ def _check_paths(rf_path: Path, out_path: Path | None, dry_run: bool) -> None:
         return
     if out_path.resolve() == rf_path.resolve() or (out_path.exists() and out_path.samefile(rf_path)):
         raise ConfigError(f"-o {out_path}: refusing to overwrite the input artifact; write the edited scene elsewhere")
+    check_output(out_path, "rf", (rf_path,))
 
 
 def _outside(means_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.artifacts import check_output, read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, SchemaError, StageError
 from rfir_cli.physics.closed_forms import rcs_from_path_gain
 from rfir_cli.progress import NullProgress
@@ -79,6 +79,7 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     _assert_not_input(out_path, [rf_path, measurements_path])
     if results_path is not None:
         _assert_not_input(Path(results_path), [rf_path, measurements_path])
+    check_output(out_path, "predictions", [p for p in (rf_path, measurements_path) if p is not None])
     rf = read_artifact(rf_path, "rf")
     if str(rf.attrs.get("task", "")) == "rssi" or str(rf.free.get("model@attrs", {}).get("model_kind", "")) == ROOM_KIND:
         raise SchemaError("holds an RSSI model (rf-fit on task 'rssi' measurements), not an RCS one: predict it with "

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.artifacts import check_output, read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
@@ -99,6 +99,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     scene_path, measurements_path, out_path = Path(scene_path), Path(measurements_path), Path(out_path)
     if out_path.resolve() in (scene_path.resolve(), measurements_path.resolve()):
         raise ConfigError(f"-o {out_path} would overwrite an input")
+    check_output(out_path, "rf", (scene_path, measurements_path))   # another kind of file: before the fit, not after
     torch.manual_seed(seed)
     render_cfg = render_settings(config)
     scene = read_artifact(scene_path, ("scene", "rf"))

@@ -136,3 +136,18 @@ def test_geom_side_ply_never_replaces_the_ground_truth_mesh(tmp_path):
     r = invoke("--force", "geom", tmp_path / "calib.h5", "--gt-mesh", mesh, "-o", tmp_path / "room.h5")
     assert_refused(r, mesh, "input of this command")
     assert mesh.read_bytes() == before and not (tmp_path / "room.h5").exists()
+
+
+def test_rf_fit_refuses_a_file_of_another_kind_before_it_fits(tmp_path):
+    """rf-fit checks its output before the fit: a measurements artifact at -o is refused at once (exit 2), and
+    its bytes are unchanged."""
+    meas = tmp_path / "m.h5"
+    write_artifact(meas, "measurements", {"tx_pos": np.zeros((1, 3)), "rx_pos": np.ones((1, 3)),
+                                          "freq_hz": np.array([2.4e9]), "path_gain_db": np.full((1, 1), -50.0)},
+                   attrs={"task": "rssi", "scene": "x"})
+    other = tmp_path / "other.h5"
+    other.write_bytes(meas.read_bytes())
+    before = other.read_bytes()
+    r = CliRunner().invoke(app, ["rf-fit", str(tmp_path / "missing_scene.h5"), str(meas), "-o", str(other)])
+    assert r.exit_code == 2 and "refusing to replace it" in r.output and "measurements" in r.output, r.output
+    assert other.read_bytes() == before
