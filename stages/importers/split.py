@@ -5,9 +5,14 @@ column (0 train, 1 test). Deterministic for a given seed (the global `--seed`).
 - holdout-tx:N   every link of N randomly chosen transmitters to test (rssi task): does the model
                  predict a transmitter it never saw? Transmitters are told apart by tx_id when the
                  file has it, else by position.
+- holdout-rx:N   every link of N randomly chosen receivers to test (rssi task; told apart by rx_id, else
+                 by position): a survey of fixed anchors and one moving beacon (the beacon as transmitter)
+                 asks whether the model predicts an anchor it never saw.
 - block:SIZE[:SHARE]  receivers binned into SIZE x SIZE metre squares (x, y; the grid starts at the
                  origin); whole squares go to test, in random order, until at least SHARE (default 0.2)
                  of the links are test (rssi task): does the model predict an unseen part of the room?
+- block-tx:SIZE[:SHARE]  the same with the transmitters binned: where the moving device is the
+                 transmitter (a beacon carried about, fixed receivers), block on its positions.
 """
 from __future__ import annotations
 
@@ -18,11 +23,12 @@ import numpy as np
 
 from rfir_cli.errors import ConfigError
 
-PROTOCOLS = ("random", "holdout-tx", "block")
-RSSI_ONLY = ("holdout-tx", "block")
+PROTOCOLS = ("random", "holdout-tx", "holdout-rx", "block", "block-tx")
+RSSI_ONLY = ("holdout-tx", "holdout-rx", "block", "block-tx")
 BLOCK_SHARE = 0.2
-HELP = ("random:SHARE (any task; e.g. random:0.2), holdout-tx:N (rssi task; N transmitters held out) or "
-        "block:SIZE[:SHARE] (rssi task; receiver squares of SIZE metres held out, SHARE of the links, default 0.2)")
+HELP = ("random:SHARE (any task; e.g. random:0.2), holdout-tx:N or holdout-rx:N (rssi task; N transmitters or "
+        "receivers held out), block:SIZE[:SHARE] or block-tx:SIZE[:SHARE] (rssi task; receiver or transmitter "
+        "squares of SIZE metres held out, SHARE of the links, default 0.2)")
 
 
 @dataclass(frozen=True)
@@ -41,7 +47,8 @@ def _bad(text: str) -> ConfigError:
 
 
 def parse_split(text: str) -> SplitProtocol:
-    """'random:0.2', 'holdout-tx:2', 'block:1.5' or 'block:1.5:0.3' -> SplitProtocol (ConfigError otherwise)."""
+    """'random:0.2', 'holdout-tx:2', 'holdout-rx:2', 'block:1.5', 'block:1.5:0.3' or 'block-tx:6' -> SplitProtocol
+    (ConfigError otherwise)."""
     kind, _, rest = str(text).strip().partition(":")
     kind = kind.strip().lower()
     parts = rest.split(":") if rest else []
@@ -53,18 +60,23 @@ def parse_split(text: str) -> SplitProtocol:
         raise _bad(text)
     if kind == "random" and len(nums) == 1 and 0.0 < nums[0] < 1.0:
         return SplitProtocol(kind, nums[0], text=text)
-    if kind == "holdout-tx" and len(nums) == 1 and nums[0] >= 1 and nums[0] == int(nums[0]):
+    if kind in ("holdout-tx", "holdout-rx") and len(nums) == 1 and nums[0] >= 1 and nums[0] == int(nums[0]):
         return SplitProtocol(kind, nums[0], text=text)
-    if kind == "block" and len(nums) in (1, 2) and nums[0] > 0 and (len(nums) == 1 or 0.0 < nums[1] < 1.0):
+    if kind in ("block", "block-tx") and len(nums) in (1, 2) and nums[0] > 0 and (len(nums) == 1 or 0.0 < nums[1] < 1.0):
         return SplitProtocol(kind, nums[0], nums[1] if len(nums) == 2 else BLOCK_SHARE, text=text)
     raise _bad(text)
 
 
-def _transmitters(data: dict) -> np.ndarray:
-    """[L] int: which transmitter each link has (tx_id, else the distinct positions)."""
-    if "tx_id" in data:
-        return np.unique(np.asarray(data["tx_id"]), return_inverse=True)[1]
-    return np.unique(np.round(np.asarray(data["tx_pos"], float), 6), axis=0, return_inverse=True)[1].ravel()
+def _devices(data: dict, side: str = "tx") -> tuple[np.ndarray, np.ndarray]:
+    """([L] int: which transmitter (side "tx") or receiver ("rx") each link has, by its id column, else by
+    the distinct positions; [D] the ids (or the device indices) of those devices)."""
+    key = f"{side}_id"
+    if key in data:
+        ids, inv = np.unique(np.asarray(data[key]), return_inverse=True)
+        return inv.ravel(), ids
+    inv = np.unique(np.round(np.asarray(data[f"{side}_pos"], float), 6), axis=0, return_inverse=True)[1].ravel()
+    return inv, np.arange(int(inv.max()) + 1 if inv.size else 0)
+
 
 
 def assign_split(data: dict, protocol: SplitProtocol, seed: int, task: str) -> tuple[np.ndarray, str]:
@@ -83,23 +95,29 @@ def assign_split(data: dict, protocol: SplitProtocol, seed: int, task: str) -> t
         n_test = min(max(1, int(round(protocol.value * n))), n - 1)
         split[rng.permutation(n)[:n_test]] = 1
         what = f"{protocol.value:g} of the links at random"
-    elif protocol.kind == "holdout-tx":
-        tx = _transmitters(data)
-        n_tx, held = int(tx.max()) + 1, int(protocol.value)
-        if held >= n_tx:
-            raise ConfigError(f"--split {protocol.text!r}: the file has {n_tx} transmitter{'s' * (n_tx != 1)}; "
+    elif protocol.kind in ("holdout-tx", "holdout-rx"):
+        side = protocol.kind[-2:]
+        noun = "transmitter" if side == "tx" else "receiver"
+        dev, ids = _devices(data, side)
+        n_dev, held = int(dev.max()) + 1, int(protocol.value)
+        if held >= n_dev:
+            raise ConfigError(f"--split {protocol.text!r}: the file has {n_dev} {noun}{'s' * (n_dev != 1)}; "
                               f"holding out {held} leaves none to train on")
-        chosen = rng.permutation(n_tx)[:held]
-        split[np.isin(tx, chosen)] = 1
-        what = f"{held} of {n_tx} transmitters held out"
+        chosen = rng.permutation(n_dev)[:held]
+        split[np.isin(dev, chosen)] = 1
+        what = f"{held} of {n_dev} {noun}s held out"
+        if f"{side}_id" in data:
+            what += f" ({side}_id " + ", ".join(str(v) for v in sorted(ids[chosen].tolist())) + ")"
     else:
         size = protocol.value
-        cells = np.floor(np.asarray(data["rx_pos"], float)[:, :2] / size).astype(np.int64)
+        side = "tx" if protocol.kind == "block-tx" else "rx"
+        cells = np.floor(np.asarray(data[f"{side}_pos"], float)[:, :2] / size).astype(np.int64)
         _, block = np.unique(cells, axis=0, return_inverse=True)
         block = block.ravel()
         counts = np.bincount(block)
         if counts.size < 2:
-            raise ConfigError(f"--split {protocol.text!r}: every receiver falls in one {size:g} m square: "
+            raise ConfigError(f"--split {protocol.text!r}: every {'transmitter' if side == 'tx' else 'receiver'} "
+                              f"falls in one {size:g} m square: "
                               "pick a smaller SIZE")
         target, n_test, chosen = protocol.share * n, 0, []
         for b in rng.permutation(counts.size):
@@ -110,6 +128,7 @@ def assign_split(data: dict, protocol: SplitProtocol, seed: int, task: str) -> t
             if n_test >= target:
                 break
         split[np.isin(block, chosen)] = 1
-        what = f"{len(chosen)} of {counts.size} receiver squares of {size:g} m held out"
+        what = (f"{len(chosen)} of {counts.size} {'transmitter' if side == 'tx' else 'receiver'} squares of {size:g} m "
+                "held out")
     n_test = int(split.sum())
     return split, (f"split {protocol.text} (seed {seed}): {what}; {n - n_test} links train, {n_test} test")

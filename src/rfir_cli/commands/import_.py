@@ -59,9 +59,10 @@ def import_csv_command(
              "per link and their spread are stored (sample_count, sample_std_db). Without it they are refused.")] = None,
     split: Annotated[Optional[str], typer.Option(
         "--split", metavar="PROTOCOL",
-        help="Write a train/test split (uses the global --seed): random:SHARE (any task), holdout-tx:N (rssi task: "
-             "N transmitters held out) or block:SIZE[:SHARE] (rssi task: receiver squares of SIZE metres held out, "
-             "SHARE of the links, default 0.2). Refused when the file has a split column.")] = None,
+        help="Write a train/test split (uses the global --seed): random:SHARE (any task), holdout-tx:N or "
+             "holdout-rx:N (rssi task: N transmitters or receivers held out), block:SIZE[:SHARE] or "
+             "block-tx:SIZE[:SHARE] (rssi task: receiver or transmitter squares of SIZE metres held out, SHARE of "
+             "the links, default 0.2). Refused when the file has a split column.")] = None,
     power_unit: Annotated[Optional[str], typer.Option(
         "--power-unit", metavar="dB|dBm|mW|W",
         help="Unit of power_db: dB (default; its meaning is --power), or received power in dBm, mW or W "
