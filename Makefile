@@ -8,7 +8,7 @@ DEMO   ?= demo_out
 
 .PHONY: setup demo test test-all bench lint clean reproduce reproduce-quick \
 	reproduce-rcs reproduce-rcs-po reproduce-wideband reproduce-rssi reproduce-extrapolation reproduce-edit reproduce-ablation \
-	reproduce-diagnose reproduce-fullwave
+	reproduce-diagnose reproduce-fullwave reproduce-measured
 
 setup: $(STAMP)
 
@@ -36,7 +36,7 @@ reproduce: setup
 	$(SMK) all $(SMKARGS)
 reproduce-quick: setup
 	$(SMK) all --config quick=true $(SMKARGS)
-reproduce-rcs reproduce-rcs-po reproduce-wideband reproduce-rssi reproduce-extrapolation reproduce-edit reproduce-ablation reproduce-diagnose reproduce-fullwave: setup
+reproduce-rcs reproduce-rcs-po reproduce-wideband reproduce-rssi reproduce-extrapolation reproduce-edit reproduce-ablation reproduce-diagnose reproduce-fullwave reproduce-measured: setup
 	$(SMK) $(patsubst reproduce-%,%,$@) $(SMKARGS)
 
 bench: setup

@@ -1,6 +1,6 @@
 """`make reproduce*`: generate data, run rfir and every baseline on the same splits, write tables.
 
-The targets (rcs, wideband, rssi, extrapolation, edit, ablation; targets.py) declare their steps as
+The targets (rcs, rcs-po, wideband, rssi, extrapolation, edit, ablation, measured; targets.py) declare their steps as
 data on a Plan (plan.py: command lines, inputs, outputs, code versions) and a table whose cells read
 the steps' results later (tables.py). The Snakemake workflow workflow/Snakefile turns each step into
 a rule and each table into a rule that writes OUT/<target>.md, .csv, .png and .json (with the wall

@@ -27,7 +27,8 @@ class Cell:
 
 @dataclass
 class Table:
-    """title; methods (column order); rows: (label, {method: Cell}); notes: lines under the table."""
+    """title; methods (column order); rows: (label, {method: Cell}); notes: lines under the table (a note may be
+    a function that reads the results, as a deferred label)."""
 
     title: str
     methods: list[str]
@@ -43,7 +44,8 @@ class Table:
         """A copy with every deferred label and cell read (from the steps' results)."""
         rows = [(label() if callable(label) else label, {m: c() if callable(c) else c for m, c in cells.items()})
                 for label, cells in self.rows]
-        return Table(self.title, list(self.methods), rows, list(self.notes), self.ours, list(self.steps))
+        notes = [n() if callable(n) else n for n in self.notes]
+        return Table(self.title, list(self.methods), rows, notes, self.ours, list(self.steps))
 
     def best(self, cells: dict[str, Cell]) -> str | None:
         """The method with the lowest MAE on a row (None if no method has one)."""

@@ -364,6 +364,120 @@ def target_rssi(r: Plan) -> Table:
     return t
 
 
+# The measured target: a public BLE survey (tests/data/public_survey/README.md): 12 fixed receivers (rx_id), one
+# beacon (tx, tx_id) at 125 positions, mean RSSI per link, and the lab's floor plan.
+SURVEY = Path("tests/data/public_survey")
+SURVEY_CITE = ("*Position Annotated BLE RSSI Dataset for Indoor Localization* (F. S. Daniş, A. T. Naskali, "
+               "A. T. Cemgil, C. Ersoy; IEEE Access 9:37022-37038, 2021), CC0 1.0; source, citations and the "
+               "derived files: [tests/data/public_survey/README.md](../../tests/data/public_survey/README.md)")
+# (name, `rfir import csv --split` protocol or None for the file's own split column, row text)
+MEASURED_PROTOCOLS = (("random", None, "random 20 % of beacon positions"),
+                      ("area", "block-tx:6", "held-out area"),
+                      ("anchors", "holdout-rx:2", "unseen anchors"))
+MEASURED_METHODS = ["rfir", "log-distance", "multi-wall", "nearest links", "ray tracing (ITU materials)",
+                    "ray tracing (calibrated)"]
+NO_RAYTRACE = ("not run: the survey's transmit power and antenna gains are unknown (tx_power_dbm = 0 is a "
+               "placeholder) and the Sionna baselines fit no gain offset")
+
+
+def _measured_data(r: Plan) -> tuple[dict[str, Path], Path]:
+    """The survey's links (quick: every measured_every_tx-th beacon position) imported once per protocol,
+    and surfels of its floor plan (walls 3 m high, concrete floor and ceiling; `--preset room`)."""
+    folder = r.data / "measured"
+    every = int(r.sizes.get("measured_every_tx", 1))
+    links, bare = folder / "links.csv", folder / "links_nosplit.csv"
+    thin = [r.python, "-m", "rfir_stages.reproduce.survey", str(SURVEY / "tetam_links.csv")]
+    r.step("data__measured_links", [*thin, str(links), "--every-tx", str(every)], links)
+    r.step("data__measured_links_nosplit", [*thin, str(bare), "--every-tx", str(every), "--drop-split"], bare)
+    surveys = {}
+    for name, protocol, _ in MEASURED_PROTOCOLS:
+        meas = folder / f"survey_{name}.h5"
+        split = ["--split", protocol] if protocol else []
+        r.step(f"data__measured_survey_{name}", [r.rfir, "--seed", "0", "import", "csv", str(bare if protocol else links),
+                                                 "-o", str(meas), "--column", "sample_count=n_packets",
+                                                 "--column", "sample_std_db=rssi_std_db", *split], meas)
+        surveys[name] = meas
+    room = folder / "room.ply"
+    r.step("data__measured_room", [r.rfir, "import", "floorplan", str(SURVEY / "tetam_walls.csv"), "--height", "3.0",
+                                   "-o", str(room), "--floor-material", "concrete", "--ceiling-material", "concrete"],
+           room, [folder / "labels.json"])
+    scene = folder / "scene.h5"
+    r.step("data__measured_surfels", [r.rfir, "mesh-gaussians", str(room), "-o", str(scene), "--preset", "room"], scene)
+    return surveys, scene
+
+
+def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
+    """A row label read from the imported survey: which positions or receivers are test."""
+    def label() -> str:
+        from rfir_cli.artifacts import read_artifact
+        import numpy as np
+
+        a = read_artifact(meas, "measurements")
+        test = np.asarray(a["split"]) == 1
+        tx, rx = np.asarray(a["tx_id"]), np.asarray(a["rx_id"])
+        if name == "anchors":
+            held = ", ".join(str(v) for v in np.unique(rx[test]))
+            return f"TETAM lab, {text} (rx_id {held} of {np.unique(rx).size})"
+        return f"TETAM lab, {text} ({np.unique(tx[test]).size} of {np.unique(tx).size} positions)"
+    return label
+
+
+def _diagnose_note(r: Plan, report: Path) -> Callable[[], str]:
+    """A note from `rfir diagnose`'s results on the random fit: its headline, held-out MAE before and after."""
+    def note() -> str:
+        from .plan import read_json
+
+        d = read_json(report.parent / "results.json")
+        named = [n["effect"] for n in d.get("named", [])]
+        return (f"`rfir diagnose` of the random fit ([report]({report.relative_to(r.out)})): "
+                + (f"named {', '.join(named)}, " if named else "")
+                + f"held-out MAE {d['mae_before_db']:.2f} -> {d['mae_after_db']:.2f} dB; {d['headline']}")
+    return note
+
+
+def target_measured(r: Plan) -> Table:
+    """A real measured survey (public BLE data set, one lab, 12 anchors, 125 beacon positions): rfir's room
+    model on the floor plan against the simple baselines, where the survey reaches (random positions) and where
+    it does not (a held-out area, unseen anchors)."""
+    t = Table("RSSI: measured BLE survey (TETAM lab, 2.44 GHz)", MEASURED_METHODS)
+    surveys, scene = _measured_data(r)
+    fits = {}
+    for name, protocol, text in MEASURED_PROTOCOLS:
+        ours = M.rfir_rssi(r, f"measured_{name}", scene, surveys[name], "random", _fit_sets(r))
+        fits[name] = ours
+        t.add(_measured_label(surveys[name], name, text), {
+            "rfir": ours.cell(),
+            "log-distance": ours.metric("baseline_log_distance_mae_db"),
+            "multi-wall": ours.metric("baseline_multiwall_mae_db"),
+            "nearest links": ours.metric("baseline_nearest_links_mae_db"),
+            "ray tracing (ITU materials)": Cell(note=NO_RAYTRACE),
+            "ray tracing (calibrated)": Cell(note=NO_RAYTRACE)})
+    out = r.out / "measured_diagnose"
+    report = out / "report.md"
+    r.step("measured_random__diagnose", [r.rfir, "--seed", "0", "diagnose", str(r.data / "fits" / "measured_random.h5"),
+                                         str(surveys["random"]), "-o", str(out)], report, [out / "results.json"])
+    every = int(r.sizes.get("measured_every_tx", 1))
+    t.notes += [f"data: {SURVEY_CITE}",
+                "one open-plan lab of about 21 x 18 m, 12 fixed BLE receivers (anchors), one beacon at 125 positions, "
+                "mean RSSI of about 3,500 packets per link (1,500 links), transmit power unknown"
+                + (f"; quick: every {every}th beacon position ({125 // every + (125 % every > 0)} positions)"
+                   if every > 1 else ""),
+                "room: the data set's floor plan (`rfir import floorplan`, walls 3 m high, concrete floor and ceiling; "
+                "desks and people not modelled), surfels `rfir mesh-gaussians --preset room`",
+                "protocols (`rfir import csv`, seed 0): random: the file's split column (25 of 125 positions, all "
+                "their links); held-out area: `--split block-tx:6` (the beacon positions binned in 6 m squares, "
+                "whole squares test until 20 % of the links); unseen anchors: `--split holdout-rx:2` (every link of "
+                "2 of the 12 receivers test)",
+                "rfir: the physical room model (docs/rssi.md), rf-fit's defaults (device gains chosen by validation, "
+                "links weighted by their packet count and spread)"
+                + (f", {r.sizes['iterations']} steps (quick)" if r.quick else ""),
+                "log-distance, multi-wall, nearest links: fitted on the same training links (rfir's predict JSON)",
+                "ray tracing (Sionna RT): " + NO_RAYTRACE[len("not run: "):]
+                + "; scripts/baseline_raytrace.py also indexes devices 0..N-1 and the survey's rx_id are 10..42",
+                _diagnose_note(r, report)]
+    return t
+
+
 ABLATION = ["rfir", "physics only (no residual)", "single bounce", "one material", "without diffuse"]
 
 
@@ -514,4 +628,5 @@ def declare(names: list[str], quick: bool, data: Path | None = None, out: Path |
 
 
 TARGETS = {"rcs": target_rcs, "rcs-po": target_rcs_po, "wideband": target_wideband, "rssi": target_rssi,
-           "extrapolation": target_extrapolation, "edit": target_edit, "ablation": target_ablation}
+           "extrapolation": target_extrapolation, "edit": target_edit, "ablation": target_ablation,
+           "measured": target_measured}
