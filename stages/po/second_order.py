@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import normalize, polarization_vector, sinc_u
-from .solver import _dot, _sum_into, po_coefficients, reflect_field_basis
+from .currents import _dot, _sum_into, po_coefficients, reflect_field_basis
 
 REFINE_MAX = 32     # a tube side is cut into at most this many parts where its footprint is long (grazing bounces)
 TUBES_PER_WAVELENGTH = 20   # default tube side lambda_min / 20: converged within ~0.3 dB MAE on the lego (docs/po.md)

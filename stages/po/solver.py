@@ -40,17 +40,15 @@ incidence, where the TE/TM model gives the same).
 """
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
 
-from .geometry import (facet_table, normalize, polarization_vector, single_thread_torch, subdivide_facets,
-                       triangle_phase_factor)
+from .currents import _dot, _sum_into, po_coefficients
+from .geometry import facet_table, polarization_vector, single_thread_torch, subdivide_facets, triangle_phase_factor
 from .materials import C0, permittivity_array
 from .visibility import Occluder
 
-_SQRT_4PI = math.sqrt(4.0 * math.pi)
 _REFINE_BLOCK = 1 << 18  # sub-triangles per shadow-refinement block (bounds memory)
 
 
@@ -153,66 +151,6 @@ class _Reflection:
             return coef[:, 0:1] + r_te * coef[:, 1:2] + r_tm * coef[:, 2:3]
         pec = coef[:, 0] - coef[:, 1] + coef[:, 2]
         return -self.scalar(kidx, fidx) * pec[:, None]
-
-
-# ----------------------------------------------------------------------------------------------
-# PO current coefficients
-# ----------------------------------------------------------------------------------------------
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
-
-
-def _radiate(n, s_hat, p_hat, e, h):
-    """p . [s x (s x (n x H) - n x E)] for surface fields E, eta*H (per row): the PO far-field
-    vector (J = n x H, M = -n x E, eta J and M radiating toward s), projected on p (p . s = 0).
-    Equal to -p.(n x H) - (n x E).(p x s)."""
-    return -_dot(p_hat, np.cross(n, h)) - _dot(np.cross(n, e), np.cross(p_hat, s_hat))
-
-
-def po_coefficients(n, i_hat, s_hat, e_inc, p_hat):
-    """(P,3) coefficients (c0, c_TE, c_TM) with PO far-field factor = c0 + R_TE c_TE + R_TM c_TM.
-
-    n: facet normals facing the incident wave (n . i_hat < 0), i_hat: propagation direction of the
-    incident wave, s_hat: scattering direction, e_inc: incident E (any real vector, linear),
-    p_hat: receive polarisation. Perfect conductor: R_TE = -1, R_TM = +1.
-    """
-    r_hat = i_hat - 2.0 * _dot(i_hat, n)[:, None] * n
-    e_te = np.cross(i_hat, n)
-    ln = np.linalg.norm(e_te, axis=1)
-    deg = ln < 1e-12
-    if deg.any():  # normal incidence: any tangent works (R_TM = -R_TE there)
-        t = e_inc[deg] - _dot(e_inc[deg], n[deg])[:, None] * n[deg]
-        bad = np.linalg.norm(t, axis=1) < 1e-12
-        t[bad] = np.cross(n[deg][bad], np.array([0.0, 0.0, 1.0]))
-        bad2 = np.linalg.norm(t, axis=1) < 1e-12
-        t[bad2] = np.cross(n[deg][bad2], np.array([1.0, 0.0, 0.0]))
-        e_te[deg] = t
-    e_te = normalize(e_te)
-    e_tm_i = np.cross(i_hat, e_te)
-    e_tm_r = np.cross(r_hat, e_te)
-    a_te = _dot(e_inc, e_te)
-    a_tm = _dot(e_inc, e_tm_i)
-    c0 = _radiate(n, s_hat, p_hat, e_inc, np.cross(i_hat, e_inc))
-    c_te = a_te * _radiate(n, s_hat, p_hat, e_te, np.cross(r_hat, e_te))
-    c_tm = a_tm * _radiate(n, s_hat, p_hat, e_tm_r, np.cross(r_hat, e_tm_r))
-    return np.stack([c0, c_te, c_tm], axis=1)
-
-
-def reflect_field_basis(n, i_hat, e_inc):
-    """Reflected-field basis at a facet: (r_hat, [a_te * e_te, a_tm * e_tm_r]) so that the reflected
-    E = R_TE * b0 + R_TM * b1 (perfect conductor: -b0 + b1 = -e + 2 (e.n) n)."""
-    r_hat = i_hat - 2.0 * _dot(i_hat, n)[:, None] * n
-    e_te = np.cross(i_hat, n)
-    deg = np.linalg.norm(e_te, axis=1) < 1e-12
-    if deg.any():
-        t = e_inc[deg] - _dot(e_inc[deg], n[deg])[:, None] * n[deg]
-        bad = np.linalg.norm(t, axis=1) < 1e-12
-        t[bad] = np.cross(n[deg][bad], np.array([0.0, 0.0, 1.0]))
-        e_te[deg] = t
-    e_te = normalize(e_te)
-    e_tm_i = np.cross(i_hat, e_te)
-    e_tm_r = np.cross(r_hat, e_te)
-    return r_hat, (_dot(e_inc, e_te)[:, None] * e_te, _dot(e_inc, e_tm_i)[:, None] * e_tm_r)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -503,28 +441,6 @@ def _accumulate_first_order(out, mg, ri, nf, w, c, rel, area, tx, rx, ref, R_t, 
     _sum_into(out, mg, ks, chunk_elements,
               lambda kidx: triangle_phase_factor(alpha, ks[kidx], phase_len) * refl.factor(coef, kidx, ri, cos_t),
               None, base)
-
-
-def _sum_into(out, mg, ks, chunk_elements, kernel, phase_len, base):
-    """out[m, k] += sum over pairs of (j k / sqrt(4 pi)) * base * exp(j k phase_len) * kernel(kidx)."""
-    P = len(mg)
-    if P == 0:
-        return
-    order = np.argsort(mg, kind="stable")
-    if np.any(order != np.arange(P)):
-        raise AssertionError("pairs must be grouped by aspect")  # np.nonzero gives them sorted
-    starts = np.concatenate([[0], np.nonzero(np.diff(mg))[0] + 1])
-    rows = mg[starts]
-    kc = max(1, int(chunk_elements) // P)
-    for k0 in range(0, len(ks), kc):
-        kidx = np.arange(k0, min(len(ks), k0 + kc))
-        k = ks[kidx]
-        val = kernel(kidx)
-        if phase_len is not None:
-            val *= np.exp(1j * np.outer(phase_len, k))
-        val *= base[:, None]
-        val *= (1j * k / _SQRT_4PI)[None, :]
-        out[np.ix_(rows, kidx)] += np.add.reduceat(val, starts, axis=0)
 
 
 def po_rcs(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_hz, **kwargs) -> np.ndarray:

@@ -13,7 +13,7 @@ import torch
 
 from rfir_stages.model.second_order import (_reflection_basis, antenna_polarisation, polarisation_chain,
                                             second_bounce_factors)
-from rfir_stages.po.solver import po_coefficients
+from rfir_stages.po.currents import po_coefficients
 
 from .helpers import double_bounce_error_db, plate_mesh
 
@@ -27,7 +27,7 @@ def _unit(v):
 @pytest.mark.parametrize("pol", ["V", "H"])
 def test_second_bounce_factors_are_the_po_solver_coefficients(pol):
     """Random 3D geometries: the factors of R_X(A) R_Y(B) and R_X(A) equal half the PO solver's
-    (c_TE, c_TM, c0) of B lit by A's reflected X part (rfir_stages.po.solver.po_coefficients, numpy,
+    (c_TE, c_TM, c0) of B lit by A's reflected X part (rfir_stages.po.currents.po_coefficients, numpy,
     its own bases); the model's normalisation is half the solver's (a plate at specular reflection:
     Gamma cos_i against -2 cos_i for a perfect conductor)."""
     rng = np.random.default_rng(3)
