@@ -37,13 +37,13 @@ def _init_worker(xml_path: str, effects, threads: int) -> None:
 
     dr.set_thread_count(int(threads))
     from .radio_scene import load_radio_xml
-    from .rcs import SolverState
+    from .rcs_solve import SolverState
 
     _STATE["state"] = SolverState(load_radio_xml(xml_path, 2.4e9, effects))
 
 
 def _work(job: dict, unit):
-    from .rcs import solve_unit
+    from .rcs_solve import solve_unit
 
     try:
         return solve_unit(_STATE["state"], job, unit)
