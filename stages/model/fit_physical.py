@@ -29,6 +29,7 @@ from rfir_cli.text import plural
 from rfir_stages.po.geometry import single_thread_torch
 
 from .device_gains import DeviceGains
+from .materials import abs2
 from .physical import AggregatedPairs, MaterialParams
 
 # (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
@@ -178,10 +179,15 @@ def fit_materials(agg: AggregatedPairs, num_materials: int, target_db: np.ndarra
                               weights)
 
 
+def _floor_power(target_db) -> float:
+    """The fit's power floor [W]: FLOOR_BELOW_DB under the weakest measurement of target_db [M, K] dB."""
+    return float(10 ** ((float(torch.as_tensor(target_db).min()) - FLOOR_BELOW_DB) / 10))
+
+
 def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | None = None):
     """params -> predicted path gain [M, K] dB of the training links as the fit sees it: the power floor
     FLOOR_BELOW_DB under the weakest measurement (target_db [M, K] dB) and the device gains, if any."""
-    floor = float(10 ** ((float(torch.as_tensor(target_db).min()) - FLOOR_BELOW_DB) / 10))
+    floor = _floor_power(target_db)
 
     def pred(params: MaterialParams) -> torch.Tensor:
         out = predict_db(agg, params, floor)
@@ -196,8 +202,29 @@ def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: n
     (rfir_stages.model.identifiability; one standard error, the residual's SE_MARGIN)."""
     from .identifiability import normal_reflection_ranges
     from .residual import SE_MARGIN
+    local = _material_predictor(agg, target_db, devices) if hasattr(agg, "material_split") else None
     return normal_reflection_ranges(training_predictor(agg, target_db, devices), params, target_db,
-                                    float(freq_hz), margin=SE_MARGIN, progress=progress)
+                                    float(freq_hz), margin=SE_MARGIN, progress=progress, local=local)
+
+
+def _material_predictor(links, target_db, devices: DeviceGains | None):
+    """identifiability.LocalPredictor of room links (RoomLinks.material_split): the part of the field and the
+    diffuse power that does not involve material i is evaluated once at the passed (fitted) materials, and
+    each call adds the part that does; the same floor and device gains as training_predictor."""
+    floor = _floor_power(target_db)
+
+    def local(params: MaterialParams, i: int):
+        rows, without, with_i = links.material_split(i)
+        field0, diff0 = without.components(params.values())
+        gains = None if devices is None else devices.link_db()[rows]
+
+        def pred(p: MaterialParams) -> torch.Tensor:   # [M_i, 1] dB
+            field, diff = with_i.components(p.values())
+            g = 10 ** (torch.as_tensor(p.gain_db, dtype=torch.float64) / 10)
+            out = 10 * torch.log10(g * (abs2(field0 + field) + diff0 + diff) + floor)[:, None]
+            return out if gains is None else out + gains
+        return rows, pred
+    return local
 
 
 def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: PhysicalFitConfig, progress, label: str,

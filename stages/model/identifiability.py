@@ -28,10 +28,24 @@ from rfir_stages.po.geometry import single_thread_torch
 
 from .physical import THICKNESS_M, MaterialParams
 
+# (params, material i) -> (rows [M_i] int64, params -> predicted dB [M_i, K] of those links): normal_reflection_ranges
+LocalPredictor = Callable[[MaterialParams, int], tuple[torch.Tensor, Callable[[MaterialParams], torch.Tensor]]]
+
 EPS_R_GRID = (1.5, 2.0, 3.0, 4.5, 7.0, 10.0, 15.0, 25.0)                 # up to EPS_R_MAX
 SIGMA_1GHZ_GRID = (1e-3, 0.05, 1e6)                                # S/m: a low-loss, a lossy dielectric, a metal
 THICKNESS_GRID_M = (0.003, 0.006, 0.01, 0.02, 0.05, 0.1, 0.2)     # m, within THICKNESS_M
 NUM_BLOCKS = 20   # batch means of the standard error: contiguous blocks of training rows
+# A range of |Gamma(0)| wider than this is "not determined by the links". The ITU-R P.2040 building materials
+# at 2.4 GHz and their typical thicknesses span 0.15-0.70 (ceiling board to glass; metal 1): a range wider
+# than about half of that holds materials as unlike as wood (0.27) and marble (0.64), so the fitted value
+# does not say what the material is.
+WIDE_RANGE = 0.3
+NOT_DETERMINED = "not determined by the links"
+
+
+def range_note(low: float, high: float) -> str:
+    """NOT_DETERMINED for a |Gamma(0)| range (low, high) wider than WIDE_RANGE, else ""."""
+    return NOT_DETERMINED if float(high) - float(low) > WIDE_RANGE else ""
 
 
 def block_standard_error(d: torch.Tensor, num_blocks: int = NUM_BLOCKS) -> float:
@@ -44,11 +58,17 @@ def block_standard_error(d: torch.Tensor, num_blocks: int = NUM_BLOCKS) -> float
 
 def normal_reflection_ranges(predict_db: Callable[[MaterialParams], torch.Tensor], params: MaterialParams,
                              target_db: np.ndarray, freq_hz: float, margin: float = 1.0,
-                             progress=None) -> np.ndarray:
+                             progress=None, local: LocalPredictor | None = None) -> np.ndarray:
     """[N, 2] (low, high) |Gamma| at normal incidence at freq_hz [Hz] of each of the N materials of
     `params` compatible with the training links (module docstring). predict_db(params) -> [M, K] dB
     predicted path gain of the training links (the fit's own prediction, floor included); target_db
-    [M, K] measured dB. `params` is restored before returning. progress: a rfir_cli.progress reporter."""
+    [M, K] measured dB. `params` is restored before returning. progress: a rfir_cli.progress reporter.
+
+    local(params, i) -> (rows [M_i] int64, predict_rows): the links whose prediction depends on material
+    i and a function that gives predict_db(p)[rows] [M_i, K] dB for any p differing from `params` (as
+    passed, the fitted state) in material i alone. With it, each grid point of material i costs the part
+    of the prediction that involves material i (the other links' errors do not change: their d is 0);
+    the ranges are those of predict_db alone, to rounding."""
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
     f = torch.tensor([float(freq_hz)], dtype=torch.float64)
     keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
@@ -61,17 +81,26 @@ def normal_reflection_ranges(predict_db: Callable[[MaterialParams], torch.Tensor
     variants = [sorted({float(s)} if params.shared_scattering else {float(s), 0.0}) for s in fitted_s]
     total = sum(len(v) for v in variants) * len(grid)
     with torch.no_grad(), single_thread_torch(), progress.task("material ranges", total=total) as bar:
-        def per_link() -> torch.Tensor:   # [M] squared dB error per link, averaged over frequencies
-            return ((predict_db(params) - target) ** 2).reshape(len(target), -1).mean(1)
+        def error(pred: torch.Tensor, tgt: torch.Tensor) -> torch.Tensor:   # [M] squared dB error, mean over K
+            return ((pred - tgt) ** 2).reshape(len(tgt), -1).mean(1)
 
-        base = per_link()
         fitted = params.values().normal_reflection(f).abs()[:, 0].numpy()
         out = np.stack([fitted, fitted], 1)
+        base = error(predict_db(params), target) if local is None else None
         for i in range(params.num):
+            if local is not None:
+                rows, predict_rows = local(params, i)
+                at = target[rows]
+                base_rows = error(predict_rows(params), at) if len(rows) else None
             for s in variants[i]:
                 for eps, sig, th in grid:
                     params.set_values(i, eps_r=eps, sigma_1ghz=sig, scattering=s, thickness_m=th)
-                    d = per_link() - base
+                    if local is None:
+                        d = error(predict_db(params), target) - base
+                    else:   # the links that do not see material i keep their error: d = 0
+                        d = torch.zeros(len(target), dtype=torch.float64)
+                        if len(rows):
+                            d[rows] = error(predict_rows(params), at) - base_rows
                     if float(d.mean()) <= margin * block_standard_error(d):
                         g = float(params.values().normal_reflection(f).abs()[i, 0])
                         out[i] = min(out[i, 0], g), max(out[i, 1], g)

@@ -77,9 +77,9 @@ class RoomSettings:
     # a gain per transmitter / receiver / both, fitted under a zero-mean prior (device_gains.py)
     device_gains: str = "off"
     device_gain_prior_db: float = 3.0
-    # the materials' |Gamma(0)| ranges the links allow (identifiability.py): off by default in rooms,
-    # where each of the materials x 336 grid points costs an evaluation of every fitted link's paths
-    reflection_ranges: bool = False
+    # the materials' |Gamma(0)| ranges the links allow (identifiability.py); each grid point re-evaluates only
+    # the part of the links that involves the material (RoomLinks.material_split)
+    reflection_ranges: bool = True
     # after the fit, each material the training links cannot tell from a tabulated one (ITU-R P.2040) within one
     # standard error is taken as that one (tabulated.py)
     tabulated_materials: bool = True
@@ -229,6 +229,28 @@ class RoomLinks:
     def select_links(self, rows) -> "RoomLinks":
         return RoomLinks(self.paths.select_links(rows), None if self.diffuse is None else self.diffuse.select_links(rows),
                          self.material_of_patch, self.num_materials)
+
+    def material_split(self, i: int) -> tuple[torch.Tensor, "RoomLinks", "RoomLinks"]:
+        """(rows [M_i] int64, without, with): the links whose field or diffuse power depends on material i, and
+        those links' specular paths and diffuse terms that do not involve it (without) and that do (with: a path
+        that reflects off or crosses a patch of it, a term of its cells or through its slabs). The field and the
+        diffuse power of the rows are the sums of the two parts' components, so a change of material i alone
+        needs the second part only (the ranges of rfir_stages.model.identifiability); the other links keep
+        their power."""
+        touch = ((self.paths.kind > 0) & (self.material_of_patch[self.paths.patch] == i)).any(1)    # [Q]
+        depends = torch.zeros(self.num_links, dtype=torch.bool)
+        depends[self.paths.link[touch]] = True
+        diffuse = (None, None)
+        if self.diffuse is not None:
+            on, without, with_i = self.diffuse.split_material(i)
+            depends |= on
+        rows = torch.nonzero(depends).reshape(-1)
+        if self.diffuse is not None:
+            diffuse = without.select_links(rows), with_i.select_links(rows)
+        paths = self.paths.select_links(rows)
+        touch = ((paths.kind > 0) & (self.material_of_patch[paths.patch] == i)).any(1)
+        return (rows, RoomLinks(paths.select_paths(~touch), diffuse[0], self.material_of_patch, self.num_materials),
+                RoomLinks(paths.select_paths(touch), diffuse[1], self.material_of_patch, self.num_materials))
 
     def _tables(self, mats: MaterialValues) -> torch.Tensor:
         """[4 * N * F * ANGLE_NODES] complex, blocks R_TE, R_TM, T_TE, T_TM of every material, frequency and angle node."""

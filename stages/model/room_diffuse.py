@@ -129,6 +129,22 @@ class DiffuseTerms:
         r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
         return DiffuseTerms(self.weight[r], self.freq_hz[r], self.obstructed.select_links(rows, self.num_links))
 
+    def split_material(self, i: int) -> tuple[torch.Tensor, "DiffuseTerms", "DiffuseTerms"]:
+        """(depends [M] bool, without, with): the terms that do not involve material i and those that do (its
+        cells' reflectance, or a leg through one of its slabs); power is the sum of the two parts' powers, and
+        the links where `depends` is false have no term of the second."""
+        ob = self.obstructed
+        own = torch.zeros(self.weight.shape[1], dtype=torch.bool)
+        own[i] = True
+        involved = (ob.refl // NODES == i) | (ob.crossings[ob.combo] // CROSSING_NODES == i).any(1)   # [K]
+        depends = (self.weight[:, i] != 0).any(1)
+        depends[ob.link[involved]] = True
+
+        def part(keep_column: torch.Tensor, keep_term: torch.Tensor) -> DiffuseTerms:
+            return DiffuseTerms(self.weight * keep_column[None, :, None], self.freq_hz, ObstructedCells(
+                ob.link[keep_term], ob.weight[keep_term], ob.refl[keep_term], ob.combo[keep_term], ob.crossings))
+        return depends, part(~own, ~involved), part(own, involved)
+
     def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
               scattering: torch.Tensor) -> torch.Tensor:
         """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (one frequency) or [N, M], thickness [N], S [N]."""

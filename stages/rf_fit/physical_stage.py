@@ -17,6 +17,7 @@ import torch
 from rfir_cli.errors import ConfigError
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
+from rfir_stages.model.identifiability import range_note
 from rfir_stages.model.physical import EPS_R_MAX, POLARISATIONS, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
 from rfir_stages.model.residual import (FORMS, INTERPOLATION, ResidualConfig, ResidualFit, fit_gaussian, fit_smooth,
@@ -274,9 +275,13 @@ def attach_ranges(rows: list[dict], ranges) -> None:
 
 
 def range_words(row: dict) -> str:
-    """" (links allow lo-hi)" for a material row with its range, else ""."""
+    """" (links allow lo-hi)" for a material row with its range (", not determined by the links" added where
+    it is wide: identifiability.range_note), else ""."""
     span = row.get("gamma_normal_range")
-    return "" if span is None else f" (links allow {span[0]:.2f}-{span[1]:.2f})"
+    if span is None:
+        return ""
+    note = range_note(*span)
+    return f" (links allow {span[0]:.2f}-{span[1]:.2f}{', ' + note if note else ''})"
 
 
 def bound_warnings(rows: list[dict]) -> list[str]:

@@ -49,7 +49,8 @@ def test_physical_fit_finds_metal_and_predicts_an_unfitted_frequency(metal_box, 
 
     from rfir_cli.main import app
     shown = CliRunner().invoke(app, ["info", str(tmp_path / "rf.h5")])
-    assert shown.exit_code == 0 and "links allow" in shown.output and f"{lo:.2f}-{hi:.2f}" in shown.output
+    assert shown.exit_code == 0 and "|Gamma(0)| range" in shown.output and f"{lo:.2f}-{hi:.2f}" in shown.output
+    assert "not determined by the links" not in shown.output
     # fitted at 2.4 GHz only; predicted at 5.8 GHz on the odd aspects, against the PO data there
     out = run_rcs(tmp_path / "rf.h5", tmp_path / "p.h5", {"occlusion": "auto"}, measurements_path=d / "meas.h5",
                   freqs_hz=[5.8e9], results_path=tmp_path / "r.json")

@@ -60,19 +60,21 @@ def _show_materials(path: str) -> None:
     freqs = art["rf/freq_hz"]
     gam = art["material/gamma_normal_abs"]
     span = art.get("material/gamma_normal_range")   # what the training links allow (rf_fit.physical.reflection_ranges)
+    if span is not None:
+        from rfir_stages.model.identifiability import range_note
     # names whole, however narrow the terminal (other cells wrap rather than end in "...")
     label = [names[i] if i < len(names) else str(i) for i in range(len(art["material/eps_r"]))]
     table = Table(Column("material", no_wrap=True, min_width=max(map(len, label), default=8)),
                   *(Column(h, overflow="fold") for h in (
                       "eps_r", "sigma(1 GHz) S/m", "S", "thickness mm", *[f"|Gamma(0)| {f / 1e9:g} GHz" for f in freqs],
-                      *([] if span is None else [f"links allow |Gamma(0)| {freqs[0] / 1e9:g} GHz"]),
+                      *([] if span is None else [f"|Gamma(0)| range {freqs[0] / 1e9:g} GHz"]),
                       *(["taken as (ITU-R P.2040)"] if any(tabulated) else []))),
                   box=None, pad_edge=False, title="fitted materials")
     for i in range(len(art["material/eps_r"])):
         table.add_row(label[i], f"{art['material/eps_r'][i]:.2f}",
                       f"{art['material/sigma_1ghz_s_per_m'][i]:.3g}", f"{art['material/scattering'][i]:.2f}",
                       f"{1e3 * art['material/thickness_m'][i]:.1f}", *[f"{g:.2f}" for g in gam[i]],
-                      *([] if span is None else [f"{span[i][0]:.2f}-{span[i][1]:.2f}"]),
+                      *([] if span is None else [f"{span[i][0]:.2f}-{span[i][1]:.2f} {range_note(*span[i])}".strip()]),
                       *([tabulated[i] if i < len(tabulated) else ""] if any(tabulated) else []))
     console.print(table)
 
