@@ -2,6 +2,8 @@
 
 The CPU back-end (OpenMP) is always built. The CUDA back-end is added only when a CUDA toolkit
 and a CUDA build of torch are both present, so the same command works on a laptop and on a GPU box.
+RFIR_NO_EXT=1 leaves the extension out (a wheel of the Python packages and their data in seconds, for
+packaging checks; rfir_tracer then reports that it is not built).
 """
 import glob
 import os
@@ -11,6 +13,7 @@ from setuptools import find_namespace_packages, setup
 
 def _packages():
     pkgs = ["rfir_cli", "rfir_tracer", "rfir_stages"]
+    pkgs += ["rfir_cli._configs", "rfir_cli._configs.recipes"]   # configs/ as package data (pyproject's package-dir)
     pkgs += ["rfir_cli." + p for p in find_namespace_packages("src/rfir_cli")]
     pkgs += ["rfir_stages." + p for p in find_namespace_packages("stages")]
     pkgs += ["rfir_tracer." + p for p in find_namespace_packages("ext/rfir_tracer")]
@@ -18,6 +21,8 @@ def _packages():
 
 
 def _extensions():
+    if os.environ.get("RFIR_NO_EXT") == "1":
+        return [], {}
     import torch
     from torch.utils.cpp_extension import CUDA_HOME, BuildExtension, CppExtension, CUDAExtension
 

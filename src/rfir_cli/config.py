@@ -1,5 +1,8 @@
 """Configuration: TOML defaults per stage in configs/, a user file, then `--set` overrides.
 
+The defaults are configs/*.toml at the top of the repository, installed inside the package as rfir_cli._configs
+(pyproject.toml's package-dir), so that a wheel carries them; RFIR_CONFIG_DIR points at another folder instead.
+
 Resolution order (later wins): configs/<stage>.toml defaults, configs/recipes/<name>.toml when a
 recipe is named, `--config FILE.toml`, `--set section.key=value`. Keys must exist in the defaults,
 so a typo is an error rather than a silently ignored setting. The resolved config is recorded in
@@ -10,6 +13,7 @@ from __future__ import annotations
 import copy
 import os
 import tomllib
+from importlib import resources
 from pathlib import Path
 
 import tomli_w
@@ -18,9 +22,19 @@ from .errors import ConfigError
 
 
 def config_dir() -> Path:
-    """The folder of default configs (RFIR_CONFIG_DIR overrides the repository's configs/)."""
+    """The folder of default configs: RFIR_CONFIG_DIR when set, else the package data rfir_cli._configs (the
+    repository's configs/; an editable install made before that mapping existed reads configs/ beside src/)."""
     override = os.environ.get("RFIR_CONFIG_DIR")
-    return Path(override) if override else Path(__file__).resolve().parents[2] / "configs"
+    if override:
+        return Path(override)
+    try:
+        return Path(str(resources.files("rfir_cli._configs")))
+    except ModuleNotFoundError:
+        checkout = Path(__file__).resolve().parents[2] / "configs"
+        if checkout.is_dir():
+            return checkout
+        raise ConfigError("the default configs (package data rfir_cli._configs) are not installed: reinstall rfir "
+                          "(pip install .), or set RFIR_CONFIG_DIR to a folder of configs/*.toml") from None
 
 
 def _read_toml(path: Path, what: str) -> dict:
@@ -36,7 +50,11 @@ def _read_toml(path: Path, what: str) -> dict:
 def load_defaults() -> dict:
     """Merge every configs/*.toml (one table per stage) into one dict."""
     merged: dict = {}
-    for path in sorted(config_dir().glob("*.toml")):
+    folder = config_dir()
+    paths = sorted(folder.glob("*.toml"))
+    if not paths:
+        raise ConfigError("no default configs (*.toml) in this folder", path=folder)
+    for path in paths:
         for section, table in _read_toml(path, "default config").items():
             if section in merged:
                 raise ConfigError(f"section [{section}] is defined twice in configs/", path=path)

@@ -1,6 +1,10 @@
 """Config resolution: defaults, recipes, files, --set, and clear errors for bad keys and values."""
+import copy
+from pathlib import Path
+
 import pytest
 
+from rfir_cli import config as cfg
 from rfir_cli.config import parse_override, resolve_config, to_toml
 from rfir_cli.errors import ConfigError
 
@@ -85,3 +89,30 @@ def test_the_shipped_defaults_pass_their_own_range_checks_and_real_keys_are_chec
         with pytest.raises(ConfigError, match=override.split("=")[0]):
             resolve_config(None, [override])
     assert resolve_config(None, ["calibrate.sfm.num_threads=-1"])["calibrate"]["sfm"]["num_threads"] == -1
+
+
+def _leaves(table: dict, prefix: str = "") -> list[str]:
+    return [k for key, value in table.items()
+            for k in (_leaves(value, f"{prefix}{key}.") if isinstance(value, dict) else [f"{prefix}{key}"])]
+
+
+def test_every_shipped_default_and_recipe_value_passes_the_type_and_range_checks():
+    """Each configs/*.toml value and each configs/recipes/*.toml value goes through the checks a user's value gets
+    (_merge: the default's type, then _check_range): resolving the defaults alone would check none of them."""
+    defaults = cfg.load_defaults()
+    assert len(_leaves(defaults)) > 100
+    cfg._merge(copy.deepcopy(defaults), defaults, "configs/")
+    recipes = sorted((cfg.config_dir() / "recipes").glob("*.toml"))
+    assert recipes
+    for path in recipes:
+        cfg._merge(copy.deepcopy(defaults), cfg._read_toml(path, "recipe"), f"configs/recipes/{path.name}")
+
+
+def test_the_defaults_come_from_the_package_unless_rfir_config_dir_is_set(tmp_path, monkeypatch):
+    monkeypatch.delenv("RFIR_CONFIG_DIR", raising=False)
+    assert sorted(p.name for p in cfg.config_dir().glob("*.toml")) == sorted(
+        p.name for p in (Path(__file__).resolve().parents[2] / "configs").glob("*.toml"))
+    monkeypatch.setenv("RFIR_CONFIG_DIR", str(tmp_path))
+    assert cfg.config_dir() == tmp_path
+    with pytest.raises(ConfigError, match="no default configs"):
+        cfg.load_defaults()
