@@ -29,7 +29,6 @@ from rfir_cli.text import plural
 from rfir_stages.po.geometry import single_thread_torch
 
 from .device_gains import DeviceGains
-from .materials import abs2
 from .physical import AggregatedPairs, MaterialParams
 
 # (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
@@ -208,22 +207,19 @@ def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: n
 
 
 def _material_predictor(links, target_db, devices: DeviceGains | None):
-    """identifiability.LocalPredictor of room links (RoomLinks.material_split): the part of the field and the
-    diffuse power that does not involve material i is evaluated once at the passed (fitted) materials, and
-    each call adds the part that does; the same floor and device gains as training_predictor."""
+    """identifiability.LocalPredictor of room links (RoomLinks.material_part: the part of the links that does
+    not involve material i is evaluated once at the passed, fitted, materials); the same floor and device
+    gains as training_predictor."""
     floor = _floor_power(target_db)
 
     def local(params: MaterialParams, i: int):
-        rows, without, with_i = links.material_split(i)
-        field0, diff0 = without.components(params.values())
-        gains = None if devices is None else devices.link_db()[rows]
+        part = links.material_part(i, params.values())
+        gains = None if devices is None else devices.link_db()[part.rows]
 
         def pred(p: MaterialParams) -> torch.Tensor:   # [M_i, 1] dB
-            field, diff = with_i.components(p.values())
-            g = 10 ** (torch.as_tensor(p.gain_db, dtype=torch.float64) / 10)
-            out = 10 * torch.log10(g * (abs2(field0 + field) + diff0 + diff) + floor)[:, None]
+            out = 10 * torch.log10(part.power(p.values(), p.gain_db) + floor)[:, None]
             return out if gains is None else out + gains
-        return rows, pred
+        return part.rows, pred
     return local
 
 

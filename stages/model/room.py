@@ -27,8 +27,9 @@ from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
 from .materials import C0, abs2, fresnel, slab_transmission
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
-from .room_diffuse import (MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms, diffuse_cells,
-                           diffuse_terms)
+from .room_diffuse import CROSSING_NODES, MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms
+from .room_diffuse import NODES as DIFFUSE_NODES
+from .room_diffuse import diffuse_cells, diffuse_terms
 from .room_paths import (CELL_PER_TILE, FOOTPRINT_REACH, HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER,
                          THIRD_ORDER_MIN_AREA_M2, THIRD_ORDER_SMALL_REFLECTIONS, TILE_CLOSING, PatchSet, RoomPaths,
                          build_patch_set, trace_room_paths)
@@ -188,6 +189,22 @@ def geometry_key(geom: FrozenGeometry) -> str:
 ANGLE_NODES = 91   # Fresnel coefficients tabulated at 1-degree steps of the incidence angle, linear between
 
 
+def coefficient_tables(freqs: torch.Tensor, mats: MaterialValues, only: int | None = None) -> torch.Tensor:
+    """[4 * N * F * ANGLE_NODES] complex, blocks R_TE, R_TM, T_TE, T_TM of every material, frequency freqs [F] Hz
+    and angle node (only: of that material alone, [4 * F * ANGLE_NODES])."""
+    pick = slice(None) if only is None else slice(only, only + 1)
+    cos = torch.cos(torch.deg2rad(torch.arange(ANGLE_NODES, dtype=torch.float64)))
+    eta = mats.eta(freqs)[pick, :, None]                                            # [N, F, 1]
+    k0 = (2 * math.pi * freqs / C0)[None, :, None]
+    th = None if mats.thickness_m is None else mats.thickness_m[pick, None, None]
+    r_te, r_tm = fresnel(eta, cos, k0, th)
+    if th is None:
+        t_te = t_tm = torch.zeros_like(r_te)
+    else:
+        t_te, t_tm = slab_transmission(eta, cos, k0, th)
+    return torch.stack([r_te, r_tm, t_te, t_tm]).reshape(-1)
+
+
 class RoomLinks:
     """Traced paths and diffuse weights of M links; material_of_patch [P] int64.
 
@@ -252,22 +269,13 @@ class RoomLinks:
         return (rows, RoomLinks(paths.select_paths(~touch), diffuse[0], self.material_of_patch, self.num_materials),
                 RoomLinks(paths.select_paths(touch), diffuse[1], self.material_of_patch, self.num_materials))
 
-    def _tables(self, mats: MaterialValues) -> torch.Tensor:
-        """[4 * N * F * ANGLE_NODES] complex, blocks R_TE, R_TM, T_TE, T_TM of every material, frequency and angle node."""
-        cos = torch.cos(torch.deg2rad(torch.arange(ANGLE_NODES, dtype=torch.float64)))
-        eta = mats.eta(self.freqs)[:, :, None]                                          # [N, F, 1]
-        k0 = (2 * math.pi * self.freqs / C0)[None, :, None]
-        th = None if mats.thickness_m is None else mats.thickness_m[:, None, None]
-        r_te, r_tm = fresnel(eta, cos, k0, th)
-        if th is None:
-            t_te = t_tm = torch.zeros_like(r_te)
-        else:
-            t_te, t_tm = slab_transmission(eta, cos, k0, th)
-        return torch.stack([r_te, r_tm, t_te, t_tm]).reshape(-1)
+    def _tables(self, mats: MaterialValues, only: int | None = None) -> torch.Tensor:
+        """coefficient_tables at these links' frequencies."""
+        return coefficient_tables(self.freqs, mats, only)
 
-    def components(self, mats: MaterialValues) -> tuple[torch.Tensor, torch.Tensor]:
-        """(specular field [M] complex, diffuse power [M])."""
-        tab = self._tables(mats)
+    def components(self, mats: MaterialValues, tables: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(specular field [M] complex, diffuse power [M]); tables: _tables(mats) where the caller has them."""
+        tab = self._tables(mats) if tables is None else tables
         coefficients = []
         for te, tm, frac in self._slots:
             lo_te, lo_tm = tab[te], tab[tm]
@@ -281,11 +289,98 @@ class RoomLinks:
         eta = mats.eta(f[:1]) if bool((f == f[0]).all()) else mats.eta(f)
         return field, self.diffuse.power(eta, mats.thickness_m, mats.scattering)
 
+    def material_part(self, i: int, mats: MaterialValues) -> "MaterialPart":
+        """The links' power as material i alone changes from mats (MaterialPart)."""
+        return MaterialPart(self, i, mats)
+
     def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
         """Received power [M, 1] W (P_T = 1 W): g (|field|^2 + P_diff)."""
         field, diff = self.components(mats)
         g = 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
         return (g * (abs2(field) + diff))[:, None]
+
+
+# the diffuse nodes on the specular tables' angle nodes: |Gamma|^2 on every DIFFUSE_STEP-th, |T|^2 on each
+DIFFUSE_STEP = (ANGLE_NODES - 1) // (DIFFUSE_NODES - 1)
+NODES_ALIGNED = DIFFUSE_STEP * (DIFFUSE_NODES - 1) == ANGLE_NODES - 1 and CROSSING_NODES == ANGLE_NODES
+
+
+class MaterialPart:
+    """The power of the links that depend on material i (rows [M_i] int64 of RoomLinks.material_split) as a
+    function of that material alone, every other held at the values it was built with. Evaluated once: the
+    field of the paths that do not involve material i and the diffuse terms without it. A path that meets
+    material i once has a field linear in that interaction's TE and TM coefficients (the polarisation chain is
+    a product of per-interaction maps), so it is kept as two fixed amplitudes, and a call interpolates the two
+    coefficients; the paths that meet it more often are evaluated whole (RoomLinks.components with material
+    i's block of the coefficient tables recomputed alone). Material i's diffuse terms are fixed factors times
+    its own |Gamma|^2 S^2 and |T|^2 (DiffuseTerms.material_form; one frequency, else evaluated whole). The
+    diffuse nodes are angle nodes of the specular tables (NODES_ALIGNED), so one evaluation of material i's
+    Fresnel coefficients serves both. Equal to RoomLinks.power to rounding."""
+
+    def __init__(self, links: RoomLinks, i: int, mats: MaterialValues):
+        self.material = int(i)
+        self.rows, without, with_i = links.material_split(i)
+        self.field0, self.diff0 = without.components(mats)
+        p, n = with_i.paths, links.num_materials
+        self.freqs = torch.unique(p.freq_hz)                       # material i's own tables: at these
+        mine = (p.kind > 0) & (links.material_of_patch[p.patch] == i)                       # [Q_i, I]
+        once = mine.sum(1) == 1
+        self.several = RoomLinks(p.select_paths(~once), None, links.material_of_patch, n)
+        self.tables = self.several._tables(mats).reshape(4, n, len(self.several.freqs) * ANGLE_NODES)
+        # the paths that meet material i once: amplitudes [Q1] with its coefficients (TE, TM) = (1, 0) and (0, 1),
+        # its specular share sqrt(1 - S^2) left out (S = 0), each path its own "link"
+        one = p.select_paths(once)
+        q = one.num
+        alone = RoomLinks(RoomPaths(q, torch.arange(q), one.length_m, one.gain, one.order, one.e_tx, one.e_rx, one.kind,
+                                    one.patch, one.cos, one.s, one.p_in, one.p_out, one.freq_hz[one.link]),
+                          None, links.material_of_patch, n)
+        plain = MaterialValues(mats.eps_r, mats.sigma_1ghz, mats.sigma_exponent,
+                               torch.where(torch.arange(n) == i, 0.0, mats.scattering), mats.thickness_m)
+        unit, fixed = [], alone._tables(mats).reshape(4, n, len(alone.freqs) * ANGLE_NODES)
+        for te in (1.0, 0.0):
+            t = fixed.clone()
+            t[:, i] = torch.tensor([te, 1.0 - te, te, 1.0 - te], dtype=torch.complex128)[:, None]
+            unit.append(alone.components(plain, t.reshape(-1))[0])
+        self.unit_te, self.unit_tm = unit
+        self.link_once = one.link
+        # where each such path reads material i's table [4 * width]: as RoomLinks.__init__ does, for one material
+        slot = mine[once].to(torch.int8).argmax(1)
+        at = torch.arange(q)
+        theta = torch.rad2deg(torch.arccos(one.cos[at, slot].clamp(0.0, 1.0)))
+        j = theta.floor().long().clamp(0, ANGLE_NODES - 2)
+        self.frac = (theta - j).clamp(0.0, 1.0).to(torch.complex128)
+        self.reflects = one.kind[at, slot] == 1
+        fid = torch.searchsorted(self.freqs, one.freq_hz[one.link])
+        self.te_at = torch.where(self.reflects, 0, 2) * len(self.freqs) * ANGLE_NODES + fid * ANGLE_NODES + j
+        self.diffuse, self.form = with_i.diffuse, None
+        f = p.freq_hz
+        if self.diffuse is not None and len(f) and bool((f == f[0]).all()) and NODES_ALIGNED:
+            self.form = self.diffuse.material_form(i, mats.eta(f[:1]), mats.thickness_m, mats.scattering)
+
+    def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
+        """Received power [M_i] W (P_T = 1 W) of the rows: g (|field|^2 + P_diff); mats differ from those the
+        part was built with in material i alone."""
+        i = self.material
+        own = coefficient_tables(self.freqs, mats, only=i).reshape(4, -1)   # R_TE, R_TM, T_TE, T_TM on the nodes
+        tables = self.tables.clone()
+        if self.several.paths.num:   # its table at its own frequencies (those of the rows' but where a row has none)
+            same = torch.equal(self.several.freqs, self.freqs)
+            tables[:, i] = own if same else self.several._tables(mats, only=i).reshape(4, -1)
+        field = self.field0 + self.several.components(mats, tables.reshape(-1))[0]
+        flat, te, frac = own.reshape(-1), self.te_at, self.frac
+        width = own.shape[1]
+        c_te = flat[te] + (flat[te + 1] - flat[te]) * frac
+        c_tm = flat[te + width] + (flat[te + width + 1] - flat[te + width]) * frac
+        share = torch.where(self.reflects, torch.sqrt((1.0 - mats.scattering[i] ** 2).clamp(min=0.0)), 1.0)
+        field = field.index_add(0, self.link_once, (self.unit_te * c_te + self.unit_tm * c_tm) * share)
+        diff = self.diff0
+        if self.form is not None:
+            g2 = 0.5 * (abs2(own[0]) + abs2(own[1]))[::DIFFUSE_STEP] * mats.scattering[i] ** 2
+            diff = diff + self.form.power(g2, 0.5 * (abs2(own[2]) + abs2(own[3])))
+        elif self.diffuse is not None:
+            diff = diff + self.diffuse.power(mats.eta(self.diffuse.freq_hz), mats.thickness_m, mats.scattering)
+        g = 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
+        return g * (abs2(field) + diff)
 
 
 class RoomPredictor:

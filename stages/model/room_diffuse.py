@@ -145,6 +145,25 @@ class DiffuseTerms:
                 ob.link[keep_term], ob.weight[keep_term], ob.refl[keep_term], ob.combo[keep_term], ob.crossings))
         return depends, part(~own, ~involved), part(own, involved)
 
+    def material_form(self, i: int, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
+                      scattering: torch.Tensor) -> "MaterialDiffuse":
+        """The power of these terms as a function of material i alone, the others held at eta [N, 1] (one
+        frequency), thickness [N] m (None: half-spaces), S [N]: each term is a fixed factor times material i's
+        |Gamma|^2 S^2 at its node (where the cell is of material i) and |T|^2 at each crossing of its slabs."""
+        if eta_of_material.shape[1] != 1:
+            raise ValueError("material_form takes the materials at one frequency")
+        g2 = diffuse_reflectance(eta_of_material, thickness_m, scattering, self.freq_hz).reshape(-1)
+        t2 = diffuse_transmittance(eta_of_material, thickness_m, self.freq_hz)
+        t2 = torch.cat([t2, torch.ones_like(t2[:1])]).reshape(-1)          # the row of "no crossing"
+        ob = self.obstructed
+        x = ob.crossings[ob.combo]                                           # [K, W] flat crossing indices
+        mine_r, mine_x = ob.refl // NODES == i, x // CROSSING_NODES == i
+        # material i's factors look up [its NODES values, 1] and [its CROSSING_NODES values, 1]
+        r_at = torch.where(mine_r, ob.refl % NODES, NODES)
+        x_at = torch.where(mine_x, x % CROSSING_NODES, CROSSING_NODES)
+        fixed = ob.weight * torch.where(mine_r, 1.0, g2[ob.refl]) * torch.where(mine_x, 1.0, t2[x]).prod(1)
+        return MaterialDiffuse(i, self.weight[:, i], self.freq_hz, ob.link, fixed, r_at, x_at)
+
     def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
               scattering: torch.Tensor) -> torch.Tensor:
         """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (one frequency) or [N, M], thickness [N], S [N]."""
@@ -166,6 +185,32 @@ class DiffuseTerms:
             t_at = ((x // CROSSING_NODES) * m + ob.link[:, None]) * CROSSING_NODES + x % CROSSING_NODES
             term = ob.weight * g2.reshape(-1)[r_at] * t2.reshape(-1)[t_at].prod(1)
         return p.index_add(0, ob.link, term)
+
+
+@dataclass
+class MaterialDiffuse:
+    """Diffuse terms as a function of one material (DiffuseTerms.material_form): weight [M, NODES] of its
+    unobstructed cells; per obstructed term k: link [K], fixed [K] (the factors of the other materials), r_at
+    [K] its node of material i's |Gamma|^2 S^2 (NODES: none), x_at [K, W] its crossings' nodes of material i's
+    |T|^2 (CROSSING_NODES: none)."""
+
+    material: int
+    weight: torch.Tensor
+    freq_hz: torch.Tensor
+    link: torch.Tensor
+    fixed: torch.Tensor
+    r_at: torch.Tensor
+    x_at: torch.Tensor
+
+    def power(self, g2: torch.Tensor, t2: torch.Tensor) -> torch.Tensor:
+        """P_diff [M] W (P_T = 1 W) of these terms for the material's |Gamma|^2 S^2 g2 [NODES] and |T|^2 t2
+        [CROSSING_NODES] (diffuse_reflectance, diffuse_transmittance)."""
+        one = torch.ones(1, dtype=torch.float64)
+        p = self.weight @ g2
+        if len(self.link) == 0:
+            return p
+        term = self.fixed * torch.cat([g2, one])[self.r_at] * torch.cat([t2, one])[self.x_at].prod(1)
+        return p.index_add(0, self.link, term)
 
 
 def _angle_nodes(num: int = NODES) -> torch.Tensor:

@@ -49,6 +49,21 @@ def test_the_parts_with_and_without_a_material_sum_to_the_links_components(room_
     assert (lk.material_split(7)[2].paths.num < lk.paths.num / 2)    # the table: a few of the paths
 
 
+@pytest.mark.parametrize("scattering", [None, 0.0])
+def test_a_material_part_predicts_the_links_power_as_that_material_changes(room_links, scattering):
+    lk, _, names = room_links
+    p = _params(len(names))
+    with torch.no_grad():
+        for i in range(len(names)):
+            part = lk.material_part(i, p.values())
+            for eps, sig, th in ((1.5, 1e-3, 0.003), (25.0, 1e6, 0.2), (7.0, 0.05, 0.05)):
+                q = _params(len(names))
+                q.shared_scattering = False
+                q.set_values(i, eps_r=eps, sigma_1ghz=sig, thickness_m=th, scattering=scattering)
+                want = lk.power(q.values())[part.rows, 0]
+                assert torch.allclose(part.power(q.values()), want, rtol=1e-10, atol=0)
+
+
 def test_the_fast_ranges_are_those_of_the_full_prediction(room_links):
     lk, target, names = room_links
     p = _params(len(names))
