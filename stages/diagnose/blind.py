@@ -77,7 +77,7 @@ def _simulate(scenes: Path) -> None:
 
 def _inject(key: str, meas, rng: np.random.Generator, geometry_path: Path) -> dict:
     """The measurement datasets of case `key`: the clean ones with the hidden effect(s) and noise."""
-    from rfir_stages.diagnose.data import crossings_from_artifact
+    from rfir_stages.diagnose.crossings import crossings_from_artifact
     from rfir_stages.diagnose.effects import BY_NAME
     from rfir_stages.diagnose.obstacle import segments_cross_boxes
     from rfir_stages.diagnose.rows import Rows

@@ -15,6 +15,7 @@ import numpy as np
 from rfir_cli.artifacts import read_artifact
 from rfir_cli.errors import InputFileError, StageError
 
+from .crossings import crossings_from_artifact
 from .rows import Rows
 
 
@@ -165,16 +166,3 @@ def incidence_deg(art, radar_m: np.ndarray, min_response: float = 0.3) -> np.nda
     cos = (geom.normals[strong.gaussian[first]] * dirs[q[first]]).sum(-1).abs().clamp(max=1.0)
     out[q[first]] = np.degrees(np.arccos(cos.numpy()))
     return out
-
-
-def crossings_from_artifact(art, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
-    """Objects crossed by each Tx-Rx segment [L] (Gaussians of a scene or rf artifact, labels if any)."""
-    from rfir_stages.predict.rssi_baselines import crossing_counts
-    from rfir_stages.rf_fit.links import geometry_from_artifact
-    from rfir_stages.rf_fit.occlusion import make_provider
-
-    geom = geometry_from_artifact(art)
-    provider = make_provider("auto", geom)
-    names = art.attrs.get("label_names")
-    counts, _ = crossing_counts(provider, art.get("gaussians/labels"), None if names is None else list(names), tx, rx)
-    return counts.sum(1)
