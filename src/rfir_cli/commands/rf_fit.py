@@ -39,7 +39,9 @@ def rf_fit(
     resume: Annotated[bool, typer.Option("--resume", help="Reuse the recorded model selection of the same run.")] = False,
     split: Annotated[Optional[str], typer.Option(
         "--split", metavar="PROTOCOL",
-                help="Train/test protocol (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m).")] = None,
+                help="Train/test protocol of RCS data (rf_fit.split): data, every-N, sector:A:B (deg), range:R (m). "
+                     "RSSI data use the file's split column (rfir import csv --split random:0.2|holdout-tx:N|"
+                     "block:SIZE) or rf_fit.rssi.split.")] = None,
 ) -> None:
     """Fit the materials (eps_r, sigma, thickness, scattering S) of the physical model (geometry frozen)."""
     t_start = time.time()   # the recorded wall time covers the whole command
