@@ -4,8 +4,8 @@ package data rfir_cli._configs, and an installed wheel runs from a folder outsid
 The wheel is built from a copy of the project (so the repository gets no build/ folder) with
 `pip wheel --no-deps --no-build-isolation --no-index`: offline, against the torch already installed.
 The fast check builds it without the extension (RFIR_NO_EXT=1, seconds) and reads its file list. The slow
-check builds the real wheel once per module (the extension compiles: about 5 min of wall time on 2 shared
-cores), installs it into a fresh venv that borrows this environment's packages (torch included) through a
+check builds the real wheel once per module (the extension compiles: 2 to 6 min of wall time on 2 shared
+cores, measured 115 s to 330 s), installs it into a fresh venv that borrows this environment's packages (torch included) through a
 .pth file, and runs `rfir --help`, `rfir mesh-gaussians`, `rfir rf-fit` and `rfir predict rssi` on the
 reduced room of tests/rssi/helpers.py, from a temporary folder.
 """
@@ -143,8 +143,8 @@ def test_the_installed_wheel_fits_and_predicts_a_small_room(installed):
     write_measurements(outside / "meas.h5")
     t0 = time.perf_counter()
     _rfir(installed, "mesh-gaussians", "room.obj", "-o", "scene.h5", "--preset", "room", "--spacing", "0.6")
-    _rfir(installed, "rf-fit", "scene.h5", "meas.h5", "-o", "rf.h5", "--set", "rf_fit.physical.iterations=20",
-          "--set", "rf_fit.physical.start_iterations=5")
+    _rfir(installed, "--set", "rf_fit.physical.iterations=20", "--set", "rf_fit.physical.start_iterations=5",
+          "rf-fit", "scene.h5", "meas.h5", "-o", "rf.h5")
     _rfir(installed, "predict", "rssi", "rf.h5", "--measurements", "meas.h5", "-o", "p.h5", "--results", "r.json")
     print(f"\nmesh-gaussians + rf-fit + predict rssi from the installed wheel: {time.perf_counter() - t0:.0f} s")
     metrics = json.loads((outside / "r.json").read_text())["metrics"]
