@@ -6,7 +6,7 @@ kill never leaves a half-written file at the target path, nor damages an earlier
 While a command runs (`begin_command` .. `end_command`, set up by the CLI's callback), no output is written
 over a file the command read as an input (`note_input`: read_artifact, Provenance.add_input), nor, without
 the global `--force`, over an existing file of another kind; commands call `check_output` before any work,
-and write_artifact checks again before it writes.
+and write_artifact checks again before it writes. What the command read and wrote is kept in output_guard.py.
 """
 from __future__ import annotations
 
@@ -21,8 +21,10 @@ from typing import Iterable, Mapping
 import h5py
 import numpy as np
 
-from . import __version__
+from . import __version__, output_guard
 from .errors import InputFileError, SchemaError
+from .output_guard import _key, note_input, note_output
+from .output_guard import begin_command, end_command  # noqa: F401 - also artifacts' names (main.py, tests)
 from .provenance import Provenance
 from .schema import SCHEMA_MAJOR, SCHEMA_VERSION, FieldSpec, KindSpec, get_kind
 
@@ -75,44 +77,6 @@ class Artifact:
         return out
 
 
-@dataclass
-class _OutputGuard:
-    """What the running command read and wrote (resolved paths) and whether --force was given."""
-
-    active: bool = False
-    force: bool = False
-    inputs: set = field(default_factory=set)
-    written: set = field(default_factory=set)
-
-
-_GUARD = _OutputGuard()
-
-
-def _key(path: str | Path) -> str:
-    return os.path.realpath(os.fspath(path))
-
-
-def begin_command(force: bool = False) -> None:
-    """Start a command: forget earlier inputs and outputs; force: --force was given (an existing file of
-    another kind may be replaced; an input of the command never is)."""
-    global _GUARD
-    _GUARD = _OutputGuard(active=True, force=bool(force))
-
-
-def end_command() -> None:
-    """End the command started by begin_command (library calls outside a command are not guarded)."""
-    global _GUARD
-    _GUARD = _OutputGuard()
-
-
-def note_input(path: str | Path) -> None:
-    """Record that the running command read `path` (no effect outside a command, or for its own outputs)."""
-    if _GUARD.active and path is not None:
-        key = _key(path)
-        if key not in _GUARD.written:
-            _GUARD.inputs.add(key)
-
-
 def _existing_kind(path: Path) -> str | None:
     """The kind of the rfir artifact at `path`; "" for any other existing file (or folder)."""
     if path.is_dir():
@@ -144,12 +108,12 @@ def check_output(path: str | Path | None, kind: str | None = None, inputs: Itera
     path = Path(path)
     key = _key(path)
     named = {_key(p) for p in inputs if p is not None}
-    if key in named or (_GUARD.active and key in _GUARD.inputs):
+    if key in named or (output_guard.GUARD.active and key in output_guard.GUARD.inputs):
         raise InputFileError("is an input of this command; refusing to write over it (choose another output name)",
                              path=path)
     if path.is_dir():
         raise InputFileError("is a folder; refusing to write a file there (choose another output name)", path=path)
-    if _GUARD.force or key in _GUARD.written or not (path.exists() or path.is_symlink()):
+    if output_guard.GUARD.force or key in output_guard.GUARD.written or not (path.exists() or path.is_symlink()):
         return
     found = _existing_kind(path)
     if kind is None:
@@ -171,14 +135,6 @@ def _is_hdf5(path: Path) -> bool:
             return handle.read(8) == _HDF5_SIGNATURE
     except OSError:
         return False
-
-
-def note_output(path: str | Path) -> None:
-    """Record a file the running command wrote (rewriting it later in the same command is allowed)."""
-    if _GUARD.active:
-        key = _key(path)
-        _GUARD.written.add(key)
-        _GUARD.inputs.discard(key)
 
 
 def _utc_now() -> str:
@@ -289,7 +245,7 @@ def write_artifact(path: str | Path, kind: str, data: Mapping[str, np.ndarray], 
     Raises SchemaError (naming the field) if the data breaks the schema; nothing is written then.
     """
     path = Path(path)
-    if _GUARD.active:   # the last line of defence; commands call check_output before any work
+    if output_guard.GUARD.active:   # the last line of defence; commands call check_output before any work
         check_output(path, kind)
     attrs = dict(attrs or {})
     problems = check_data(kind, data, attrs, str(path))

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
+from .output_guard import note_input
 
 
 def sha256_file(path: str | Path, chunk_bytes: int = 1 << 20) -> str:
@@ -67,8 +68,6 @@ class Provenance:
 
     def add_input(self, path: str | Path) -> None:
         """Record an input file by its hash (and, while a command runs, as a file no output may replace)."""
-        from .artifacts import note_input
-
         note_input(path)
         self.inputs[str(path)] = sha256_file(path)
 

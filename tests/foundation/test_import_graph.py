@@ -20,8 +20,8 @@ PACKAGES = {"rfir_cli": ROOT / "src" / "rfir_cli", "rfir_stages": ROOT / "stages
 
 # Ratchet: today's count of import cycles between files (strongly connected components of more than one file) and of
 # the files caught in them. These must only go down: lower them when a cycle is broken, never raise them.
-MAX_FILE_CYCLES = 2
-MAX_FILES_IN_CYCLES = 5
+MAX_FILE_CYCLES = 1
+MAX_FILES_IN_CYCLES = 3
 # The same between packages (a module counts for the folder it lies in): today one cycle through seven of the
 # rfir_stages packages (model <-> rf_fit, model <-> po, ...). Must only go down.
 MAX_PACKAGES_IN_CYCLES = 7
