@@ -156,13 +156,24 @@ class DiffuseTerms:
         t2 = diffuse_transmittance(eta_of_material, thickness_m, self.freq_hz)
         t2 = torch.cat([t2, torch.ones_like(t2[:1])]).reshape(-1)          # the row of "no crossing"
         ob = self.obstructed
-        x = ob.crossings[ob.combo]                                           # [K, W] flat crossing indices
+        x = ob.crossings                                                     # [U, W] flat crossing indices
         mine_r, mine_x = ob.refl // NODES == i, x // CROSSING_NODES == i
-        # material i's factors look up [its NODES values, 1] and [its CROSSING_NODES values, 1]
+        # material i's factors look up [its NODES values, 1] and [its CROSSING_NODES values, 1]; the crossings
+        # per combination of surfaces and angles, as power() does (terms share them)
         r_at = torch.where(mine_r, ob.refl % NODES, NODES)
         x_at = torch.where(mine_x, x % CROSSING_NODES, CROSSING_NODES)
-        fixed = ob.weight * torch.where(mine_r, 1.0, g2[ob.refl]) * torch.where(mine_x, 1.0, t2[x]).prod(1)
-        return MaterialDiffuse(i, self.weight[:, i], self.freq_hz, ob.link, fixed, r_at, x_at)
+        others = torch.where(mine_x, 1.0, t2[x]).prod(1)
+        fixed = ob.weight * torch.where(mine_r, 1.0, g2[ob.refl]) * others[ob.combo]
+        if len(ob.link) == 0:
+            return MaterialDiffuse(i, self.weight[:, i], self.freq_hz, ob.link, fixed, r_at, x_at, ob.combo)
+        # terms alike in material i (the same link, node and crossings of it) are one term of summed factors
+        x_at, row = torch.unique(x_at, dim=0, return_inverse=True)
+        key = (ob.link * (NODES + 1) + r_at) * len(x_at) + row[ob.combo]
+        key, term = torch.unique(key, return_inverse=True)
+        fixed = torch.zeros(len(key), dtype=torch.float64).index_add(0, term, fixed)
+        combo, r_at = key % len(x_at), key // len(x_at) % (NODES + 1)
+        link = key // len(x_at) // (NODES + 1)
+        return MaterialDiffuse(i, self.weight[:, i], self.freq_hz, link, fixed, r_at, x_at, combo)
 
     def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
               scattering: torch.Tensor) -> torch.Tensor:
@@ -191,8 +202,8 @@ class DiffuseTerms:
 class MaterialDiffuse:
     """Diffuse terms as a function of one material (DiffuseTerms.material_form): weight [M, NODES] of its
     unobstructed cells; per obstructed term k: link [K], fixed [K] (the factors of the other materials), r_at
-    [K] its node of material i's |Gamma|^2 S^2 (NODES: none), x_at [K, W] its crossings' nodes of material i's
-    |T|^2 (CROSSING_NODES: none)."""
+    [K] its node of material i's |Gamma|^2 S^2 (NODES: none), combo [K] its row of x_at [U, W]: the crossings'
+    nodes of material i's |T|^2 (CROSSING_NODES: none)."""
 
     material: int
     weight: torch.Tensor
@@ -201,6 +212,7 @@ class MaterialDiffuse:
     fixed: torch.Tensor
     r_at: torch.Tensor
     x_at: torch.Tensor
+    combo: torch.Tensor
 
     def power(self, g2: torch.Tensor, t2: torch.Tensor) -> torch.Tensor:
         """P_diff [M] W (P_T = 1 W) of these terms for the material's |Gamma|^2 S^2 g2 [NODES] and |T|^2 t2
@@ -209,7 +221,7 @@ class MaterialDiffuse:
         p = self.weight @ g2
         if len(self.link) == 0:
             return p
-        term = self.fixed * torch.cat([g2, one])[self.r_at] * torch.cat([t2, one])[self.x_at].prod(1)
+        term = self.fixed * torch.cat([g2, one])[self.r_at] * torch.cat([t2, one])[self.x_at].prod(1)[self.combo]
         return p.index_add(0, self.link, term)
 
 
