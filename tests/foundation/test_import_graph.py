@@ -20,6 +20,7 @@ PACKAGES = {"rfir_cli": ROOT / "src" / "rfir_cli", "rfir_stages": ROOT / "stages
 
 # Ratchet: today's count of import cycles between files (strongly connected components of more than one file) and of
 # the files caught in them. These must only go down: lower them when a cycle is broken, never raise them.
+# Today's one: rf_fit/stage.py -> rssi_fit.py -> room_stage.py -> stage.py.
 MAX_FILE_CYCLES = 1
 MAX_FILES_IN_CYCLES = 3
 # The same between packages (a module counts for the folder it lies in): today one cycle through seven of the
