@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -120,21 +121,29 @@ def write_csv(table: Table, path: Path) -> Path:
 
 
 def plot_table(table: Table, path: Path) -> Path:
-    """Grouped bars: MAE per method for each row (methods without a number are left out)."""
+    """Grouped bars: MAE per method for each row (methods without a number on any row are left out, bars
+    and legend)."""
     plt = pyplot()
-    n_rows, n_m = len(table.rows), len(table.methods)
+    methods = [m for m in table.methods
+               if any(cells.get(m) is not None and cells[m].mae_db is not None for _, cells in table.rows)]
+    n_rows, n_m = len(table.rows), len(methods)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * n_rows * max(1, n_m) / 3), 4.0))
     width = 0.8 / max(1, n_m)
-    for j, m in enumerate(table.methods):
+    top = 0.0
+    for j, m in enumerate(methods):
         xs, ys = [], []
         for i, (_, cells) in enumerate(table.rows):
             c = cells.get(m)
             if c is not None and c.mae_db is not None:
                 xs.append(i - 0.4 + width * (j + 0.5))
                 ys.append(c.mae_db)
+                if math.isfinite(c.mae_db):
+                    top = max(top, c.mae_db)
         ax.bar(xs, ys, width, label=m, edgecolor="black" if m == table.ours else None)
+    if top > 0:
+        ax.set_ylim(0, 1.3 * top)                       # room for the legend above the bars
     ax.set_xticks(range(n_rows))
-    ax.set_xticklabels([label for label, _ in table.rows], rotation=20, ha="right", fontsize=8)
+    ax.set_xticklabels([textwrap.fill(label, 40) for label, _ in table.rows], rotation=20, ha="right", fontsize=8)
     ax.set_ylabel("MAE (dB)")
     ax.set_title(table.title, fontsize=10)
     ax.legend(fontsize=7, ncol=min(n_m, 4))

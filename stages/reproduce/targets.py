@@ -408,6 +408,13 @@ def _measured_data(r: Plan) -> tuple[dict[str, Path], Path]:
     return surveys, scene
 
 
+def _measured_fit_sets(r: Plan) -> dict:
+    """rf-fit settings of the measured target's fits: configs/reproduce.toml measured_iterations Adam steps
+    (its starts a fifth, at least 10), no radio-map cache."""
+    n = int(r.sizes.get("measured_iterations") or r.sizes["iterations"])
+    return {"rf_fit.physical.iterations": n, "rf_fit.physical.start_iterations": max(10, n // 5), **MEASURED_FIT}
+
+
 def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
     """A row label read from the imported survey: which positions or receivers are test."""
     def label() -> str:
@@ -445,7 +452,7 @@ def target_measured(r: Plan) -> Table:
     surveys, scene = _measured_data(r)
     fits = {}
     for name, protocol, text in MEASURED_PROTOCOLS:
-        ours = M.rfir_rssi(r, f"measured_{name}", scene, surveys[name], "random", _fit_sets(r, MEASURED_FIT))
+        ours = M.rfir_rssi(r, f"measured_{name}", scene, surveys[name], "random", _measured_fit_sets(r))
         fits[name] = ours
         t.add(_measured_label(surveys[name], name, text), {
             "rfir": ours.cell(),
@@ -472,8 +479,8 @@ def target_measured(r: Plan) -> Table:
                 "2 of the 12 receivers test)",
                 "rfir: the physical room model (docs/rssi.md), rf-fit's defaults (device gains chosen by validation, "
                 "links weighted by their packet count and spread; no radio-map cache: rf_fit.room.map_visibility = "
-                "false)"
-                + (f", {r.sizes['iterations']} steps (quick)" if r.quick else ""),
+                "false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else "")
+,
                 "log-distance, multi-wall, nearest links: fitted on the same training links (rfir's predict JSON)",
                 "ray tracing (Sionna RT), not run: " + NO_RAYTRACE[len("not run: "):]
                 + "; scripts/baseline_raytrace.py also indexes devices 0..N-1 and the survey's rx_id are 10..42",
