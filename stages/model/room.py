@@ -322,7 +322,7 @@ class MaterialPart:
         self.rows, without, with_i = links.material_split(i)
         self.field0, self.diff0 = without.components(mats)
         p, n = with_i.paths, links.num_materials
-        self.freqs = torch.unique(p.freq_hz)                       # material i's own tables: at these
+        self.freqs = torch.unique(p.freq_hz)                       # [F] Hz: material i's own tables at these
         mine = (p.kind > 0) & (links.material_of_patch[p.patch] == i)                       # [Q_i, I]
         once = mine.sum(1) == 1
         self.several = RoomLinks(p.select_paths(~once), None, links.material_of_patch, n)
@@ -363,9 +363,7 @@ class MaterialPart:
         i = self.material
         own = coefficient_tables(self.freqs, mats, only=i).reshape(4, -1)   # R_TE, R_TM, T_TE, T_TM on the nodes
         tables = self.tables.clone()
-        if self.several.paths.num:   # its table at its own frequencies (those of the rows' but where a row has none)
-            same = torch.equal(self.several.freqs, self.freqs)
-            tables[:, i] = own if same else self.several._tables(mats, only=i).reshape(4, -1)
+        tables[:, i] = own           # select_paths keeps every link, so `several` has the rows' frequencies
         field = self.field0 + self.several.components(mats, tables.reshape(-1))[0]
         flat, te, frac = own.reshape(-1), self.te_at, self.frac
         width = own.shape[1]
