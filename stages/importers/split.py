@@ -26,9 +26,9 @@ from rfir_cli.errors import ConfigError
 PROTOCOLS = ("random", "holdout-tx", "holdout-rx", "block", "block-tx")
 RSSI_ONLY = ("holdout-tx", "holdout-rx", "block", "block-tx")
 BLOCK_SHARE = 0.2
-HELP = ("random:SHARE (any task; e.g. random:0.2), holdout-tx:N or holdout-rx:N (rssi task; N transmitters or "
-        "receivers held out), block:SIZE[:SHARE] or block-tx:SIZE[:SHARE] (rssi task; receiver or transmitter "
-        "squares of SIZE metres held out, SHARE of the links, default 0.2)")
+HELP = ("random:SHARE (any task; e.g. random:0.2), holdout-tx:N (rssi task; N transmitters held out), holdout-rx:N "
+        "(N receivers), block:SIZE[:SHARE] (rssi task; receiver squares of SIZE metres held out, SHARE of the links, "
+        "default 0.2) or block-tx:SIZE[:SHARE] (transmitter squares)")
 
 
 @dataclass(frozen=True)
