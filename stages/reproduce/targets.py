@@ -418,8 +418,9 @@ def _measured_fit_sets(r: Plan) -> dict:
 def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
     """A row label read from the imported survey: which positions or receivers are test."""
     def label() -> str:
-        from rfir_cli.artifacts import read_artifact
         import numpy as np
+
+        from rfir_cli.artifacts import read_artifact
 
         a = read_artifact(meas, "measurements")
         test = np.asarray(a["split"]) == 1
@@ -450,10 +451,8 @@ def target_measured(r: Plan) -> Table:
     it does not (a held-out area, unseen anchors)."""
     t = Table("RSSI: measured BLE survey (TETAM lab, 2.44 GHz)", MEASURED_METHODS)
     surveys, scene = _measured_data(r)
-    fits = {}
-    for name, protocol, text in MEASURED_PROTOCOLS:
+    for name, _, text in MEASURED_PROTOCOLS:
         ours = M.rfir_rssi(r, f"measured_{name}", scene, surveys[name], "random", _measured_fit_sets(r))
-        fits[name] = ours
         t.add(_measured_label(surveys[name], name, text), {
             "rfir": ours.cell(),
             "log-distance": ours.metric("baseline_log_distance_mae_db"),
