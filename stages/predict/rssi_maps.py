@@ -95,20 +95,29 @@ def coverage_share(best: np.ndarray, threshold: float) -> tuple[float, int, int]
     return (covered / n if n else 0.0), covered, n
 
 
-def _tmp(path: Path) -> Path:
-    return path.with_name(f".{path.name}.partial")
+def _write_whole(path: Path, write) -> Path:
+    """Call write(tmp) on a hidden file beside `path`, then move it onto `path`: a map file is there whole or not
+    at all (an interrupted run leaves no half-written one). The hidden name keeps the suffix (np.savez adds .npz)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        write(tmp)
+        tmp.replace(path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
 
 
 def write_csv(path: Path, points: np.ndarray, values: np.ndarray, column: str, best=None) -> Path:
     """CSV x_m,y_m,z_m,<column> (values [T, N]: T > 1 gives <column>_tx1.. and best_tx, best)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp(path)
     t = len(values)
     header = ["x_m", "y_m", "z_m"] + ([column] if t == 1 else [f"{column}_tx{i + 1}" for i in range(t)])
     cols = [points[:, 0], points[:, 1], points[:, 2], *values]
     if t > 1:
         header += ["best_tx", f"best_{column}"]
-    try:
+
+    def write(tmp: Path) -> None:
         with open(tmp, "w", newline="") as handle:
             w = csv.writer(handle)
             w.writerow(header)
@@ -119,11 +128,7 @@ def write_csv(path: Path, points: np.ndarray, values: np.ndarray, column: str, b
                     for row, i, b in zip(rows, best[0][lo:lo + 65536], best[1][lo:lo + 65536]):
                         row += [str(int(i) + 1), f"{b:.6g}" if np.isfinite(b) else "nan"]
                 w.writerows(rows)
-        tmp.replace(path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return _write_whole(path, write)
 
 
 def write_npz(path: Path, points: np.ndarray, values: np.ndarray, txs: np.ndarray, unit: str, quantity: str,
@@ -134,15 +139,7 @@ def write_npz(path: Path, points: np.ndarray, values: np.ndarray, txs: np.ndarra
     if grid is not None:
         arrays.update(grid_values=np.stack([grid.image(v) for v in values]), grid_origin_m=np.asarray(grid.origin_m),
                       grid_step_m=np.asarray(grid.step_m), height_m=np.asarray(grid.height_m))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial.npz")
-    try:
-        np.savez(tmp, **arrays)
-        tmp.replace(path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return _write_whole(path, lambda tmp: np.savez(tmp, **arrays))
 
 
 # TIFF tag ids: baseline, then GeoTIFF (ModelPixelScale, ModelTiepoint, GeoKeyDirectory) and GDAL's no-data
@@ -195,15 +192,7 @@ def write_tiff(path: Path, image: np.ndarray, grid: GridInfo) -> Path:
         ifd += struct.pack("<HHI", tag, typ, count) + value
     ifd += struct.pack("<I", 0)
     data = b"II" + struct.pack("<HI", 42, header) + ifd + extra + pixels
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp(path)
-    try:
-        tmp.write_bytes(data)
-        tmp.replace(path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return _write_whole(path, lambda tmp: tmp.write_bytes(data))
 
 
 def write_maps(paths: dict[str, list[Path]], points: np.ndarray, values: np.ndarray, txs: np.ndarray, unit: str,
