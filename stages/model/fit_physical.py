@@ -201,7 +201,9 @@ def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: n
     (rfir_stages.model.identifiability; one standard error, the residual's SE_MARGIN)."""
     from .identifiability import normal_reflection_ranges
     from .residual import SE_MARGIN
-    local = _material_predictor(agg, target_db, devices) if hasattr(agg, "material_split") else None
+    # incoherent room links have no local form (RoomLinks.material_part): every link is evaluated at each point
+    local = (_material_predictor(agg, target_db, devices)
+             if hasattr(agg, "material_split") and not getattr(agg, "incoherent", False) else None)
     return normal_reflection_ranges(training_predictor(agg, target_db, devices), params, target_db,
                                     float(freq_hz), margin=SE_MARGIN, progress=progress, local=local)
 

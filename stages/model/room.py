@@ -38,6 +38,11 @@ from .surfels import surfel_areas
 
 # rf_fit.room.scattering: one S for every material, or one per material
 SCATTERING_CHOICES = ("shared", "per_material")
+# rf_fit.room.band: how the paths of a link add up. "coherent": their complex amplitudes at the one frequency;
+# "ble": the power of that sum averaged over the three BLE advertising channels (a BLE radio reports RSSI
+# averaged over them); "incoherent": their powers |a_p|^2, no phases; "auto": chosen (rf_fit.room_stage).
+BANDS = ("auto", "coherent", "ble", "incoherent")
+BLE_CHANNELS_HZ = (2.402e9, 2.426e9, 2.480e9)
 
 
 @dataclass
@@ -87,6 +92,8 @@ class RoomSettings:
     # keep the surfaces crossed from each receiver of the default radio map ([predict.rssi] grid) to the diffuse cells
     # in the model: a map for a new transmitter then traces no receiver (a few MB, a few s of the fit)
     map_visibility: bool = True
+    # how a link's paths add up (BANDS); a fitted model stores the one it was fitted with
+    band: str = "auto"
 
 
 class RoomGeometry:
@@ -167,6 +174,16 @@ class RoomGeometry:
             return specular(pending.result(), diffuse)
 
 
+    def band_links(self, tx_m, rx_m, freq_hz: float, band: str) -> "RoomLinks | BandLinks":
+        """The links tx_m, rx_m [M, 3] m as `band` (BANDS; "auto" is taken as "coherent") sums their paths:
+        traced at freq_hz [Hz] (coherent, incoherent) or once per BLE advertising channel (ble)."""
+        if band == "ble":
+            return BandLinks([self.links(tx_m, rx_m, np.full(len(tx_m), f)) for f in BLE_CHANNELS_HZ])
+        links = self.links(tx_m, rx_m, np.full(len(tx_m), float(freq_hz)))
+        links.incoherent = band == "incoherent"
+        return links
+
+
 def extents_key(geom: FrozenGeometry, labels: torch.Tensor | None, settings: RoomSettings) -> str:
     """Fingerprint of what the patches' occupancy grids depend on: the Gaussians, their labels [G], the patch
     settings and the rasterisation's constants. A model's stored grids are used only where it matches."""
@@ -213,7 +230,10 @@ class RoomLinks:
     within 0.01 dB, tested)."""
 
     def __init__(self, paths: RoomPaths, diffuse: DiffuseTerms | None, material_of_patch: torch.Tensor,
-                 num_materials: int):
+                 num_materials: int, incoherent: bool = False):
+        # incoherent: the paths add in power (band "incoherent"); the field is then not linear in one
+        # interaction's coefficients, so material_part (which relies on it) refuses such links
+        self.incoherent = bool(incoherent)
         self.paths, self.diffuse = paths, diffuse
         self.material_of_patch, self.num_materials = material_of_patch, int(num_materials)
         self.freqs, fid = torch.unique(paths.freq_hz, return_inverse=True)
@@ -241,11 +261,12 @@ class RoomLinks:
 
     def select_paths(self, keep: torch.Tensor) -> "RoomLinks":
         """The same links with the specular paths where keep [Q] bool is true (the diffuse terms unchanged)."""
-        return RoomLinks(self.paths.select_paths(keep), self.diffuse, self.material_of_patch, self.num_materials)
+        return RoomLinks(self.paths.select_paths(keep), self.diffuse, self.material_of_patch, self.num_materials,
+                         self.incoherent)
 
     def select_links(self, rows) -> "RoomLinks":
         return RoomLinks(self.paths.select_links(rows), None if self.diffuse is None else self.diffuse.select_links(rows),
-                         self.material_of_patch, self.num_materials)
+                         self.material_of_patch, self.num_materials, self.incoherent)
 
     def depends_on(self, i: int) -> bool:
         """Whether any link's field or diffuse power involves material i (material_split's rows are not empty)."""
@@ -280,7 +301,8 @@ class RoomLinks:
         return coefficient_tables(self.freqs, mats, only)
 
     def components(self, mats: MaterialValues, tables: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """(specular field [M] complex, diffuse power [M]); tables: _tables(mats) where the caller has them."""
+        """(specular field [M] complex, diffuse power [M] W); tables: _tables(mats) where the caller has them.
+        Incoherent links: the field is 0 and the specular paths' powers sum_p |a_p|^2 are in the second term."""
         tab = self._tables(mats) if tables is None else tables
         coefficients = []
         for te, tm, frac in self._slots:
@@ -288,15 +310,23 @@ class RoomLinks:
             coefficients.append((lo_te + (tab[te + 1] - lo_te) * frac, lo_tm + (tab[tm + 1] - lo_tm) * frac))
         spec_m = torch.sqrt((1.0 - mats.scattering ** 2).clamp(min=0.0))
         spec = torch.cat([spec_m, torch.ones(1, dtype=torch.float64)])[self._refl_mat].prod(1)
-        field = self.paths.chain(coefficients, spec)
+        field = self.paths.chain(coefficients, spec, self.incoherent)
+        if self.incoherent:
+            field, power = torch.zeros(self.num_links, dtype=torch.complex128), field
+        else:
+            power = torch.zeros(self.num_links, dtype=torch.float64)
         if self.diffuse is None:
-            return field, torch.zeros(self.num_links, dtype=torch.float64)
+            return field, power
         f = self.paths.freq_hz
+        if len(f) == 0:       # no link (a material no link depends on, RoomLinks.material_split)
+            return field, power
         eta = mats.eta(f[:1]) if bool((f == f[0]).all()) else mats.eta(f)
-        return field, self.diffuse.power(eta, mats.thickness_m, mats.scattering)
+        return field, power + self.diffuse.power(eta, mats.thickness_m, mats.scattering)
 
     def material_part(self, i: int, mats: MaterialValues) -> "MaterialPart":
         """The links' power as material i alone changes from mats (MaterialPart)."""
+        if self.incoherent:
+            raise ValueError("material_part needs the coherent field (linear in each interaction's coefficients)")
         return MaterialPart(self, i, mats)
 
     def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
@@ -304,6 +334,38 @@ class RoomLinks:
         field, diff = self.components(mats)
         g = 10 ** (torch.as_tensor(gain_db, dtype=torch.float64) / 10)
         return (g * (abs2(field) + diff))[:, None]
+
+
+class BandLinks:
+    """M links traced at each of C channel frequencies (C RoomLinks with the same paths: the tracer's geometry
+    does not depend on the frequency); the power is the mean over the channels of each channel's coherent power,
+    what an RSSI averaged over the channels measures. Has the interface the fit uses (power, num_links, paths,
+    select_links, select_paths); no material_part, so the |Gamma| ranges evaluate every link."""
+
+    def __init__(self, parts: list):
+        if len({p.paths.num for p in parts}) != 1:
+            raise ValueError("the channels' links must have the same paths")
+        self.parts = parts
+
+    @property
+    def num_links(self) -> int:
+        return self.parts[0].num_links
+
+    @property
+    def paths(self) -> RoomPaths:
+        """The first channel's paths (the others' differ in frequency alone)."""
+        return self.parts[0].paths
+
+    def select_links(self, rows) -> "BandLinks":
+        return BandLinks([p.select_links(rows) for p in self.parts])
+
+    def select_paths(self, keep: torch.Tensor) -> "BandLinks":
+        """keep [Q] bool, of the shared paths."""
+        return BandLinks([p.select_paths(keep) for p in self.parts])
+
+    def power(self, mats: MaterialValues, gain_db: torch.Tensor | float = 0.0) -> torch.Tensor:
+        """Received power [M, 1] W (P_T = 1 W): the mean over channels of RoomLinks.power."""
+        return torch.stack([p.power(mats, gain_db) for p in self.parts]).mean(0)
 
 
 # the diffuse nodes on the specular tables' angle nodes: |Gamma|^2 on every DIFFUSE_STEP-th, |T|^2 on each
@@ -420,6 +482,8 @@ class RoomPredictor:
         kw.setdefault("small_patch_share", 0.0)
         # and their third order off large patches alone, when they store no small reflections
         kw.setdefault("third_order_small_reflections", 0)
+        # and coherent sums at one frequency, when they store no band
+        kw.setdefault("band", "coherent")
         self.geom = geometry_from_artifact(rf)
         labels = rf.get("gaussians/labels")
         self.freq_hz = float(np.asarray(rf["rf/freq_hz"])[0])
@@ -443,8 +507,9 @@ class RoomPredictor:
         return int(min(num_links, chunk_links) * self.BYTES_PER_LINK + num_links * 200)
 
     def path_gain_db(self, tx_m: np.ndarray, rx_m: np.ndarray, chunk_links: int = 512, progress=None) -> np.ndarray:
-        """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m (floored at -250 dB), with the fitted
-        gain of each device the fit saw at that position (device_gains.gains_at)."""
+        """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m (floored at -250 dB), the paths summed as the
+        model's band (RoomSettings.band), with the fitted gain of each device the fit saw at that position
+        (device_gains.gains_at)."""
         from .device_gains import gains_at
         from .predict import FLOOR_DB
 
@@ -454,7 +519,8 @@ class RoomPredictor:
         with torch.no_grad():
             for lo in range(0, len(tx_m), chunk_links):
                 hi = min(len(tx_m), lo + chunk_links)
-                links = self.room.links(tx_m[lo:hi], rx_m[lo:hi], np.full(hi - lo, self.freq_hz))
+                # the sum the model was fitted with (room.band), so predict, edit and diagnose agree with the fit
+                links = self.room.band_links(tx_m[lo:hi], rx_m[lo:hi], self.freq_hz, self.room.settings.band)
                 with single_thread_torch():   # ten times faster than two threads on a busy CPU
                     p = links.power(self.mats, self.gain_db)[:, 0].numpy()
                 out[lo:hi] = np.maximum(10 * np.log10(np.maximum(p, 1e-300)) + device_db[lo:hi], FLOOR_DB)

@@ -36,7 +36,7 @@ import torch
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 
 from .link_rows import renumber_links
-from .materials import C0, fresnel, slab_transmission
+from .materials import C0, abs2, fresnel, slab_transmission
 from .second_order import Patches, mirror_points, planar_patches
 from .surfels import footprint_cells
 
@@ -391,8 +391,9 @@ class RoomPaths:
         return (self.order >= 3) & small.any(1)
 
     def field(self, eta_of_patch: torch.Tensor, thickness_of_patch: torch.Tensor | None,
-              scattering_of_patch: torch.Tensor) -> torch.Tensor:
-        """Received complex amplitude [M] (P_T = 1 W), every coefficient evaluated exactly.
+              scattering_of_patch: torch.Tensor, incoherent: bool = False) -> torch.Tensor:
+        """Received complex amplitude [M] (P_T = 1 W), every coefficient evaluated exactly (incoherent: the sum of
+        the paths' powers [M] W instead, chain).
 
         eta_of_patch [P, M] complex relative permittivity of each patch's material at each link's
         frequency (or [P, 1] for one frequency); thickness_of_patch [P] m (None: half-spaces);
@@ -411,13 +412,15 @@ class RoomPaths:
         c_te, c_tm = torch.where(refl, r_te, t_te), torch.where(refl, r_tm, t_tm)
         spec = torch.where(refl, torch.sqrt((1.0 - scattering_of_patch[self.patch] ** 2).clamp(min=0.0)),
                            torch.ones((), dtype=torch.float64)).prod(1)
-        return self.chain([(c_te[:, i], c_tm[:, i]) for i in range(c_te.shape[1])], spec)
+        return self.chain([(c_te[:, i], c_tm[:, i]) for i in range(c_te.shape[1])], spec, incoherent)
 
-    def chain(self, coefficients: list, spec: torch.Tensor) -> torch.Tensor:
+    def chain(self, coefficients: list, spec: torch.Tensor, incoherent: bool = False) -> torch.Tensor:
         """Received complex amplitude [M] from the TE and TM coefficients of each interaction slot i,
         coefficients[i] = (c_te, c_tm) complex of length >= slot_use()[i] (the paths using slot i come
         first), and each path's specular share spec [Q] (prod sqrt(1 - S^2)). The field vector of the
-        module docstring is carried as its two components in each interaction's basis (`_jones`)."""
+        module docstring is carried as its two components in each interaction's basis (`_jones`).
+        incoherent: the sum of the paths' powers sum_p |a_p|^2 [M] W (P_T = 1 W) instead, no phases (the
+        band's "incoherent" sum, room.BANDS)."""
         j = self._jones()
         pieces = []
         if j["use"]:
@@ -434,6 +437,8 @@ class RoomPaths:
                     v1 = st[:, 2] * w0[:nxt] + st[:, 3] * w1[:nxt]
         pol = torch.cat(pieces[::-1] + [j["direct"]])
         a = j["base"] * spec * pol
+        if incoherent:
+            return torch.zeros(self.num_links, dtype=torch.float64).index_add(0, self.link, abs2(a))
         return torch.zeros(self.num_links, dtype=torch.complex128).index_add(0, self.link, a)
 
 

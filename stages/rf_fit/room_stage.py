@@ -25,11 +25,11 @@ from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
                                              material_index, reflection_ranges, training_predictor)
 from rfir_stages.model.physical import PairSettings
-from rfir_stages.model.room import SCATTERING_CHOICES, RoomGeometry, RoomSettings
+from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
-from .device_choice import DeviceChoice, choose_device_gains
+from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, DeviceChoice, choose_device_gains, held_out_rows
 from .physical_stage import attach_ranges, bound_warnings, range_words
 
 MODEL_KIND = "rssi_physical"
@@ -89,6 +89,8 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
     if settings.small_patch_share < 0 or settings.merge_scatter_factor < 0 or settings.third_order_small_reflections < 0:
         raise ConfigError("rf_fit.room: small_patch_share, merge_scatter_factor and third_order_small_reflections "
                           "must be >= 0")
+    if settings.band not in BANDS:
+        raise ConfigError(f"rf_fit.room.band = {settings.band!r}: expected one of {', '.join(BANDS)}")
     if settings.starts_kept < 1:
         raise ConfigError(f"rf_fit.room.starts_kept = {settings.starts_kept}: expected at least 1")
     if settings.scattering not in SCATTERING_CHOICES:
@@ -248,7 +250,7 @@ def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, na
                      "all kept as fitted")
 
 
-def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float):
+def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent"):
     """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
     it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
     worse on the links those values were fitted to (rfir_stages.model.tabulated)."""
@@ -256,7 +258,9 @@ def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: 
     if len(rest) == 0:
         return None
     rest = rest[np.unique(np.linspace(0, len(rest) - 1, min(len(fit), len(rest))).round().astype(np.int64))]
-    return room.links(tx[rest], rx[rest], np.full(len(rest), freq_hz)), target_db[rest, None]
+    if band == "coherent":
+        return room.links(tx[rest], rx[rest], np.full(len(rest), freq_hz)), target_db[rest, None]
+    return room.band_links(tx[rest], rx[rest], freq_hz, band), target_db[rest, None]
 
 
 def _log_crossing(res, progress) -> None:
@@ -265,6 +269,44 @@ def _log_crossing(res, progress) -> None:
     if n:
         progress.log(f"{n} material(s) took another start's fitted values: training loss "
                      f"{min(res.extra['final_losses'].values()):.4g} -> {res.extra['crossed_loss']:.4g} (after fitting on)")
+
+
+def _choose_band(links, room, settings: RoomSettings, names: list[str], tx, rx, freq_hz: float, target_db: np.ndarray,
+                 fit_cfg: PhysicalFitConfig, priors: dict, progress, seed: int):
+    """(band, its links, reason) for rf_fit.room.band = "auto" on measured data: the coherent links `links` of
+    tx, rx [M, 3] m (target_db [M] dB) are split as device_choice splits them (the links at HELD_SHARE of the
+    roaming side's positions held out); the materials are fitted once, coherently and without device gains (one
+    start carried through), on the others; each sum (coherent, ble, incoherent) then predicts every link with
+    those materials, its system gain refitted (the median training residual, the MAE's optimum), and is scored
+    on the held-out links. A sum other than coherent wins where it lowers the held-out MAE by MARGIN_DB."""
+    held, side = held_out_rows(tx, rx, seed)
+    if held.sum() < MIN_VALIDATION_LINKS or (~held).sum() < MIN_VALIDATION_LINKS:
+        return "coherent", links, (f"auto: too few links ({len(held)}) to validate the band on held-out positions; "
+                                   "rf_fit.room.band sets it")
+    train = np.flatnonzero(~held)
+    quick = replace(fit_cfg, fit_gain=True, starts_kept=1)
+    progress.log(f"band: fitting coherently on {len(train)} of {len(tx)} links to validate the sums")
+    res = fit_room_materials(links.select_links(torch.as_tensor(train)), room, settings, len(names),
+                             target_db[train, None], quick, progress, priors, None)
+    candidates = {"coherent": links,
+                  "ble": room.band_links(tx, rx, freq_hz, "ble"),
+                  "incoherent": RoomLinks(links.paths, links.diffuse, links.material_of_patch, links.num_materials,
+                                          incoherent=True)}
+    scores = {}
+    with torch.no_grad():
+        for band, lk in candidates.items():
+            pred = training_predictor(lk, torch.as_tensor(target_db[:, None]))(res.params)[:, 0].numpy()
+            residual = target_db - pred
+            residual -= np.median(residual[train])
+            scores[band] = float(np.abs(residual[held]).mean())
+    best = min(scores, key=scores.get)
+    if scores[best] > scores["coherent"] - MARGIN_DB:
+        best = "coherent"
+    shown = ", ".join(f"{k} {v:.2f}" for k, v in scores.items())
+    reason = (f"auto: measured data: validated on {int(held.sum())} training links at the {side} positions held out "
+              f"of a coherent fit, its materials held fixed and the system gain refitted for each sum (MAE dB: "
+              f"{shown}); rf_fit.room.band sets it")
+    return best, candidates[best], reason
 
 
 def _choose_devices(links, room, settings: RoomSettings, names: list[str], tx, rx, ids: dict, target_db: np.ndarray,
@@ -325,7 +367,11 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         fit = np.linspace(0, len(tx) - 1, settings.fit_links).round().astype(np.int64)
         progress.log(f"fitting on {len(fit)} of the {len(tx)} training links, evenly spaced "
                      f"(rf_fit.room.fit_links = {settings.fit_links})")
-    links = room.links(tx[fit], rx[fit], np.full(len(fit), freq_hz))
+    band, band_reason = settings.band, "rf_fit.room.band"
+    if band == "auto" and ideal:
+        # rfir simulate's data are coherent sums at one frequency
+        band, band_reason = "coherent", "auto: simulated at one frequency"
+    links = room.band_links(tx[fit], rx[fit], freq_hz, "coherent" if band == "auto" else band)
     trace_s = time.time() - t0
     progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(fit), 1):.1f} per link) "
                  f"in {trace_s:.1f} s")
@@ -333,6 +379,11 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if priors:
         progress.log("starting values from material names (ITU-R P.2040 at 1 GHz): " + "; ".join(
             f"{names[i]}: eps_r {e:g}, sigma {g:g} S/m, {t * 100:g} cm" for i, (e, g, t) in priors.items()))
+    if band == "auto":
+        band, links, band_reason = _choose_band(links, room, settings, names, tx[fit], rx[fit], freq_hz, target_db[fit],
+                                                fit_cfg, priors, progress, seed)
+    settings = replace(settings, band=band)
+    progress.log(f"band: {band} ({band_reason})")
     if settings.device_gains == "validate":
         choice = _choose_devices(links, room, settings, names, tx[fit], rx[fit], {k: None if v is None else v[fit]
                                  for k, v in ids.items()}, target_db[fit], fit_cfg, priors, progress, seed)
@@ -341,7 +392,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         if choice.which != "off" and len(fit) < len(tx):
             fit = np.arange(len(tx))
             progress.log(f"device gains on: fitting on all {len(tx)} training links")
-            links = room.links(tx, rx, np.full(len(fit), freq_hz))
+            links = room.band_links(tx, rx, freq_hz, band)
     devices = None if settings.device_gains == "off" else DeviceGains(
         settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db,
         *(None if ids[s] is None else ids[s][fit] for s in ("tx", "rx")))
@@ -364,7 +415,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     tabulated = [""] * len(names)
     if settings.tabulated_materials:
         t_tab = time.time()
-        check = _check_links(room, tx, rx, fit, target_db, freq_hz)
+        check = _check_links(room, tx, rx, fit, target_db, freq_hz, band)
         _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
         progress.log(f"tabulated materials tried in {time.time() - t_tab:.1f} s (rf_fit.room.tabulated_materials)")
     if devices is not None:
