@@ -215,8 +215,6 @@ def _material_predictor(links, target_db, devices: DeviceGains | None):
     floor = _floor_power(target_db)
 
     def local(params: MaterialParams, i: int):
-        if not links.depends_on(i):   # no training link sees material i: every value of it fits them alike
-            return torch.zeros(0, dtype=torch.int64), None
         part = links.material_part(i, params.values())
         gains = None if devices is None else devices.link_db()[part.rows]
 

@@ -268,12 +268,6 @@ class RoomLinks:
         return RoomLinks(self.paths.select_links(rows), None if self.diffuse is None else self.diffuse.select_links(rows),
                          self.material_of_patch, self.num_materials, self.incoherent)
 
-    def depends_on(self, i: int) -> bool:
-        """Whether any link's field or diffuse power involves material i (material_split's rows are not empty)."""
-        if bool(((self.paths.kind > 0) & (self.material_of_patch[self.paths.patch] == i)).any()):
-            return True
-        return self.diffuse is not None and bool(self.diffuse.split_material(i)[0].any())
-
     def material_split(self, i: int) -> tuple[torch.Tensor, "RoomLinks", "RoomLinks"]:
         """(rows [M_i] int64, without, with): the links whose field or diffuse power depends on material i, and
         those links' specular paths and diffuse terms that do not involve it (without) and that do (with: a path
