@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 
+from .crossings import crossings_from_artifact
 from .rows import Rows
 from .select import chain_from_json, compose
 
@@ -27,8 +28,6 @@ def apply_recorded_effects(rf, pg_db: np.ndarray, tx_m: np.ndarray, rx_m: np.nda
     rep = lambda a: None if a is None else np.repeat(np.asarray(a, np.float64), n_f, axis=0)  # noqa: E731
     crossings = None
     if any(e.name in ("edge_diffraction", "wall_transmission", "crossing_loss") for e, _ in chain):
-        from .crossings import crossings_from_artifact
-
         crossings = rep(crossings_from_artifact(rf, tx_m, rx_m))
     flat = pg_db.reshape(-1).astype(np.float64)
     every = np.ones(flat.size, bool)

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from rfir_stages.predict.rssi_baselines import crossing_counts
+from rfir_stages.rf_fit.links import geometry_from_artifact
+from rfir_stages.rf_fit.occlusion import make_provider
+
 
 def crossings_from_artifact(art, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
     """Objects crossed by each Tx-Rx segment [L] (Gaussians of a scene or rf artifact, labels if any)."""
-    from rfir_stages.predict.rssi_baselines import crossing_counts
-    from rfir_stages.rf_fit.links import geometry_from_artifact
-    from rfir_stages.rf_fit.occlusion import make_provider
-
     geom = geometry_from_artifact(art)
     provider = make_provider("auto", geom)
     names = art.attrs.get("label_names")

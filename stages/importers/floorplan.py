@@ -37,6 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from rfir_cli.errors import ConfigError, InputFileError
+from rfir_stages.model.tabulated import named_material
+from rfir_stages.simulate.scenes import write_ply
 
 REQUIRED = ("x0", "y0", "x1", "y1", "thickness_m", "material")
 OPTIONAL = ("height_m", "z0_m")
@@ -206,7 +208,6 @@ def floorplan_mesh(walls: list[Wall], height_m: float, slab_m: float = 0.2, wall
     """The room's mesh: each wall (box or sheet, module docstring), then the floor (top at z = 0) and the ceiling
     (bottom at z = height_m [m]) over the walls' bounding box, slab_m [m] thick."""
     check_options(height_m, slab_m, walls_kind)
-    from rfir_stages.model.tabulated import named_material
 
     parts, objects, counts = [], [], {}
 
@@ -272,7 +273,6 @@ def import_floorplan(csv_path: str | Path, out: str | Path, height_m: float, sla
     """Read the plan, build its mesh, and write OUT (.ply: float x, y, z per vertex, an int `label` per vertex and
     per face) and labels.json beside it (label -> name, as `rfir simulate` writes it and mesh-gaussians reads it).
     Nothing is written unless the whole plan is valid; an existing OUT or labels.json is kept unless overwrite."""
-    from rfir_stages.simulate.scenes import write_ply
 
     out = Path(out)
     if out.suffix.lower() != ".ply":

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_cli.artifacts import check_output, read_artifact, write_artifact
 from rfir_cli.errors import ConfigError, InputFileError, StageError
 from rfir_cli.progress import NullProgress
 from rfir_cli.provenance import Provenance
@@ -219,8 +219,6 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     "tif"; rssi_maps); threshold_dbm: coverage threshold [dBm] (needs tx_power_dbm). Receivers closer than
     predict.rssi.min_tx_distance_m to a transmitter are left out of its map (NaN in the map files; not in
     the artifact) and counted in a warning."""
-    from rfir_cli.artifacts import check_output
-
     progress = progress or NullProgress()
     t_start = time.time()
     cfg = {**rssi_defaults(), **(config.get("rssi", {}) or {})}

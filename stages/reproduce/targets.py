@@ -17,7 +17,7 @@ from . import methods as M
 from rfir_cli.config import resolve_config
 from rfir_cli.errors import ConfigError
 
-from .plan import Plan, default_dirs
+from .plan import Plan, default_dirs, read_json
 from .tables import Cell, Table
 
 NOT_EDITABLE = "cannot edit: retrain on new measurements"
@@ -435,8 +435,6 @@ def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
 def _diagnose_note(r: Plan, report: Path) -> Callable[[], str]:
     """A note from `rfir diagnose`'s results on the random fit: its headline, held-out MAE before and after."""
     def note() -> str:
-        from .plan import read_json
-
         d = read_json(report.parent / "results.json")
         named = [n["effect"] for n in d.get("named", [])]
         return (f"`rfir diagnose` of the random fit ([report]({report.relative_to(r.out)})): "

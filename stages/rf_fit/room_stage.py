@@ -29,7 +29,7 @@ from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, Room
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
-from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, DeviceChoice, choose_device_gains, held_out_rows
+from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, choose_device_gains, held_out_rows
 from .physical_stage import attach_ranges, bound_warnings, range_words
 
 MODEL_KIND = "rssi_physical"
@@ -271,23 +271,48 @@ def _log_crossing(res, progress) -> None:
                      f"{min(res.extra['final_losses'].values()):.4g} -> {res.extra['crossed_loss']:.4g} (after fitting on)")
 
 
-def _choose_band(links, room, settings: RoomSettings, names: list[str], tx, rx, freq_hz: float, target_db: np.ndarray,
-                 fit_cfg: PhysicalFitConfig, priors: dict, progress, seed: int):
+class ValidationFits:
+    """The fits the "auto" choices score on held-out positions: the materials fitted without device gains (one
+    start carried through, the system gain fitted) on given rows of given links, each fitted once. The band
+    and the device-gain choice hold out the same positions (device_choice.held_out_rows with the same seed), so
+    where the band stays coherent the device choice reuses the band's fit."""
+
+    def __init__(self, room, settings: RoomSettings, names: list[str], target_db: np.ndarray,
+                 fit_cfg: PhysicalFitConfig, priors: dict, progress):
+        self.room, self.settings, self.names, self.target_db = room, settings, names, target_db
+        self.quick, self.priors, self.progress = replace(fit_cfg, fit_gain=True, starts_kept=1), priors, progress
+        self._done: dict = {}
+
+    def params(self, links, rows: np.ndarray, message: str):
+        """MaterialParams fitted on links.select_links(rows) to target_db[rows]; message: printed when it fits."""
+        key = (id(links), np.asarray(rows).tobytes())
+        if key not in self._done:
+            self.progress.log(message)
+            self._done[key] = fit_room_materials(links.select_links(torch.as_tensor(rows)), self.room, self.settings,
+                                                 len(self.names), self.target_db[rows, None], self.quick,
+                                                 self.progress, self.priors, None).params
+        return self._done[key]
+
+    def predict(self, links, rows: np.ndarray, message: str) -> np.ndarray:
+        """Path gain [M] dB of every link of `links` with the materials fitted on `rows`."""
+        params = self.params(links, rows, message)
+        with torch.no_grad():
+            return training_predictor(links, torch.as_tensor(self.target_db[:, None]))(params)[:, 0].numpy()
+
+
+def _choose_band(links, room, tx, rx, freq_hz: float, target_db: np.ndarray, fits: ValidationFits, seed: int):
     """(band, its links, reason) for rf_fit.room.band = "auto" on measured data: the coherent links `links` of
     tx, rx [M, 3] m (target_db [M] dB) are split as device_choice splits them (the links at HELD_SHARE of the
-    roaming side's positions held out); the materials are fitted once, coherently and without device gains (one
-    start carried through), on the others; each sum (coherent, ble, incoherent) then predicts every link with
-    those materials, its system gain refitted (the median training residual, the MAE's optimum), and is scored
-    on the held-out links. A sum other than coherent wins where it lowers the held-out MAE by MARGIN_DB."""
+    roaming side's positions held out); the materials are fitted once, coherently and without device gains, on
+    the others (fits); each sum (coherent, ble, incoherent) then predicts every link with those materials, its
+    system gain refitted (the median training residual, the MAE's optimum), and is scored on the held-out links.
+    A sum other than coherent wins where it lowers the held-out MAE by MARGIN_DB."""
     held, side = held_out_rows(tx, rx, seed)
     if held.sum() < MIN_VALIDATION_LINKS or (~held).sum() < MIN_VALIDATION_LINKS:
         return "coherent", links, (f"auto: too few links ({len(held)}) to validate the band on held-out positions; "
                                    "rf_fit.room.band sets it")
     train = np.flatnonzero(~held)
-    quick = replace(fit_cfg, fit_gain=True, starts_kept=1)
-    progress.log(f"band: fitting coherently on {len(train)} of {len(tx)} links to validate the sums")
-    res = fit_room_materials(links.select_links(torch.as_tensor(train)), room, settings, len(names),
-                             target_db[train, None], quick, progress, priors, None)
+    params = fits.params(links, train, f"band: fitting coherently on {len(train)} of {len(tx)} links to validate the sums")
     candidates = {"coherent": links,
                   "ble": room.band_links(tx, rx, freq_hz, "ble"),
                   "incoherent": RoomLinks(links.paths, links.diffuse, links.material_of_patch, links.num_materials,
@@ -295,7 +320,7 @@ def _choose_band(links, room, settings: RoomSettings, names: list[str], tx, rx, 
     scores = {}
     with torch.no_grad():
         for band, lk in candidates.items():
-            pred = training_predictor(lk, torch.as_tensor(target_db[:, None]))(res.params)[:, 0].numpy()
+            pred = training_predictor(lk, torch.as_tensor(target_db[:, None]))(params)[:, 0].numpy()
             residual = target_db - pred
             residual -= np.median(residual[train])
             scores[band] = float(np.abs(residual[held]).mean())
@@ -307,21 +332,6 @@ def _choose_band(links, room, settings: RoomSettings, names: list[str], tx, rx, 
               f"of a coherent fit, its materials held fixed and the system gain refitted for each sum (MAE dB: "
               f"{shown}); rf_fit.room.band sets it")
     return best, candidates[best], reason
-
-
-def _choose_devices(links, room, settings: RoomSettings, names: list[str], tx, rx, ids: dict, target_db: np.ndarray,
-                    fit_cfg: PhysicalFitConfig, priors: dict, progress, seed: int) -> DeviceChoice:
-    """device_choice.choose_device_gains on the traced fit links: the materials fitted without gains (one start
-    carried through, the system gain fitted) on the links away from the held-out positions."""
-    quick = replace(fit_cfg, fit_gain=True, starts_kept=1)
-
-    def fit_without_gains(rows: np.ndarray) -> np.ndarray:
-        progress.log(f"device gains: fitting without them on {len(rows)} of {len(tx)} links to validate them")
-        res = fit_room_materials(links.select_links(torch.as_tensor(rows)), room, settings, len(names),
-                                 target_db[rows, None], quick, progress, priors, None)
-        with torch.no_grad():
-            return training_predictor(links, torch.as_tensor(target_db[:, None]))(res.params)[:, 0].numpy()
-    return choose_device_gains(tx, rx, ids, target_db, settings.device_gain_prior_db, fit_without_gains, seed)
 
 
 def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,
@@ -379,14 +389,17 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if priors:
         progress.log("starting values from material names (ITU-R P.2040 at 1 GHz): " + "; ".join(
             f"{names[i]}: eps_r {e:g}, sigma {g:g} S/m, {t * 100:g} cm" for i, (e, g, t) in priors.items()))
+    fits = ValidationFits(room, settings, names, target_db[fit], fit_cfg, priors, progress)
     if band == "auto":
-        band, links, band_reason = _choose_band(links, room, settings, names, tx[fit], rx[fit], freq_hz, target_db[fit],
-                                                fit_cfg, priors, progress, seed)
+        band, links, band_reason = _choose_band(links, room, tx[fit], rx[fit], freq_hz, target_db[fit], fits, seed)
     settings = replace(settings, band=band)
     progress.log(f"band: {band} ({band_reason})")
     if settings.device_gains == "validate":
-        choice = _choose_devices(links, room, settings, names, tx[fit], rx[fit], {k: None if v is None else v[fit]
-                                 for k, v in ids.items()}, target_db[fit], fit_cfg, priors, progress, seed)
+        choice = choose_device_gains(tx[fit], rx[fit], {k: None if v is None else v[fit] for k, v in ids.items()},
+                                     target_db[fit], settings.device_gain_prior_db,
+                                     lambda rows: fits.predict(links, rows, f"device gains: fitting without them on "
+                                                               f"{len(rows)} of {len(fit)} links to validate them"),
+                                     seed)
         settings = replace(settings, device_gains=choice.which)
         progress.log(f"device gains: {choice.which} ({choice.reason})")
         if choice.which != "off" and len(fit) < len(tx):
