@@ -32,7 +32,6 @@ RAW_DIR is a checkout of the data set's repository (needs cnf/ and hst/).
 from __future__ import annotations
 
 import argparse
-import ast
 import csv
 import json
 import math
@@ -87,7 +86,7 @@ PILLARS = [
 
 def pixel_frame(par_path: Path):
     """(col, row) -> (x, y) metres, from cnf/tetam.par (lib/btImageScene.py's convention)."""
-    par = ast.literal_eval(par_path.read_text())
+    par = json.loads(par_path.read_text())   # the data set writes it as JSON
     (oc, orow), (d0, d1, s0, s1), p = par["origin"], par["direction"], par["parity"]
     # pixel x (column) = origin.x + coord[d0] / p * s0; pixel y (row) = origin.y + coord[d1] / p * s1
     def to_m(c, r):
