@@ -59,7 +59,7 @@ def import_floorplan_command(
     size = result.mesh.bounds[1] - result.mesh.bounds[0]
     shown = ", ".join(f"{name} {n}" for name, n in classes.items())
     console.print(f"[green]wrote[/green] {result.path} and {result.labels_path.name}: {len(result.walls)} walls "
-                  f"({shown}), {objects[-2]['name']} and {objects[-1]['name']} over {size[0]:.2f} x {size[1]:.2f} m, "
+                  f"({shown}) as {'sheets' if walls == 'sheet' else 'boxes'} (--walls), {objects[-2]['name']} and {objects[-1]['name']} over {size[0]:.2f} x {size[1]:.2f} m, "
                   f"{height_m:g} m high; {len(result.mesh.faces)} triangles, {len(objects)} labels",
                   highlight=False, soft_wrap=True)
     unnamed = [name for name in classes if not any(o["radio_material"] for o in objects
