@@ -427,7 +427,7 @@ def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
         tx, rx = np.asarray(a["tx_id"]), np.asarray(a["rx_id"])
         if name == "anchors":
             held = ", ".join(str(v) for v in np.unique(rx[test]))
-            return f"TETAM lab, {text} (rx_id {held} of {np.unique(rx).size})"
+            return f"TETAM lab, {text} (rx_id {held}: {np.unique(rx[test]).size} of {np.unique(rx).size} receivers)"
         return f"TETAM lab, {text} ({np.unique(tx[test]).size} of {np.unique(tx).size} positions)"
     return label
 
@@ -476,8 +476,7 @@ def target_measured(r: Plan) -> Table:
                 "2 of the 12 receivers test)",
                 "rfir: the physical room model (docs/rssi.md), rf-fit's defaults (device gains chosen by validation, "
                 "links weighted by their packet count and spread; no radio-map cache: rf_fit.room.map_visibility = "
-                "false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else "")
-,
+                "false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else ""),
                 "log-distance, multi-wall, nearest links: fitted on the same training links (rfir's predict JSON)",
                 "ray tracing (Sionna RT), not run: " + NO_RAYTRACE[len("not run: "):]
                 + "; scripts/baseline_raytrace.py also indexes devices 0..N-1 and the survey's rx_id are 10..42",
