@@ -12,8 +12,9 @@ from setuptools import find_namespace_packages, setup
 
 
 def _packages():
-    pkgs = ["rfir_cli", "rfir_tracer", "rfir_stages"]
-    pkgs += ["rfir_cli._configs", "rfir_cli._configs.recipes"]   # configs/ as package data (pyproject's package-dir)
+    pkgs = ["rfir_core", "rfir_cli", "rfir_tracer", "rfir_stages"]
+    pkgs += ["rfir_core._configs", "rfir_core._configs.recipes"]   # configs/ as package data (pyproject's package-dir)
+    pkgs += ["rfir_core." + p for p in find_namespace_packages("src/rfir_core")]
     pkgs += ["rfir_cli." + p for p in find_namespace_packages("src/rfir_cli")]
     pkgs += ["rfir_stages." + p for p in find_namespace_packages("stages")]
     pkgs += ["rfir_tracer." + p for p in find_namespace_packages("ext/rfir_tracer")]

@@ -18,8 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.config import resolve_config
+from rfir_core.artifacts import read_artifact
+from rfir_core.config import resolve_config
 from rfir_stages.predict import run_rcs
 from rfir_stages.rf_fit.stage import run as rf_fit
 

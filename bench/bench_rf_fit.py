@@ -85,7 +85,7 @@ def main() -> None:
         run = _run(_rfir("--seed", "0", "rf-fit", str(scene), str(meas), "-o", str(rf), "--split", "data",
                          "--freq-hz", "2.4e9"))
         load_after = os.getloadavg()
-        from rfir_cli.artifacts import read_artifact
+        from rfir_core.artifacts import read_artifact
         attrs = read_artifact(rf, "rf").free["training@attrs"]
     out = {"size": size, "scene": str(scene), "measurements": str(meas), "train_links": int(attrs["num_train_rows"]),
            "cpu_cores": os.cpu_count(), **{k: round(v, 2) for k, v in run.items()},

@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from bench_rssi import FREQ, classroom_fields
-from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_cli.physics.closed_forms import friis_path_gain
+from rfir_core.artifacts import read_artifact, write_artifact
+from rfir_core.physics.closed_forms import friis_path_gain
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.simulate import build_scene
 from rfir_stages.simulate.rssi import grid_positions

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.model.fit_physical import _material_predictor, training_predictor
 from rfir_stages.model.identifiability import normal_reflection_ranges
 from rfir_stages.model.physical import MaterialParams

@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_cli.physics.closed_forms import friis_path_gain
+from rfir_core.artifacts import read_artifact, write_artifact
+from rfir_core.physics.closed_forms import friis_path_gain
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.predict.rssi import rssi_defaults
 from rfir_stages.predict.rssi_checks import floor_grid

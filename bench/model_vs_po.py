@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.model.materials import itu_law
 from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs, scattered_field
 from rfir_stages.rf_fit.antennas import antenna_choice

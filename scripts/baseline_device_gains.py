@@ -55,7 +55,7 @@ def main(argv=None) -> None:
     ap.add_argument("--results", default=None)
     a = ap.parse_args(argv)
 
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
     from rfir_stages.predict import rssi_baselines as bl
     from rfir_stages.predict.rssi_model_io import load_predictor
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.baselines.nerf2 import Nerf2Settings, predict_nerf2, train_nerf2
 from rfir_stages.predict.baselines import aspect_baselines, range_baselines
 from rfir_stages.rf_fit.splits import describe, protocol_masks

@@ -27,8 +27,8 @@ def main(argv=None) -> None:
     ap.add_argument("--results", required=True)
     a = ap.parse_args(argv)
 
-    from rfir_cli.artifacts import read_artifact
-    from rfir_cli.progress import NullProgress
+    from rfir_core.artifacts import read_artifact
+    from rfir_core.progress import NullProgress
     from rfir_stages.geom.mesh_io import read_ply_mesh
     from rfir_stages.simulate.radio_scene import load_radio_scene
     from rfir_stages.simulate.rssi import simulate_rssi

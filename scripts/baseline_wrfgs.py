@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.baselines.wrfgs import WrfgsSettings, predict_wrfgs, train_wrfgs
 from rfir_stages.rf_fit.links import geometry_from_artifact
 from rfir_stages.rf_fit.splits import describe, protocol_masks

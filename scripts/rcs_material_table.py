@@ -69,8 +69,8 @@ def main() -> None:
     ap.add_argument("rf", type=Path)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
-    from rfir_cli.artifacts import read_artifact
-    from rfir_cli.errors import RfirError
+    from rfir_core.artifacts import read_artifact
+    from rfir_core.errors import RfirError
 
     try:
         rf = read_artifact(args.rf, "rf")

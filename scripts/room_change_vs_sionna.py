@@ -26,7 +26,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from room_paths_vs_sionna import model_paths, sionna_paths, true_materials
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene
 from rfir_stages.simulate.scene_edits import apply_scene_edits
 from rfir_stages.simulate.scenes import build_scene

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.model.physical import MaterialValues
 from rfir_stages.model.room import RoomPredictor
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene

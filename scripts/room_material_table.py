@@ -91,7 +91,7 @@ def main() -> None:
     ap.add_argument("--eps-ranges", action="store_true", help="also scan the eps_r the links allow (minutes)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
     from rfir_stages.model.room import RoomPredictor
     from rfir_stages.rf_fit.room_stage import material_rows
 

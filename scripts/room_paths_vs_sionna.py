@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.model.materials import itu_law, permittivity
 from rfir_stages.model.room_paths import THIRD_ORDER_SMALL_REFLECTIONS, build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas

@@ -1,1 +1,1 @@
-"""Named recipes (*.toml) over the defaults, installed as rfir_cli._configs.recipes. No code here."""
+"""Named recipes (*.toml) over the defaults, installed as rfir_core._configs.recipes. No code here."""

@@ -1,3 +1,3 @@
-"""rfir: radio-frequency inverse rendering from photos and radio measurements."""
+"""rfir: radio-frequency inverse rendering from photos and radio measurements (the command-line interface)."""
 
-__version__ = "0.1.0"
+from rfir_core import __version__  # noqa: F401 - one version for the CLI and the core

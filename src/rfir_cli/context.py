@@ -15,10 +15,10 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn, \
     TimeRemainingColumn
 
-from .config import resolve_config, to_toml
+from rfir_core.config import resolve_config, to_toml
 from .consoles import Console   # never hard-wrapped when piped (consoles.py)
-from .errors import ConfigError, RfirError
-from .progress import LineProgress
+from rfir_core.errors import ConfigError, RfirError
+from rfir_core.progress import LineProgress
 
 T = TypeVar("T")
 console = Console()
@@ -66,7 +66,7 @@ def options(ctx: typer.Context) -> GlobalOptions:
 
 
 class RichReporter:
-    """The CLI's `rfir_cli.progress.Progress`: rich bars on a terminal, plain lines otherwise.
+    """The CLI's `rfir_core.progress.Progress`: rich bars on a terminal, plain lines otherwise.
 
     Quiet when verbosity < 0. Without a terminal (output piped to a log), a rich bar prints
     nothing until it ends, so a long fit looks hung; there `LineProgress` prints step, loss and
@@ -159,7 +159,7 @@ def fail(message: str, code: int = 2) -> None:
 
 def comma_numbers(text: str | None, what: str, n: int) -> list[float] | None:
     """Option text "A,B,C" -> [n] floats, None when not given; a ConfigError naming the option otherwise."""
-    from .errors import ConfigError
+    from rfir_core.errors import ConfigError
 
     if text is None:
         return None

@@ -59,7 +59,7 @@ def main_callback(
     ctx.obj = GlobalOptions(config_file=config, overrides=list(set_ or []), recipe=recipe, device=device,
                             seed=seed, verbosity=-1 if quiet else verbose, force=force)
     # outputs never replace the command's inputs, nor (without --force) a file of another kind (artifacts.check_output)
-    from .artifacts import begin_command, end_command
+    from rfir_core.artifacts import begin_command, end_command
 
     begin_command(force)
     ctx.call_on_close(end_command)

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError, RfirError, StageError
+from rfir_core.errors import ConfigError, InputFileError, RfirError, StageError
 
 GLOBAL_CLASS = "all"
 SPLITS = ("random", "holdout_tx")
@@ -354,8 +354,8 @@ def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, f
 # --------------------------------------------------------------------------------------------
 def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=print) -> dict:
     """Calibrate on the training rows, predict every link, score the test rows; writes results_path."""
-    from rfir_cli.artifacts import read_artifact
-    from rfir_cli.progress import NullProgress
+    from rfir_core.artifacts import read_artifact
+    from rfir_core.progress import NullProgress
     from rfir_stages.geom.mesh_io import read_ply_mesh
     from rfir_stages.simulate.radio_scene import load_radio_scene
     from rfir_stages.simulate.rssi import simulate_rssi

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import InputFileError, StageError
+from rfir_core.errors import InputFileError, StageError
 
 
 @dataclass
@@ -228,7 +228,7 @@ def load_centre_references(path: str | Path, subset: int = 0) -> CentreReference
     if not path.exists():
         raise InputFileError("pose reference file not found", path=path)
     if path.suffix.lower() in (".h5", ".hdf5"):
-        from rfir_cli.artifacts import read_artifact
+        from rfir_core.artifacts import read_artifact
 
         art = read_artifact(path, "cameras")
         names = [str(n) for n in art.data["image_names"]]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError
+from rfir_core.errors import ConfigError, InputFileError
 
 from .align import PointReferences
 from .images import ImageSet

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError, StageError
-from rfir_cli.progress import NullProgress, Progress
+from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_core.progress import NullProgress, Progress
 
 from . import sfm as sfm_mod
 from .align import Alignment, CentreReferences, align_to_centres, align_to_points, load_centre_references, \
@@ -98,7 +98,7 @@ class CalibResult:
 
 
 def _known_intrinsics(path: Path, images: ImageSet) -> np.ndarray:
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
 
     art = read_artifact(path, "cameras")
     Ks = np.asarray(art.data["intrinsics"], float)
@@ -275,8 +275,8 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
         # alignment_sim3 maps the raw SfM model (calib_colmap/) to the world frame
         data, attrs = _artifact_data(world, final_images, image_folder, out_dir, sim3 @ refined_from, alignment,
                                      metric)
-        from rfir_cli.artifacts import check_data, write_artifact
-        from rfir_cli.provenance import Provenance
+        from rfir_core.artifacts import check_data, write_artifact
+        from rfir_core.provenance import Provenance
 
         problems = check_data("calib", data, attrs, str(out))
         if problems:
@@ -333,7 +333,7 @@ def _align(rec, centre_refs, point_refs, options: CalibrateOptions) -> Alignment
 
 def _artifact_data(world: SfmModel, final_images: Path, hash_folder: Path, out_dir: Path, sim3: np.ndarray,
                    alignment: Alignment | None, metric: bool) -> tuple[dict, dict]:
-    from rfir_cli.provenance import sha256_file
+    from rfir_core.provenance import sha256_file
 
     paths, hashes = [], []
     for name in world.names:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError, StageError
+from rfir_core.errors import ConfigError, InputFileError, StageError
 
 from .images import ImageSet
 

@@ -82,7 +82,7 @@ def _inject(key: str, meas, rng: np.random.Generator, geometry_path: Path) -> di
     from rfir_stages.diagnose.obstacle import segments_cross_boxes
     from rfir_stages.diagnose.rows import Rows
 
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
 
     data = {k: np.asarray(v) for k, v in meas.data.items()}
     pg = data["path_gain_db"].astype(np.float64)
@@ -150,7 +150,7 @@ def _inject(key: str, meas, rng: np.random.Generator, geometry_path: Path) -> di
 
 def make(data_dir: Path, quick: bool = False, seed: int = 0) -> dict:
     """Write DATA/cases/case_NN/{model,measurements}.h5 and DATA/answers.json; returns the answers."""
-    from rfir_cli.artifacts import read_artifact, write_artifact
+    from rfir_core.artifacts import read_artifact, write_artifact
 
     data_dir = Path(data_dir)
     scenes = data_dir / "scenes"
@@ -187,7 +187,7 @@ def diagnose_cases(data_dir: Path, out_dir: Path) -> dict:
     for folder in sorted((Path(data_dir) / "cases").iterdir()):
         t0 = time.time()
         geometry = data_dir / "scenes" / "room_geometry.h5"
-        from rfir_cli.artifacts import read_artifact
+        from rfir_core.artifacts import read_artifact
 
         rssi = str(read_artifact(folder / "measurements.h5", "measurements").attrs.get("task")) == "rssi"
         res = run(folder / "model.h5", folder / "measurements.h5", Path(out_dir) / "cases" / folder.name,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.figures import pyplot, save_figure
+from rfir_core.figures import pyplot, save_figure
 
 from .rows import Rows
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.errors import InputFileError, StageError
+from rfir_core.artifacts import read_artifact
+from rfir_core.errors import InputFileError, StageError
 
 from .crossings import crossings_from_artifact
 from .rows import Rows

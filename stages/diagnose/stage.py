@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
-from rfir_cli.progress import NullProgress
-from rfir_cli.text import plural
+from rfir_core.errors import ConfigError
+from rfir_core.progress import NullProgress
+from rfir_core.text import plural
 
 from .breakdown import AXIS, LARGE_R2, analyse, plot
 from .data import load_rows
@@ -151,8 +151,8 @@ def _where_json(b) -> dict:
 
 def _write_model(rf_path: Path, out_path: Path, effects_json: list, config_toml: str) -> Path:
     """The rf artifact with the effects chain in free group `effects` (predict applies it)."""
-    from rfir_cli.artifacts import read_artifact, write_artifact
-    from rfir_cli.provenance import Provenance
+    from rfir_core.artifacts import read_artifact, write_artifact
+    from rfir_core.provenance import Provenance
 
     rf = read_artifact(rf_path, "rf")
     free = rf.free_for_write()

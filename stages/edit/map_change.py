@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.figures import pyplot, save_figure
+from rfir_core.figures import pyplot, save_figure
 
 
 def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0, step_m: float = 0.4) -> dict:
@@ -51,7 +51,7 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
 
 def rcs_change(path: Path, rf_before, rf_after, range_m: float = 3.0, step_deg: float = 1.0) -> dict:
     """RCS [dBsm] versus aspect at range_m, before and after, at the first fitted frequency."""
-    from rfir_cli.physics.closed_forms import rcs_from_path_gain
+    from rfir_core.physics.closed_forms import rcs_from_path_gain
     from rfir_stages.predict.rcs import predict_path_gain_db
     from rfir_stages.rf_fit.antennas import antenna_from_attrs
     from rfir_stages.rf_fit.links import geometry_from_artifact, radar_links, scene_centre

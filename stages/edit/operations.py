@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 from .selection import parse_numbers
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.figures import pyplot, save_figure
+from rfir_core.figures import pyplot, save_figure
 
 
 def top_view(path: Path, before_m: np.ndarray, selected: np.ndarray, after_m: np.ndarray, touched: np.ndarray,

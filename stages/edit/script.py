@@ -14,7 +14,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from rfir_cli.errors import ConfigError, InputFileError
+from rfir_core.errors import ConfigError, InputFileError
 
 from .operations import Operation, parse_operation
 from .selection import Selection, parse_selection

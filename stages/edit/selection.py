@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 _ARITY = {"box": (6, 6), "obox": (6, 9), "sphere": (4, 4)}
 

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import check_output, read_artifact, write_artifact
-from rfir_cli.errors import ConfigError, InputFileError, StageError
-from rfir_cli.progress import NullProgress
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import check_output, read_artifact, write_artifact
+from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_core.progress import NullProgress
+from rfir_core.provenance import Provenance
 
 from rfir_stages.predict.rssi_model_io import ROOM_KIND, require_room_model
 

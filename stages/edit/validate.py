@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import rankdata
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.figures import pyplot, save_figure
+from rfir_core.artifacts import read_artifact
+from rfir_core.figures import pyplot, save_figure
 
 
 def _predict_rcs(rf_path: Path, meas_path: Path, out: Path):

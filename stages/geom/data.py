@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.errors import InputFileError, StageError
+from rfir_core.errors import InputFileError, StageError
 
 
 @dataclass

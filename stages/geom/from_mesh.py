@@ -285,8 +285,8 @@ def write_scene_artifact(path: str | Path, fields: dict, *, label_names=None, so
                          contact_faces_left_out: bool = False) -> Path:
     """Write surfel fields as a `scene` artifact (records the mesh source, spacing, tiling and whether the faces
     resting against another object's surface were left out (geom.contact_faces) in provenance)."""
-    from rfir_cli.artifacts import write_artifact
-    from rfir_cli.provenance import Provenance
+    from rfir_core.artifacts import write_artifact
+    from rfir_core.provenance import Provenance
 
     attrs = {"source": source}
     if label_names is not None:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rfir_cli.errors import StageError
+from rfir_core.errors import StageError
 
 from .from_mesh import _quat_from_matrix
 from .model import logit

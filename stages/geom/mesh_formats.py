@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError
+from rfir_core.errors import ConfigError, InputFileError
 
 from .mesh_io import Mesh, read_ply_mesh
 

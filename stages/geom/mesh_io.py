@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import InputFileError
+from rfir_core.errors import InputFileError
 
 
 @dataclass

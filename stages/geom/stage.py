@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_cli.errors import ConfigError, InputFileError
-from rfir_cli.progress import NullProgress
-from rfir_cli.provenance import Provenance, sha256_file
+from rfir_core.artifacts import read_artifact, write_artifact
+from rfir_core.errors import ConfigError, InputFileError
+from rfir_core.progress import NullProgress
+from rfir_core.provenance import Provenance, sha256_file
 
 from .data import background_colour, load_views
 from .evaluate import gt_mesh_metrics, image_metrics, orient_normals, render_all, write_pngs

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.errors import ConfigError, InputFileError, StageError
-from rfir_cli.progress import NullProgress
+from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_core.progress import NullProgress
 
 from .data import View, camera_rays
 from .densify import DensifyStats, densify_and_prune

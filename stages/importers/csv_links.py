@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import write_artifact
-from rfir_cli.errors import InputFileError
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import write_artifact
+from rfir_core.errors import InputFileError
+from rfir_core.provenance import Provenance
 
-from rfir_cli.physics.closed_forms import rcs_from_path_gain
+from rfir_core.physics.closed_forms import rcs_from_path_gain
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 from .meas_setup import MeasurementSetup, boresight_gain, header_options, resolve_setup, split_header
 from .rows import RowProblems, check_metres

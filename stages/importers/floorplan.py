@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError
+from rfir_core.errors import ConfigError, InputFileError
 from rfir_stages.model.tabulated import named_material
 from rfir_stages.simulate.scenes import write_ply
 

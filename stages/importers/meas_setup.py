@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import InputFileError
+from rfir_core.errors import InputFileError
 
 KEYS = ("antenna", "antenna_tx", "antenna_rx", "polarisation", "power", "tx_power_dbm")
 POWERS = ("path_gain", "rcs", "rssi")

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rfir_cli.artifacts import write_artifact
-from rfir_cli.errors import InputFileError
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import write_artifact
+from rfir_core.errors import InputFileError
+from rfir_core.provenance import Provenance
 
 from .csv_links import CsvImportResult
 from .rows import RowProblems, check_metres

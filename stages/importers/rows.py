@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from rfir_cli.errors import InputFileError
+from rfir_core.errors import InputFileError
 
 
 @dataclass

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_cli.errors import InputFileError
-from rfir_cli.physics.closed_forms import friis_path_gain, wavelength_m
+from rfir_core.errors import InputFileError
+from rfir_core.physics.closed_forms import friis_path_gain, wavelength_m
 
 from .meas_setup import MeasurementSetup, boresight_gain
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, StageError
+from rfir_core.errors import ConfigError, StageError
 
 RANGE_TOL_M = 1e-3
 ASPECT_TOL_DEG = 1e-6

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 PROTOCOLS = ("random", "holdout-tx", "holdout-rx", "block", "block-tx")
 RSSI_ONLY = ("holdout-tx", "holdout-rx", "block", "block-tx")

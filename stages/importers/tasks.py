@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_cli.errors import InputFileError
+from rfir_core.errors import InputFileError
 
 TASKS = ("rcs", "wideband", "rssi")
 WIDEBAND_MIN_FREQS = 8

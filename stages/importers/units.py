@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 POWER_UNITS = ("dB", "dBm", "mW", "W")
 RECEIVED_POWER_UNITS = ("dBm", "mW", "W")       # these make power_db received power (power = rssi)

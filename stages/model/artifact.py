@@ -2,9 +2,9 @@
 
 It is rfir's one fitted radio model (RCS, a band, and the room model for RSSI, which adds its own
 attributes). An rf artifact without it (the retired per-Gaussian family) is refused by the schema
-(rfir_cli.schema, kind "rf") when read, and by `require_physical` here.
+(rfir_core.schema, kind "rf") when read, and by `require_physical` here.
 
-Datasets (schema: rfir_cli.schema, kind "rf"; N materials, G Gaussians, F fitted frequencies):
+Datasets (schema: rfir_core.schema, kind "rf"; N materials, G Gaussians, F fitted frequencies):
 - material/index [G] int: material of each Gaussian;
 - material/area_m2 [G]: surfel area A_l (surfels.surfel_areas, kept so prediction uses the same);
 - material/eps_r, material/sigma_1ghz_s_per_m, material/scattering, material/thickness_m [N]
@@ -29,8 +29,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from rfir_cli.errors import SchemaError
-from rfir_cli.schema import get_kind
+from rfir_core.errors import SchemaError
+from rfir_core.schema import get_kind
 
 from .physical import MaterialValues, PairSettings
 from .residual import ResidualFit, load_residual, residual_fields

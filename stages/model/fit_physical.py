@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from rfir_cli.progress import NullProgress
-from rfir_cli.text import plural
+from rfir_core.progress import NullProgress
+from rfir_core.text import plural
 from rfir_stages.po.geometry import single_thread_torch
 
 from .device_gains import DeviceGains

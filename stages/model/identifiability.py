@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from rfir_cli.progress import NullProgress
+from rfir_core.progress import NullProgress
 from rfir_stages.po.geometry import single_thread_torch
 
 from .physical import THICKNESS_M, MaterialParams
@@ -62,7 +62,7 @@ def normal_reflection_ranges(predict_db: Callable[[MaterialParams], torch.Tensor
     """[N, 2] (low, high) |Gamma| at normal incidence at freq_hz [Hz] of each of the N materials of
     `params` compatible with the training links (module docstring). predict_db(params) -> [M, K] dB
     predicted path gain of the training links (the fit's own prediction, floor included); target_db
-    [M, K] measured dB. `params` is restored before returning. progress: a rfir_cli.progress reporter.
+    [M, K] measured dB. `params` is restored before returning. progress: a rfir_core.progress reporter.
 
     local(params, i) -> (rows [M_i] int64, predict_rows): the links whose prediction depends on material
     i and a function that gives predict_db(p)[rows] [M_i, K] dB for any p differing from `params` (as

@@ -26,7 +26,7 @@ import math
 import numpy as np
 import torch
 
-from rfir_cli.physics.closed_forms import C0  # noqa: F401 - the speed of light of every k0 = 2 pi f / C0
+from rfir_core.physics.closed_forms import C0  # noqa: F401 - the speed of light of every k0 = 2 pi f / C0
 
 
 EPS0 = 8.8541878128e-12

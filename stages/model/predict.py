@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from rfir_cli.progress import NullProgress
+from rfir_core.progress import NullProgress
 from rfir_stages.rf_fit.antennas import antenna_from_attrs
 from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
 from rfir_stages.rf_fit.occlusion import make_provider

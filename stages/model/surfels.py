@@ -37,7 +37,7 @@ import math
 import numpy as np
 import torch
 
-from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2, quaternion_to_matrix
+from rfir_core.physics.gaussian_rf import covariance, projected_cross_section_m2, quaternion_to_matrix
 
 SAME_SURFACE_COS = math.cos(math.radians(30.0))
 COPLANAR_M = 0.0015     # means closer than this to a surfel's plane lie on its surface (the faces of a 3 mm sheet stay apart)

@@ -22,7 +22,7 @@ from scipy.signal import find_peaks
 
 def flash_defaults() -> dict:
     """The [predict.flashes] table of configs/predict.toml (what a caller's config does not set)."""
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
 
     return dict(load_defaults().get("predict", {}).get("flashes", {}))
 

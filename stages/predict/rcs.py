@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.artifacts import check_output, read_artifact, write_artifact
-from rfir_cli.errors import ConfigError, SchemaError, StageError
-from rfir_cli.physics.closed_forms import rcs_from_path_gain
-from rfir_cli.progress import NullProgress
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import check_output, read_artifact, write_artifact
+from rfir_core.errors import ConfigError, SchemaError, StageError
+from rfir_core.physics.closed_forms import rcs_from_path_gain
+from rfir_core.progress import NullProgress
+from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import has_residual, require_physical
 from rfir_stages.model.predict import predict_physical_db
 from rfir_stages.rf_fit.antennas import antenna_from_attrs

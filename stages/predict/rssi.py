@@ -26,10 +26,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rfir_cli.artifacts import check_output, read_artifact, write_artifact
-from rfir_cli.errors import ConfigError, InputFileError, StageError
-from rfir_cli.progress import NullProgress
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import check_output, read_artifact, write_artifact
+from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_core.progress import NullProgress
+from rfir_core.provenance import Provenance
 
 from . import rssi_baselines as bl
 from . import rssi_maps
@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 
 def rssi_defaults() -> dict:
     """The [predict.rssi] table of configs/predict.toml (what a caller's config does not set)."""
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
 
     return dict(load_defaults().get("predict", {}).get("rssi", {}))
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.rf_fit.links import _enclosed
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 FORMATS = ("csv", "npz", "tif")
 

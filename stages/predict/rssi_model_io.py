@@ -6,7 +6,7 @@ memory_estimate_bytes) for an artifact rf-fit wrote from RSSI measurements (mode
 """
 from __future__ import annotations
 
-from rfir_cli.errors import SchemaError
+from rfir_core.errors import SchemaError
 
 ROOM_KIND = "rssi_physical"
 OLD_KINDS = {"rssi_los_nlos": "the LoS/NLoS model (direct path + free-Gamma rendering)"}

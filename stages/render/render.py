@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.progress import NullProgress, Progress
+from rfir_core.progress import NullProgress, Progress
 
 from .mitsuba_scene import NEAR_CLIP_M, build_scene, mitsuba_to_world, mitsuba_variant, ray_caster
 from .poses import intrinsics, obstacle_boxes, object_poses, room_poses
@@ -80,8 +80,8 @@ def render_views(spec, out_dir: str | Path, n_views: int | None = None, width: i
     overrides the generated ones; texture_px scales the texture resolution (1024: 4 mm texels in
     rooms, 1/1024 of the object's size for objects). Deterministic for a given seed.
     """
-    from rfir_cli.artifacts import write_artifact
-    from rfir_cli.provenance import Provenance
+    from rfir_core.artifacts import write_artifact
+    from rfir_core.provenance import Provenance
 
     progress = progress or NullProgress()
     start = time.time()

@@ -15,13 +15,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import RfirError
+from rfir_core.errors import RfirError
 
-from .plan import Plan
+from .plan import Plan, machine_record, reproduce_command
 from .tables import Table, to_markdown, write_table
 from .targets import TARGETS, declare
 
@@ -34,7 +35,8 @@ def write_target(name: str, quick: bool, data: Path | None, out: Path | None, ov
 
 def write_target_files(plan: Plan, name: str, table: Table, labels: list[str]) -> list[Path]:
     """OUT/<name>.md, .csv, .png (the table filled from the results) and OUT/<name>.json (rows where
-    rfir is lowest, the wall time of every step from its benchmark file)."""
+    rfir is lowest, the wall time of every step from its benchmark file, and its provenance: the command
+    that makes the table, the machine that wrote it and the date, which the results page shows)."""
     table = table.resolved()
     table.steps = [(label, plan.wall(label)) for label in labels]
     paths = write_table(table, plan.out, name)
@@ -42,7 +44,10 @@ def write_target_files(plan: Plan, name: str, table: Table, labels: list[str]) -
                "rfir_lowest": table.ours_lowest(),
                "step_s": {label: t for label, t in table.steps},
                "step_s_total": sum(t for _, t in table.steps if t is not None),
-               "files": [str(p) for p in paths]}
+               "files": [str(p) for p in paths],
+               "provenance": {"command": reproduce_command(name, plan.quick, plan.overrides, plan.data, plan.out),
+                              "machine": machine_record(),
+                              "date": datetime.now(timezone.utc).strftime("%Y-%m-%d")}}
     path = plan.out / f"{name}.json"
     path.write_text(json.dumps(summary, indent=1) + "\n")
     print(to_markdown(table))
@@ -50,7 +55,7 @@ def write_target_files(plan: Plan, name: str, table: Table, labels: list[str]) -
 
 
 def wideband_freqs(meas: Path, every: int) -> str:
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
 
     f = np.asarray(read_artifact(meas, "measurements")["freq_hz"], np.float64)
     return ",".join(f"{x:.6g}" for x in f[::every])

@@ -21,7 +21,7 @@ import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rfir_cli.errors import StageError
+from rfir_core.errors import StageError
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -94,7 +94,8 @@ class Plan:
     """The steps of one or more targets.
 
     data: folder for generated data and fits; out: folder for tables, JSON, plots, logs, benchmarks
-    (both relative to the repository root); quick: the reduced variant (targets read it to pick sizes)."""
+    (both relative to the repository root); quick: the reduced variant (targets read it to pick sizes);
+    overrides: the `--set` settings the sizes came from (the tables' JSON records them in their command)."""
 
     data: Path
     out: Path
@@ -102,6 +103,7 @@ class Plan:
     sizes: dict = field(default_factory=dict)          # the variant's table of configs/reproduce.toml
     steps: dict[str, Step] = field(default_factory=dict)
     used: list[str] = field(default_factory=list)      # labels the current target declared, in order
+    overrides: list[str] = field(default_factory=list)  # reproduce.<variant>.<key>=value settings over the sizes
 
     def __post_init__(self) -> None:
         self.data, self.out = Path(self.data), Path(self.out)
@@ -196,3 +198,63 @@ def code_version(paths: tuple[str, ...], root: Path = ROOT) -> str:
 def rule_name(label: str) -> str:
     """A Snakemake rule name for a step label (letters, digits and underscores)."""
     return "step_" + re.sub(r"\W", "_", label.replace(".", "p"))
+
+
+def reproduce_command(target: str, quick: bool, overrides: list[str] = (), data: Path | None = None,
+                      out: Path | None = None) -> str:
+    """The command that makes a target's table: `make reproduce-<target>` (quick: `make reproduce-quick`, which
+    makes every quick table); with workflow settings that differ from the defaults (--set overrides, other
+    folders), the Snakemake command line that passes them."""
+    d, o = default_dirs(quick)
+    config = ["quick=true"] if quick else []
+    config += [f"set=[{','.join(json.dumps(s) for s in overrides)}]"] if overrides else []
+    config += [f"data={data}"] if data is not None and Path(data) != d else []
+    config += [f"out={out}"] if out is not None and Path(out) != o else []
+    if len(config) == int(quick):
+        return "make reproduce-quick" if quick else f"make reproduce-{target}"
+    return f"{VENV_SNAKEMAKE} {target} --config " + " ".join(shlex.quote(c) for c in config)
+
+
+VENV_SNAKEMAKE = ".venv/bin/snakemake -s workflow/Snakefile"
+
+
+def _first_line(path: str, key: str) -> str:
+    """The value of the first `key: value` line of a /proc or /etc file ('' if absent)."""
+    try:
+        for line in Path(path).read_text().splitlines():
+            if line.startswith(key):
+                return line.split(":" if ":" in line else "=", 1)[1].strip().strip('"')
+    except OSError:
+        pass
+    return ""
+
+
+def machine_record() -> dict:
+    """The machine this process runs on, as the results page names it: CPU model and cores, memory [GiB],
+    GPUs (nvidia-smi's names; "none"), OS, Python and torch versions. Read without importing torch, so the
+    Snakemake process that writes the tables stays light."""
+    import os
+    import platform
+    import shutil
+    import subprocess
+    from importlib import metadata
+
+    gpus = "none"
+    if shutil.which("nvidia-smi"):
+        try:
+            names = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                                   text=True, timeout=20, check=True).stdout.split("\n")
+            gpus = ", ".join(n.strip() for n in names if n.strip()) or "none"
+        except (OSError, subprocess.SubprocessError):
+            pass
+    mem_kib = _first_line("/proc/meminfo", "MemTotal").split()
+    try:
+        torch = metadata.version("torch")
+    except metadata.PackageNotFoundError:
+        torch = "not installed"
+    return {"cpu": _first_line("/proc/cpuinfo", "model name") or platform.processor() or platform.machine(),
+            "cores": os.cpu_count(),
+            "memory_gib": round(int(mem_kib[0]) / 2**20) if mem_kib else None,
+            "gpu": gpus,
+            "os": _first_line("/etc/os-release", "PRETTY_NAME") or platform.platform(),
+            "python": platform.python_version(), "torch": torch}

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from rfir_cli.figures import pyplot, save_figure
+from rfir_core.figures import pyplot, save_figure
 
 
 @dataclass

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Callable
 
 from . import methods as M
-from rfir_cli.config import resolve_config
-from rfir_cli.errors import ConfigError
+from rfir_core.config import resolve_config
+from rfir_core.errors import ConfigError
 
 from .plan import Plan, default_dirs, read_json
 from .tables import Cell, Table
@@ -420,7 +420,7 @@ def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
     def label() -> str:
         import numpy as np
 
-        from rfir_cli.artifacts import read_artifact
+        from rfir_core.artifacts import read_artifact
 
         a = read_artifact(meas, "measurements")
         test = np.asarray(a["split"]) == 1
@@ -619,7 +619,7 @@ def declare(names: list[str], quick: bool, data: Path | None = None, out: Path |
     if bad:
         raise ConfigError(f"reproduce setting {bad[0]!r}: only reproduce.* keys (configs/reproduce.toml)")
     sizes = resolve_config(overrides=list(overrides))["reproduce"]["quick" if quick else "full"]
-    plan = Plan(data or d, out or o, quick=quick, sizes=sizes)
+    plan = Plan(data or d, out or o, quick=quick, sizes=sizes, overrides=list(overrides))
     tables = {}
     for name in names:
         if name not in TARGETS:
@@ -636,3 +636,32 @@ def declare(names: list[str], quick: bool, data: Path | None = None, out: Path |
 TARGETS = {"rcs": target_rcs, "rcs-po": target_rcs_po, "wideband": target_wideband, "rssi": target_rssi,
            "extrapolation": target_extrapolation, "edit": target_edit, "ablation": target_ablation,
            "measured": target_measured}
+
+# What each table measures, one or two sentences (the results page, docs/results.md, opens each table with it).
+ABOUT = {
+    "rcs": "Monostatic RCS of the lego and the car on Sionna RT data (geometric optics plus diffuse scattering) at "
+           "3 m: even/odd aspects at 2.4 and 5.8 GHz, and on the lego every 10th aspect training and a 90-degree "
+           "sector held out.",
+    "rcs-po": "The physics rows: monostatic RCS of the lego, the trio (a metal dihedral, a wooden block, a glass "
+              "pane) and the car on physical-optics data, dense, sparse and held-out-sector protocols at 2.4 GHz, "
+              "and 5.8 GHz predicted from a 2.4 GHz fit (no other method predicts a frequency it was not trained "
+              "on).",
+    "wideband": "One fit over 160 MHz around 5.8 GHz (the metal h-target, physical optics, even/odd aspects), "
+                "scored on every 8th frequency.",
+    "rssi": "Received power in a simulated classroom at 2.4 GHz on random 80/20 links and on 4 unseen transmitters, "
+            "against the fields, ray tracing on the photo-made and the true mesh (with guessed or calibrated "
+            "materials), log-distance and multi-wall.",
+    "extrapolation": "RCS at a range no training link had: the lego at 2.4 GHz trained at 2, 2.5, 4, 4.5 and 5 m, "
+                     "tested at 3 m.",
+    "edit": "A fitted scene edited (a part rotated, an object removed or moved, a wall's material changed) and "
+            "predicted, scored against the simulator run on the edited scene; the row label gives the unedited "
+            "MAE, the ratio to it and the rank correlation of the predicted with the simulated change.",
+    "ablation": "The physical model with one term turned off at a time (residual, double bounces, a material per "
+                "object, the diffuse term), refitted on the same rows.",
+    "measured": "A measured BLE survey (one lab, 12 receivers, 125 beacon positions): random positions, a held-out "
+                "area and unseen receivers, against log-distance, multi-wall and nearest links.",
+    DIAGNOSE: "`rfir diagnose` on copies of simulated data with a hidden effect each: whether it names the effect "
+              "(or says none is in its catalogue), and the held-out MAE before and after the named correction.",
+    FULLWAVE: "The physical-optics backend of `rfir simulate` against a boundary-element (full-wave) solution on a "
+              "0.3 m PEC plate and a dihedral, 360 aspects at 2.4 GHz, V polarisation: the gap by aspect region.",
+}

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.errors import ConfigError, InputFileError
+from rfir_core.errors import ConfigError, InputFileError
 
 KINDS = ("isotropic", "dipole", "horn", "table")
 

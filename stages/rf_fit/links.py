@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from rfir_cli.errors import InputFileError, StageError
+from rfir_core.errors import InputFileError, StageError
 
 from .antennas import AntennaPattern
 from .occlusion import FrozenGeometry

@@ -20,7 +20,7 @@ from typing import Protocol
 
 import torch
 
-from rfir_cli.physics.gaussian_rf import quaternion_to_matrix
+from rfir_core.physics.gaussian_rf import quaternion_to_matrix
 
 
 @dataclass(frozen=True)

@@ -15,10 +15,10 @@ from dataclasses import fields, replace
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import write_artifact
-from rfir_cli.text import plural, standard_errors
-from rfir_cli.errors import ConfigError
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import write_artifact
+from rfir_core.text import plural, standard_errors
+from rfir_core.errors import ConfigError
+from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError, StageError
-from rfir_cli.progress import NullProgress
+from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_core.progress import NullProgress
 
 from .links import check_overlap, geometry_from_artifact, inside_words, positions_inside
 from .rssi_split import rssi_settings, training_rows

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, StageError
+from rfir_core.errors import ConfigError, StageError
 
 from .links import pick_rows
 
@@ -17,7 +17,7 @@ SPLITS = ("file", "holdout_tx")
 
 def rssi_settings(config: dict) -> dict:
     """The [rf_fit.rssi] table of the [rf_fit] table `config`, over the defaults of configs/rf_fit.toml, checked."""
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
 
     cfg = dict(load_defaults().get("rf_fit", {}).get("rssi", {}))
     given = dict(config.get("rssi", {}) or {})

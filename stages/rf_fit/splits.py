@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, StageError
+from rfir_core.errors import ConfigError, StageError
 
 
 def _aspect_deg(meas, where: str) -> np.ndarray:

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import check_output, read_artifact, write_artifact
-from rfir_cli.errors import ConfigError, InputFileError
-from rfir_cli.progress import NullProgress
-from rfir_cli.provenance import Provenance
-from rfir_cli.text import plural
+from rfir_core.artifacts import check_output, read_artifact, write_artifact
+from rfir_core.errors import ConfigError, InputFileError
+from rfir_core.progress import NullProgress
+from rfir_core.provenance import Provenance
+from rfir_core.text import plural
 from rfir_stages.model.band import aggregate_chunk
 from rfir_stages.model.fit_physical import material_index, reflection_ranges
 from rfir_stages.model.sampling import cell_size_m, coarse_surfels_warning

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.model.band import fit_columns
 
 from .links import pick_freqs

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, InputFileError, RfirError
+from rfir_core.errors import ConfigError, InputFileError, RfirError
 
 from .rssi import clear_of_objects
 from .scenes import SceneSpec, build_scene, write_ply
@@ -222,8 +222,8 @@ def transform(data: dict, spec: SceneSpec, s: MeasuredLikeSettings, seed: int) -
 
 def run(sim_dir, out_dir, table: dict, seed: int = 0, config_toml: str = "", log=print) -> dict:
     """Read SIM_DIR/measurements.h5, write OUT_DIR (module docstring); returns {key: path written}."""
-    from rfir_cli.artifacts import read_artifact, write_artifact
-    from rfir_cli.provenance import Provenance
+    from rfir_core.artifacts import read_artifact, write_artifact
+    from rfir_core.provenance import Provenance
     from rfir_stages.rf_fit.splits import describe, protocol_masks
 
     started = time.time()
@@ -302,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="simulate.measured_like.<key>=value over configs/simulate.toml")
     a = ap.parse_args(argv)
     try:
-        from rfir_cli.config import resolve_config, to_toml
+        from rfir_core.config import resolve_config, to_toml
 
         config = resolve_config(overrides=a.overrides)
         written = run(a.sim_dir, a.out_dir, config.get("simulate", {}).get("measured_like", {}), a.seed,

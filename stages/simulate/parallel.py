@@ -26,7 +26,7 @@ import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from rfir_cli.errors import StageError
+from rfir_core.errors import StageError
 
 _STATE = {}
 

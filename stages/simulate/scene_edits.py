@@ -20,7 +20,7 @@ import fnmatch
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 from .scenes import SceneSpec
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 
 from .measurement import MeasurementEffects
 from .solve import PhysicsEffects
@@ -125,7 +125,7 @@ class SimulateSettings:
 
 
 def _defaults() -> dict:
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
 
     return load_defaults().get("simulate", {})
 

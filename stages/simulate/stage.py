@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rfir_cli.errors import ConfigError, StageError
-from rfir_cli.progress import NullProgress
+from rfir_core.errors import ConfigError, StageError
+from rfir_core.progress import NullProgress
 
 from .antennas import horn_boresight_gain, horn_exponent
 from .measurement import MeasurementEffects, apply_measurement_effects
@@ -127,8 +127,8 @@ def _photos(spec, out, settings, result, progress) -> None:
 
 def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, config_toml: str, progress, folder,
                 notes: list[str]):
-    from rfir_cli.artifacts import write_artifact
-    from rfir_cli.provenance import Provenance
+    from rfir_core.artifacts import write_artifact
+    from rfir_core.provenance import Provenance
 
     prov = Provenance(stage="simulate", config_toml=config_toml)
     started = time.time()

@@ -227,7 +227,7 @@ def test_source_box_normalises_a_far_radar_and_leaves_rssi_alone():
 def _rcs_file(path, n_deg=4.0, offset=None, ranges=(3.0,)):
     """A small monostatic RCS artifact: radar at `ranges` m in the horizontal plane, aspects every
     n_deg degrees, path gain -60 + 5 cos(3 a) dB, rcs_dbsm = path gain + a per-row constant."""
-    from rfir_cli.artifacts import write_artifact
+    from rfir_core.artifacts import write_artifact
 
     a1 = np.radians(np.arange(0.0, 360.0, n_deg))
     a, r = np.tile(a1, len(ranges)), np.repeat(np.asarray(ranges, float), len(a1))
@@ -309,7 +309,7 @@ def test_rcs_cli_trains_scores_rcs_and_writes_the_schema(tmp_path):
 def test_rcs_cli_protocols_and_rssi_schema(tmp_path):
     import json
 
-    from rfir_cli.artifacts import write_artifact
+    from rfir_core.artifacts import write_artifact
 
     meas = tmp_path / "m.h5"
     a, _ = _rcs_file(meas, n_deg=10.0)

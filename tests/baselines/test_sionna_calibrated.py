@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("sionna.rt")
 
-from rfir_cli.artifacts import write_artifact  # noqa: E402
+from rfir_core.artifacts import write_artifact  # noqa: E402
 from rfir_stages.baselines import sionna_calibrated as sc  # noqa: E402
 from rfir_stages.geom.mesh_io import Mesh  # noqa: E402
 from rfir_stages.simulate.scenes import SceneObject, SceneSpec, wall, write_ply  # noqa: E402
@@ -31,7 +31,7 @@ def _wall_spec(material: str) -> SceneSpec:
 def _simulate(tmp_path, material: str, labelled: bool = True):
     """The wall in ITU `material` (0.2 m) simulated with `rfir simulate`'s default RSSI physics; writes the
     mesh (with face labels + labels.json when `labelled`) and the measurements. Returns their paths."""
-    from rfir_cli.progress import NullProgress
+    from rfir_core.progress import NullProgress
     from rfir_stages.simulate.radio_scene import load_radio_scene
     from rfir_stages.simulate.rssi import simulate_rssi
     from rfir_stages.simulate.settings import parse_settings

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 from rfir_stages.baselines.wrfgs import (WrfgsField, WrfgsSettings, cap_directions, composite_weights,
                                          predict_wrfgs, render_links, train_wrfgs)
 

@@ -8,7 +8,7 @@ import typer
 from typer.testing import CliRunner
 
 from rfir_cli.commands import calibrate as calibrate_command
-from rfir_cli.errors import ConfigError, InputFileError, StageError
+from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_stages.calibrate import CalibrateInputs, run
 
 

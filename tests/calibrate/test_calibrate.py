@@ -4,8 +4,8 @@ import csv
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.provenance import sha256_file
+from rfir_core.artifacts import read_artifact
+from rfir_core.provenance import sha256_file
 from rfir_stages.calibrate import CalibrateInputs, CalibrateOptions, run
 from rfir_stages.calibrate.align import fit_sim3, umeyama
 from rfir_stages.calibrate.evaluate import pose_errors

@@ -8,7 +8,7 @@ all 120 classroom photos known, `auto` picks spatial matching; with a subset, se
 """
 import pytest
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.calibrate import CalibrateInputs, run
 from rfir_stages.calibrate.evaluate import pose_errors
 from rfir_stages.render import render_views

@@ -7,7 +7,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, write_artifact
 from rfir_cli.context import GlobalOptions
 
 
@@ -15,7 +15,7 @@ from rfir_cli.context import GlobalOptions
 def _radar_measurements(path, fields):
     """RCS 'measurements' of the small metal box from the physical-optics solver (isotropic antennas,
     5 deg steps, 2 m)."""
-    from rfir_cli.physics.closed_forms import rcs_from_path_gain
+    from rfir_core.physics.closed_forms import rcs_from_path_gain
     from rfir_stages.po import channel_from_amplitude, po_scattered_field
     from rfir_stages.rf_fit.links import radar_links
     from rfir_stages.simulate.scenes import box

@@ -27,7 +27,7 @@ def test_no_phase_at_all_writes_no_channel(tmp_path):
 
 
 def test_diagnose_says_leakage_was_not_tested_without_phases(tmp_path):
-    from rfir_cli.artifacts import write_artifact
+    from rfir_core.artifacts import write_artifact
     from rfir_stages.diagnose import run
 
     asp = np.radians(np.arange(0, 360, 2.0))

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.physical import MaterialValues, PairSettings

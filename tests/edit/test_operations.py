@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.edit.operations import EditScene, apply, covariances, parse_operation, quat_to_matrix
 from rfir_stages.edit.selection import parse_selection
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 from rfir_stages.edit import run
 from rfir_stages.edit.script import edits_from_options
@@ -138,7 +138,7 @@ def test_script_unknown_key_is_named(rf_path, tmp_path):
 
 
 def test_output_passes_rfir_check_and_new_labels_do_not_reuse_ids(tmp_path, write_rf):
-    from rfir_cli.artifacts import validate_artifact, write_artifact
+    from rfir_core.artifacts import validate_artifact, write_artifact
 
     art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
     attrs = {"task": "rcs"}  # labels without label_names: ids 0 and 1 must stay unnamed-but-distinct
@@ -153,7 +153,7 @@ def test_output_passes_rfir_check_and_new_labels_do_not_reuse_ids(tmp_path, writ
 
 
 def test_free_group_arrays_of_length_g_travel_known_others_stay(tmp_path, write_rf):
-    from rfir_cli.artifacts import write_artifact
+    from rfir_core.artifacts import write_artifact
 
     art = read_artifact(write_rf(tmp_path / "a.h5"), "rf")
     g = len(art["gaussians/means"])
@@ -187,7 +187,7 @@ def test_plot_adds_the_rcs_change_of_an_rcs_model(rf_path, tmp_path):
 def test_an_edit_drops_the_link_space_residual_and_predicts_the_physics_alone(tmp_path):
     """A smooth residual corrects the unedited scene's training links in link geometry; after an edit the
     model predicts the physics alone (docs/edit.md: the lego rotation)."""
-    from rfir_cli.artifacts import write_artifact
+    from rfir_core.artifacts import write_artifact
     from rfir_stages.model.residual import ResidualFit, residual_fields
 
     from .conftest import two_boxes

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import write_artifact
-from rfir_cli.provenance import Provenance
+from rfir_core.artifacts import write_artifact
+from rfir_core.provenance import Provenance
 
 
 def measurement_data(links: int = 5, freqs: int = 2) -> dict:

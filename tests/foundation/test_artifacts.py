@@ -3,10 +3,10 @@ import h5py
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
-from rfir_cli.errors import InputFileError, SchemaError
-from rfir_cli.provenance import Provenance
-from rfir_cli.schema import KINDS, SCHEMA_VERSION
+from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_core.errors import InputFileError, SchemaError
+from rfir_core.provenance import Provenance
+from rfir_core.schema import KINDS, SCHEMA_VERSION
 
 
 def test_round_trip_keeps_values_units_and_provenance(measurements_file, measurement_data):

@@ -8,10 +8,10 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 from rfir_cli.main import app
-from rfir_cli.provenance import Provenance
-from rfir_cli.text import plural, standard_errors
+from rfir_core.provenance import Provenance
+from rfir_core.text import plural, standard_errors
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[2]
@@ -60,7 +60,7 @@ def test_info_says_the_artifact_is_required_unless_tracer():
 
 def test_exit_codes_are_listed_in_help_and_readme():
     out = runner.invoke(app, ["--help"]).output
-    from rfir_cli.errors import ConfigError, InputFileError, RfirError, SchemaError, StageError
+    from rfir_core.errors import ConfigError, InputFileError, RfirError, SchemaError, StageError
     codes = {RfirError.exit_code, InputFileError.exit_code, SchemaError.exit_code, ConfigError.exit_code,
              StageError.exit_code, 70, 130}
     block = out[out.index("Exit codes"):]

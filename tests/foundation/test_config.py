@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from rfir_cli import config as cfg
-from rfir_cli.config import parse_override, resolve_config, to_toml
-from rfir_cli.errors import ConfigError
+from rfir_core import config as cfg
+from rfir_core.config import parse_override, resolve_config, to_toml
+from rfir_core.errors import ConfigError
 
 
 @pytest.fixture

@@ -2,7 +2,7 @@
 
 docs/*.md and README.md name source files (`stages/model/band.py`, `scripts/edit_validation.sh`, ...)
 and dotted modules with an optional attribute (`rfir_stages.rf_fit.occlusion.TracerOcclusion`,
-`rfir_cli.physics.closed_forms.C0`). A file must exist; a dotted name must resolve to a module or
+`rfir_core.physics.closed_forms.C0`). A file must exist; a dotted name must resolve to a module or
 package, and any remaining part to a name defined in that module's source. Globs (`room*.py`) and
 bare file names without a folder are not checked. A dotted configuration key (`rf_fit.physical.sharing`,
 `predict.rssi.grid`), in the docs or in scripts/*.sh, must be a key or table of configs/*.toml.
@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 # repository folders that hold code, configuration or scripts (generated folders such as results/ excluded)
 CODE_DIRS = ("stages", "src", "scripts", "tests", "bench", "configs", "ext", "workflow")
 FILE_REF = re.compile(r"(?<![\w./-])((?:%s)/[\w./-]*\w\.(?:py|sh|toml))\b" % "|".join(CODE_DIRS))
-PACKAGES = {"rfir_stages": ROOT / "stages", "rfir_cli": ROOT / "src" / "rfir_cli",
+PACKAGES = {"rfir_stages": ROOT / "stages", "rfir_cli": ROOT / "src" / "rfir_cli", "rfir_core": ROOT / "src" / "rfir_core",
             "rfir_tracer": ROOT / "ext" / "rfir_tracer"}
 DOTTED_REF = re.compile(r"\b((?:%s)(?:\.\w+)+)" % "|".join(PACKAGES))
 CONFIG_REF = re.compile(r"(?<![\w./-])((?:rf_fit|predict|geom|simulate|calibrate|reproduce|general)(?:\.[a-z_0-9]+)+)")
@@ -118,7 +118,7 @@ def test_every_config_key_the_docs_and_scripts_name_exists():
 def test_the_checks_catch_a_missing_module_file_name_and_key():
     assert resolve_dotted("rfir_stages.model.materials") is None
     assert resolve_dotted("rfir_stages.rf_fit.occlusion.TracerOcclusion") is None
-    assert resolve_dotted("rfir_cli.physics.closed_forms.C0") is None
+    assert resolve_dotted("rfir_core.physics.closed_forms.C0") is None
     assert resolve_dotted("rfir_stages.rf_fit.fit") is not None or not (ROOT / "stages/rf_fit/fit.py").exists()
     assert resolve_dotted("rfir_stages.predict.invariance") is not None
     assert "defines no" in resolve_dotted("rfir_stages.model.materials.no_such_function")

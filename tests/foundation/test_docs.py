@@ -1,7 +1,7 @@
-"""docs/artifacts.md matches the schema in code (regenerate with `python -m rfir_cli.schema_doc`)."""
+"""docs/artifacts.md matches the schema in code (regenerate with `python -m rfir_core.schema_doc`)."""
 from pathlib import Path
 
-from rfir_cli.schema_doc import BEGIN, END, schema_markdown
+from rfir_core.schema_doc import BEGIN, END, schema_markdown
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
@@ -9,7 +9,7 @@ DOCS = Path(__file__).resolve().parents[2] / "docs"
 def test_artifact_doc_is_generated_from_current_schema():
     text = (DOCS / "artifacts.md").read_text()
     generated = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
-    assert generated == schema_markdown().strip(), "run: python -m rfir_cli.schema_doc docs/artifacts.md"
+    assert generated == schema_markdown().strip(), "run: python -m rfir_core.schema_doc docs/artifacts.md"
 
 
 def test_architecture_doc_exists_and_names_every_stage_package():

@@ -16,7 +16,9 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = {"rfir_cli": ROOT / "src" / "rfir_cli", "rfir_stages": ROOT / "stages"}
+PACKAGES = {"rfir_core": ROOT / "src" / "rfir_core", "rfir_cli": ROOT / "src" / "rfir_cli", "rfir_stages": ROOT / "stages"}
+# The layers, lowest first: a module may import its own layer and those below it, never one above.
+LAYERS = ("rfir_core", "rfir_stages", "rfir_cli")
 
 # Ratchet: today's count of import cycles between files (strongly connected components of more than one file) and of
 # the files caught in them. These must only go down: lower them when a cycle is broken, never raise them.
@@ -161,7 +163,7 @@ def package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
 
 
 def _short(module: str) -> str:
-    return module.replace("rfir_stages.", "stages/").replace("rfir_cli.", "cli/")
+    return module.replace("rfir_stages.", "stages/").replace("rfir_cli.", "cli/").replace("rfir_core.", "core/")
 
 
 def test_the_graph_reader_resolves_relative_and_nested_imports(tmp_path, monkeypatch):
@@ -206,3 +208,24 @@ def test_no_new_import_cycle_between_files():
         f"{len(cycles)} import cycles over {files} files, more than the {MAX_FILE_CYCLES} cycles over "
         f"{MAX_FILES_IN_CYCLES} files of before: move the shared piece into the module both import, rather than "
         "importing each other (see the cycles printed above)")
+
+
+def test_layers_import_only_downwards():
+    """rfir_core imports neither the stages nor the CLI; the stages never import the CLI (the CLI only parses and
+    prints, so everything a stage needs lives in the core or in the stages)."""
+    graph, _ = import_graph()
+    rank = {layer: i for i, layer in enumerate(LAYERS)}
+    upward = sorted((a, b) for a, targets in graph.items() for b in targets
+                    if rank[b.split(".")[0]] > rank[a.split(".")[0]])
+    assert not upward, "imports of a layer above: " + "; ".join(f"{_short(a)} -> {_short(b)}" for a, b in upward)
+
+
+def test_the_layer_check_can_fail(monkeypatch):
+    fake = {"rfir_core.x": {"rfir_cli.y"}, "rfir_cli.y": set()}
+    monkeypatch.setitem(globals(), "import_graph", lambda: (fake, []))
+    try:
+        test_layers_import_only_downwards()
+    except AssertionError as error:
+        assert "core/x -> cli/y" in str(error)
+    else:
+        raise AssertionError("an upward import was not caught")

@@ -7,11 +7,11 @@ import time
 
 import numpy as np
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 
 WRITER = r"""
 import sys, numpy as np
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 links = 3_000_000   # ~ 150 MB: long enough to be killed mid-write
 write_artifact(sys.argv[1], "measurements",
                {"tx_pos": np.ones((links, 3)), "rx_pos": np.zeros((links, 3)), "freq_hz": np.array([2.4e9]),

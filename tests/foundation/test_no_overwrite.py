@@ -5,9 +5,9 @@ Each refusal is one line naming the file, exit code 2, and leaves the file's byt
 import numpy as np
 from typer.testing import CliRunner
 
-from rfir_cli import artifacts
-from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_cli.errors import InputFileError
+from rfir_core import artifacts
+from rfir_core.artifacts import read_artifact, write_artifact
+from rfir_core.errors import InputFileError
 from rfir_cli.main import app
 from rfir_stages.simulate.scenes import write_ply
 

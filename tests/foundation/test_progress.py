@@ -9,7 +9,7 @@ import pytest
 
 from rfir_cli import context
 from rfir_cli.context import RichReporter
-from rfir_cli.progress import LineProgress, format_duration
+from rfir_core.progress import LineProgress, format_duration
 
 
 class Clock:

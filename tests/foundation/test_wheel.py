@@ -1,5 +1,5 @@
 """A non-editable install carries its defaults: configs/*.toml and configs/recipes/*.toml go into the wheel as the
-package data rfir_cli._configs, and an installed wheel runs from a folder outside the repository.
+package data rfir_core._configs, and an installed wheel runs from a folder outside the repository.
 
 The wheel is built from a copy of the project (so the repository gets no build/ folder) with
 `pip wheel --no-deps --no-build-isolation --no-index`: offline, against the torch already installed.
@@ -56,10 +56,10 @@ def test_the_wheel_carries_every_default_config_and_module(tmp_path):
     configs = sorted((ROOT / "configs").glob("*.toml"))
     recipes = sorted((ROOT / "configs" / "recipes").glob("*.toml"))
     assert len(configs) >= 5 and recipes, "configs/ holds almost nothing: is ROOT right?"
-    missing = [p.name for p in configs if f"rfir_cli/_configs/{p.name}" not in names]
-    missing += [f"recipes/{p.name}" for p in recipes if f"rfir_cli/_configs/recipes/{p.name}" not in names]
-    assert not missing, f"the wheel lacks these configs/ files (rfir_cli/_configs): {missing}"
-    for package, folder in (("rfir_cli", ROOT / "src" / "rfir_cli"), ("rfir_stages", ROOT / "stages"),
+    missing = [p.name for p in configs if f"rfir_core/_configs/{p.name}" not in names]
+    missing += [f"recipes/{p.name}" for p in recipes if f"rfir_core/_configs/recipes/{p.name}" not in names]
+    assert not missing, f"the wheel lacks these configs/ files (rfir_core/_configs): {missing}"
+    for package, folder in (("rfir_core", ROOT / "src" / "rfir_core"), ("rfir_cli", ROOT / "src" / "rfir_cli"), ("rfir_stages", ROOT / "stages"),
                             ("rfir_tracer", ROOT / "ext" / "rfir_tracer")):
         modules = [f"{package}/{p.relative_to(folder).as_posix()}" for p in folder.rglob("*.py")
                    if "__pycache__" not in p.parts]
@@ -116,7 +116,7 @@ def _rfir(installed, *args, timeout=900):
 @pytest.mark.slow
 def test_the_installed_wheel_reads_its_defaults_from_the_package(installed):
     venv, env, outside, _ = installed
-    probe = ("import json, rfir_cli.config as c, rfir_tracer._ext as e; "
+    probe = ("import json, rfir_core.config as c, rfir_tracer._ext as e; "
              "print(json.dumps([c.__file__, str(c.config_dir()), sorted(c.load_defaults()), e.native().__file__]))")
     run = subprocess.run([str(venv / "bin" / "python"), "-c", probe], cwd=outside, env=env, capture_output=True,
                          text=True, timeout=300)

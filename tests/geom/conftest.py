@@ -48,8 +48,8 @@ def make_capture(folder, n_views=6, width=64, height=48, n_points=400, seed=0):
     import cv2
     from plyfile import PlyData, PlyElement
 
-    from rfir_cli.artifacts import write_artifact
-    from rfir_cli.provenance import Provenance
+    from rfir_core.artifacts import write_artifact
+    from rfir_core.provenance import Provenance
 
     rng = np.random.default_rng(seed)
     (folder / "images").mkdir(parents=True, exist_ok=True)
@@ -91,7 +91,7 @@ def plane_capture(tmp_path_factory):
 
 # Small, fast settings for the tests (every table of configs/geom.toml that matters).
 def tiny_config(**over):
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
 
     cfg = load_defaults()["geom"]
     cfg.update({"max_image_width": 64, "test_every": 3, "iterations": 80, "max_init_points": 400,

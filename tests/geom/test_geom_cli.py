@@ -4,7 +4,7 @@ import tomli_w
 from plyfile import PlyData
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
 from rfir_cli.main import app
 from rfir_stages.geom.export_ply import NUM_REST, SH_C0, read_gaussian_ply, write_gaussian_ply
 

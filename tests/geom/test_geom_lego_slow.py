@@ -5,7 +5,7 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 
 runner = CliRunner()

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.geom.data import background_colour, load_views
 from rfir_stages.geom.densify import DensifyStats, densify_and_prune
 from rfir_stages.geom.init import init_from_points

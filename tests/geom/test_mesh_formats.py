@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 
 runner = CliRunner()
@@ -120,7 +120,7 @@ def area_of(art):
     """Total surfel area [m^2]: the two largest standard deviations, as mesh-gaussians sizes them."""
     import torch
 
-    from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2
+    from rfir_core.physics.gaussian_rf import covariance, projected_cross_section_m2
 
     cov = covariance(torch.tensor(art["gaussians/log_scales"]), torch.tensor(art["gaussians/rotations"]))
     return float(projected_cross_section_m2(cov.double(), torch.tensor(art["gaussians/normals"])[None]).sum())
@@ -200,7 +200,7 @@ def test_bad_meshes_one_line(tmp_path, name, content, message):
 
 def test_presets_and_flags_that_override_them(tmp_path):
     from rfir_cli.commands.mesh_gaussians import preset_values
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
 
     assert preset_values("room", None, None, None, None) == (0.8, 12, True, True)
     assert preset_values("object", None, None, None, None) == (0.03, 0, False, False)

@@ -6,9 +6,9 @@ import pytest
 from plyfile import PlyData, PlyElement
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
-from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2
+from rfir_core.physics.gaussian_rf import covariance, projected_cross_section_m2
 
 runner = CliRunner()
 

@@ -88,7 +88,7 @@ def test_the_command_tiles_rectangles_only_when_asked_and_records_the_tiling(tmp
     0.4 m: 4 x 4), the tiling in the artifact's provenance and the count printed; without it, sub-triangles."""
     from typer.testing import CliRunner
 
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
     from rfir_cli.main import app
 
     from .test_mesh_gaussians import two_panels, write_ply

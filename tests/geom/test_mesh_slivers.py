@@ -5,9 +5,9 @@ import numpy as np
 import torch
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
-from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2
+from rfir_core.physics.gaussian_rf import covariance, projected_cross_section_m2
 from rfir_stages.geom import gaussians_from_mesh
 
 from .test_mesh_gaussians import write_ply

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.rf_fit.antennas import antenna_choice, antenna_from_attrs
 
 

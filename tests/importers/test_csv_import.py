@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.errors import InputFileError
+from rfir_core.artifacts import read_artifact
+from rfir_core.errors import InputFileError
 from rfir_cli.main import app
 from rfir_stages.importers import import_csv
 

@@ -7,7 +7,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.context import GlobalOptions
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.importers import import_csv

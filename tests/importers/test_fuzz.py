@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import validate_artifact, write_artifact
-from rfir_cli.errors import RfirError
+from rfir_core.artifacts import validate_artifact, write_artifact
+from rfir_core.errors import RfirError
 from rfir_cli.main import app
 from rfir_stages.importers import import_csv, import_nerf2_ble
 

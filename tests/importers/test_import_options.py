@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
 from rfir_cli.main import app
 
 PROPS = settings(max_examples=15, deadline=None, derandomize=True,

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import validate_artifact, write_artifact
+from rfir_core.artifacts import validate_artifact, write_artifact
 
 ROWS = 100_000          # ~ 4 MB of CSV: seconds to parse, so a kill lands mid-way
 IMPORT = [sys.executable, "-m", "rfir_cli.main", "import", "csv"]

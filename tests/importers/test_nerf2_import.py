@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.errors import InputFileError
+from rfir_core.artifacts import read_artifact
+from rfir_core.errors import InputFileError
 from rfir_stages.importers import import_nerf2_ble
 
 

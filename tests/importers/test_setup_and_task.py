@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
-from rfir_cli.errors import InputFileError
+from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_core.errors import InputFileError
 from rfir_cli.main import app
-from rfir_cli.physics.closed_forms import rcs_from_path_gain
+from rfir_core.physics.closed_forms import rcs_from_path_gain
 from rfir_stages.importers import import_csv
 
 HEADER = "tx_x,tx_y,tx_z,rx_x,rx_y,rx_z,freq_hz,power_db,aspect_deg,range_m"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.importers.split import assign_split, parse_split
 
 

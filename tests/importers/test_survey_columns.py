@@ -2,7 +2,7 @@
 import numpy as np
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 
 HEAD = "tx_x,tx_y,tx_z,rx_x,rx_y,rx_z,freq_hz,power_db,tx_id,rx_id,n_packets,rssi_std_db,note\n"

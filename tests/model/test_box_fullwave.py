@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.fullwave.meshes import box_surface
 
 from .helpers import surfels

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rfir_cli.physics.closed_forms import cylinder_rcs_broadside_m2
+from rfir_core.physics.closed_forms import cylinder_rcs_broadside_m2
 from rfir_stages.fullwave.meshes import cylinder_surface
 
 from .helpers import surfels

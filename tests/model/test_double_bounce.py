@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.model.second_order import polarisation_chain
 from rfir_stages.rf_fit.occlusion import make_provider

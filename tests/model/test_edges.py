@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.edges import patch_edges, wedge_fringe
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.model.second_order import planar_patches

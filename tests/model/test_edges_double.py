@@ -10,7 +10,7 @@ import pytest
 import torch
 from scipy.special import fresnel
 
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.edges import utd_transition
 from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.rf_fit.occlusion import make_provider

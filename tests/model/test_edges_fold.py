@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 import rfir_stages.model.edges as edges_module
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.edges import wedge_grazing_vertex
 
 from .helpers import surfels

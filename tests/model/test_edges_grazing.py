@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.edges import strip_double_diffraction, strip_return_diffraction
 
 from .helpers import plate_mesh, surfels

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.physics.closed_forms import C0, plate_rcs_broadside_m2
+from rfir_core.physics.closed_forms import C0, plate_rcs_broadside_m2
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
 from rfir_stages.model.materials import fresnel, itu_law, permittivity
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_power
@@ -296,7 +296,7 @@ def test_cylinder_broadside_whatever_the_facets(edge_m, freq_hz):
     or 32 facets round it (11 520 or 2 880 surfels): the level comes from the stationary phase of the
     surfels' coherent sum, not from their number. Its end caps are edge-on there; the far side is
     shadowed (without the visibility test it adds 0.7-2.6 dB)."""
-    from rfir_cli.physics.closed_forms import cylinder_rcs_broadside_m2
+    from rfir_core.physics.closed_forms import cylinder_rcs_broadside_m2
     from rfir_stages.fullwave.meshes import cylinder_surface
 
     a, length, r = 0.05, 0.4, 200.0

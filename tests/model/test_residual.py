@@ -126,7 +126,7 @@ def test_sector_folds_are_blocks_as_wide_as_the_sector(sector):
 
 def test_sector_candidates_use_the_sector_lengths():
     """rf_fit.physical.residual_sector_lengths_deg is read and checked like the other lists."""
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit.physical_stage import residual_config
 
     assert residual_config({}).sector_lengths_deg == (1.0, 2.0, 4.0)
@@ -215,7 +215,7 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     """End to end on data from the physical model itself with a smooth error of 1 + 2 sin(2 aspect) dB:
     rf-fit chooses a kernel residual, the artifact passes `rfir check` and round-trips, predict rcs
     scores the odd aspects below the physics alone (reported beside it)."""
-    from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+    from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
     from rfir_stages.geom import write_scene_artifact
     from rfir_stages.model.materials import C0
     from rfir_stages.predict.rcs import run_rcs
@@ -274,7 +274,7 @@ def test_training_spacing_counts_each_aspect_once_and_wraps_round():
 
 
 def test_residual_interpolation_setting_is_checked():
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit.physical_stage import residual_config
 
     assert residual_config({}).interpolation == "half-spacing"

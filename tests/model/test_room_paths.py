@@ -461,7 +461,7 @@ def test_a_small_face_ends_within_millimetres_of_its_edges():
 
 
 def test_an_unknown_patch_extent_is_refused():
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit.room_stage import room_config
 
     with pytest.raises(ConfigError, match="patch_extent"):
@@ -470,7 +470,7 @@ def test_an_unknown_patch_extent_is_refused():
 
 
 def test_negative_small_reflections_and_no_kept_start_are_refused():
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit.room_stage import room_config
 
     with pytest.raises(ConfigError, match="third_order_small_reflections"):
@@ -482,7 +482,7 @@ def test_negative_small_reflections_and_no_kept_start_are_refused():
 
 
 def test_fewer_interactions_than_reflections_are_refused():
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit.room_stage import room_config
 
     with pytest.raises(ConfigError, match="max_interactions = 2 is below max_order = 3"):
@@ -495,7 +495,7 @@ def test_room_settings_defaults_are_the_documented_config():
     documents) give every setting the same default."""
     from dataclasses import fields
 
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
     from rfir_stages.model.room import RoomSettings
 
     from rfir_stages.rf_fit.room_stage import room_config
@@ -514,7 +514,7 @@ def test_auto_interactions_follow_the_simulated_depth():
     taken as given; anything else is refused."""
     from types import SimpleNamespace
 
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.model.room_paths import MAX_INTERACTIONS
     from rfir_stages.rf_fit.room_stage import interactions_words, room_config, simulated_depth
 

@@ -77,7 +77,7 @@ def test_a_metal_fixes_the_shared_scattering_and_with_it_the_dielectrics_reflect
 def test_room_config_shares_the_scattering_by_default_and_refuses_an_unknown_choice():
     import pytest
 
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit.room_stage import room_config
 
     settings, fit_cfg, _ = room_config({})

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import rfir_stages.model.physical as physical_module
-from rfir_cli.physics.closed_forms import C0
+from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.band import at_columns
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_field
 from rfir_stages.model.second_order import bounce_factors, reflection_chain

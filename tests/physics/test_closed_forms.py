@@ -1,7 +1,7 @@
 """Closed forms agree with each other where physics says they must."""
 import numpy as np
 
-from rfir_cli.physics import (C0, friis_path_gain, plate_image_echo_gain, plate_rcs_broadside_m2, power_to_db,
+from rfir_core.physics import (C0, friis_path_gain, plate_image_echo_gain, plate_rcs_broadside_m2, power_to_db,
                               rcs_from_path_gain, sphere_rcs_m2, wavelength_m)
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_cli.physics.gaussian_rf import covariance, projected_cross_section_m2
+from rfir_core.physics.gaussian_rf import covariance, projected_cross_section_m2
 
 
 @pytest.fixture(autouse=True)

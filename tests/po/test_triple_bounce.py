@@ -170,8 +170,8 @@ def test_no_third_hit_no_change():
 
 def test_max_bounces_setting_and_provenance():
     """simulate.po.max_bounces reaches the solver and its provenance; below 2 is a one-line config error."""
-    from rfir_cli.config import load_defaults
-    from rfir_cli.errors import ConfigError
+    from rfir_core.config import load_defaults
+    from rfir_core.errors import ConfigError
     from rfir_stages.simulate.settings import parse_settings
 
     cfg = load_defaults().get("simulate", {})

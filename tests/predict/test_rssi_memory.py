@@ -9,7 +9,7 @@ import time
 import numpy as np
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 from rfir_stages.predict import rssi, rssi_checks
 

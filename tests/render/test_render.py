@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.render import intrinsics, look_at, object_poses, render_views, room_poses
 from rfir_stages.render.poses import obstacle_boxes
 from rfir_stages.render.toy_scenes import box_mesh, marker_scene, textured_object_scene

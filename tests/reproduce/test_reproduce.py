@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from rfir_cli.errors import ConfigError, StageError
+from rfir_core.errors import ConfigError, StageError
 from rfir_stages.reproduce.__main__ import main, write_target
 from rfir_stages.reproduce.plan import Plan, code_version, read_benchmark, rule_name
 from rfir_stages.reproduce.tables import Cell, Table, to_markdown, write_table

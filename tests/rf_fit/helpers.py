@@ -6,7 +6,7 @@ import math
 import numpy as np
 import torch
 
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh
 from rfir_stages.model.materials import C0
 from rfir_stages.po import channel_from_amplitude, po_scattered_field

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model import predict as model_predict

@@ -4,7 +4,7 @@ import json
 import numpy as np
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, write_artifact
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.predict.baselines import baselines_beating_model
 

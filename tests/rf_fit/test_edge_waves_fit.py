@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact, validate_artifact, write_artifact
-from rfir_cli.errors import ConfigError
+from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
+from rfir_core.errors import ConfigError
 from rfir_stages.fullwave.meshes import plate_screen
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 
 from .test_stage import BOX, _measurements

@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact, validate_artifact
-from rfir_cli.progress import NullProgress
+from rfir_core.artifacts import read_artifact, validate_artifact
+from rfir_core.progress import NullProgress
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity
@@ -113,7 +113,7 @@ def test_sharing_auto_offers_per_class_and_global_and_records_the_choice(tmp_pat
 
 
 def test_bad_physical_settings_are_config_errors(metal_box, tmp_path):
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
     from rfir_stages.rf_fit import run
 
     for cfg, msg in (({"physical": {"sharing": "brick"}}, "rf_fit.physical.sharing"),

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact
-from rfir_cli.config import resolve_config
+from rfir_core.artifacts import read_artifact
+from rfir_core.config import resolve_config
 
 
 @pytest.mark.slow

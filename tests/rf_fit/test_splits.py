@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError, StageError
+from rfir_core.errors import ConfigError, StageError
 from rfir_stages.rf_fit.splits import protocol_masks, split_rows
 
 

@@ -8,10 +8,10 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.context import GlobalOptions
-from rfir_cli.errors import InputFileError, SchemaError
-from rfir_cli.progress import NullProgress
+from rfir_core.errors import InputFileError, SchemaError
+from rfir_core.progress import NullProgress
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.simulate.scenes import box
 
@@ -114,7 +114,7 @@ def test_keys_of_the_retired_free_family_are_unknown(tiny, tmp_path, key):
 
 def test_an_rf_artifact_of_the_free_family_is_refused_with_one_line(tiny, tmp_path):
     """What rf-fit wrote before the physical model was the only one: rf/* per Gaussian, no material/*."""
-    from rfir_cli.artifacts import validate_artifact, write_artifact
+    from rfir_core.artifacts import validate_artifact, write_artifact
 
     scene = read_artifact(tiny / "scene.h5", "scene")
     g = len(scene["gaussians/means"])

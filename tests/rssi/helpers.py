@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.simulate.scenes import _merge, box, rect_xy, wall
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, write_artifact
 from rfir_cli.main import app
 
 from .helpers import write_measurements, write_scene

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, write_artifact
+from rfir_core.artifacts import read_artifact, write_artifact
 from rfir_cli.main import app
 from rfir_stages.model.device_gains import DeviceGains, device_index, gains_at, ridge_gains
 from rfir_stages.rf_fit.device_choice import choose_device_gains

@@ -3,7 +3,7 @@ holdout_box:X0:X1:Y0:Y1 and holdout_rx:N, beside the existing ones."""
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError, StageError
+from rfir_core.errors import ConfigError, StageError
 from rfir_stages.rf_fit.splits import describe, protocol_masks, split_rows
 
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import write_artifact
+from rfir_core.artifacts import write_artifact
 from rfir_cli.main import app
 
 from .helpers import links, reference_gain_db, write_scene
@@ -71,7 +71,7 @@ def test_link_weights_are_the_inverse_error_variance_about_a_mean_of_one():
 def test_averaged_links_weight_the_fit_toward_the_well_measured_ones(room):
     """Half the links are single noisy samples 6 dB off (n 1, spread 8 dB), half the mean of 30 samples (spread
     1 dB): weighted by their counts and spreads, the fit follows the well-measured half."""
-    from rfir_cli.artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
     from rfir_stages.model.room import RoomPredictor
 
     tx, rx, ti, ri = links()

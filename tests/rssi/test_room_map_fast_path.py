@@ -141,7 +141,7 @@ def test_the_models_stored_map_receivers_give_the_map_traced_afresh(tmp_path, mo
     from rfir_stages.model.surfels import surfel_areas
     from typer.testing import CliRunner
 
-    from rfir_cli.artifacts import read_artifact, write_artifact
+    from rfir_core.artifacts import read_artifact, write_artifact
     from rfir_cli.main import app
     from rfir_stages.model.room import RoomPredictor
     from rfir_stages.predict.rssi import rssi_defaults

@@ -12,7 +12,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 from rfir_stages.model.artifact import load_physical
 from rfir_stages.model.materials import C0, ITU_MATERIALS, slab_transmission

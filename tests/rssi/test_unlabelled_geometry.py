@@ -2,7 +2,7 @@
 fits a material per segment of the geometry."""
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact
+from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 

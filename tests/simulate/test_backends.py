@@ -8,10 +8,10 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from rfir_cli.artifacts import read_artifact, validate_artifact
+from rfir_core.artifacts import read_artifact, validate_artifact
 from rfir_cli.context import GlobalOptions
-from rfir_cli.errors import ConfigError, StageError
-from rfir_cli.progress import NullProgress
+from rfir_core.errors import ConfigError, StageError
+from rfir_core.progress import NullProgress
 from rfir_stages.simulate.antennas import horn_boresight_gain
 from rfir_stages.simulate.po_backend import simulate_monostatic_po
 from rfir_stages.simulate.rcs import RadarGrid, aspect_grid, object_radius

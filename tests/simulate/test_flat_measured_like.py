@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from rfir_cli.artifacts import read_artifact, write_artifact
-from rfir_cli.config import load_defaults
-from rfir_cli.errors import ConfigError
+from rfir_core.artifacts import read_artifact, write_artifact
+from rfir_core.config import load_defaults
+from rfir_core.errors import ConfigError
 from rfir_stages.geom.mesh_io import read_ply_mesh
 from rfir_stages.simulate import measured_like as ml
 from rfir_stages.simulate.rssi import grid_positions

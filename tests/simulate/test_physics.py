@@ -18,7 +18,7 @@ from rfir_stages.simulate.rcs import RadarGrid, object_radius, simulate_monostat
 from rfir_stages.simulate.scenes import build_scene, ground_plate, plate  # noqa: E402
 from rfir_stages.simulate.solve import PhysicsEffects, rcs_dbsm_from_gain, solve_links  # noqa: E402
 
-from rfir_cli.progress import NullProgress  # noqa: E402
+from rfir_core.progress import NullProgress  # noqa: E402
 
 FREQS = (2.4e9, 5.8e9)
 SPECULAR_ONLY = PhysicsEffects(max_depth=1, diffuse=False, refraction=False, samples_per_src=100_000,
@@ -207,7 +207,7 @@ def test_the_rssi_path_buffer_keeps_every_path_of_a_full_grid(tmp_path):
     """Sionna drops paths beyond max_num_paths_per_src for all receivers of a solve together, silently. At the
     configured buffer, one of the flat's transmitters solved for about 950 receivers at once gives what twice the
     buffer gives (a buffer of 2e6 moved the median link by 0.36 dB). Slow: two solves of 5-9 GB."""
-    from rfir_cli.config import load_defaults
+    from rfir_core.config import load_defaults
     from rfir_stages.simulate.radio_scene import MaterialEffects
     from rfir_stages.simulate.rssi import clear_of_objects
 

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.simulate.rssi import clear_of_objects
 from rfir_stages.simulate.scenes import build_scene
 from rfir_stages.simulate.settings import parse_settings

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfir_cli.errors import ConfigError
+from rfir_core.errors import ConfigError
 from rfir_stages.edit.operations import EditScene, apply, parse_operation
 from rfir_stages.simulate.scene_edits import apply_scene_edits, rotation_matrix
 from rfir_stages.simulate.scenes import build_scene

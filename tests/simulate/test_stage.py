@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 pytest.importorskip("sionna.rt")
 
-from rfir_cli.artifacts import read_artifact  # noqa: E402
+from rfir_core.artifacts import read_artifact  # noqa: E402
 from rfir_cli.context import GlobalOptions  # noqa: E402
 from rfir_stages.simulate import run  # noqa: E402
 from rfir_stages.simulate.scene_edits import measurement_scene_edits  # noqa: E402
@@ -83,7 +83,7 @@ def test_cli_simulate_h_target(tmp_path):
 
 
 def test_unknown_scene_is_a_config_error(tmp_path):
-    from rfir_cli.errors import ConfigError
+    from rfir_core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="unknown scene"):
         run("spaceship", tmp_path, _config(), quick=True)

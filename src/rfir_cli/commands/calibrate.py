@@ -41,7 +41,7 @@ def calibrate(
     opts = options(ctx)
 
     def work():
-        from ..artifacts import check_output
+        from rfir_core.artifacts import check_output
 
         # before SfM: the artifact replaces neither an input nor a file of another kind (without --force)
         check_output(out, "calib", inputs=[poses, points, markers, intrinsics_from])

@@ -8,8 +8,8 @@ import typer
 from rich.markup import escape
 
 from ..context import console, err_console, run_guarded
-from ..errors import RfirError, SchemaError
-from ..text import plural
+from rfir_core.errors import RfirError, SchemaError
+from rfir_core.text import plural
 
 
 def register(app: typer.Typer) -> None:
@@ -24,7 +24,7 @@ def check(
     """Validate artifacts: kind, schema version, required datasets, shapes, dtypes, finite values.
 
     Every file is checked and reported; the exit code is the worst file's (2 unreadable, 3 invalid)."""
-    from ..artifacts import validate_artifact
+    from rfir_core.artifacts import validate_artifact
 
     def work():
         bad, worst = 0, 0

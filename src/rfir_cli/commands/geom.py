@@ -34,7 +34,7 @@ def geom(
     def work():
         from rfir_stages.geom.stage import run, side_paths
 
-        from ..artifacts import check_output
+        from rfir_core.artifacts import check_output
 
         # before any training: no output (the artifact, SCENE.ply, SCENE_mesh.ply) over an input or another kind
         check_output(out, "scene", inputs=[calib, gt_mesh])

@@ -8,7 +8,7 @@ import typer
 from rich.markup import escape
 
 from ..context import console, options, run_guarded
-from ..text import plural
+from rfir_core.text import plural
 
 import_app = typer.Typer(help="Bring real measurements in (CSV links, NeRF2 BLE).", no_args_is_help=True,
                          rich_markup_mode=None)

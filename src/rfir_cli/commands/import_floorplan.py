@@ -42,7 +42,7 @@ def import_floorplan_command(
     """Build a room mesh from a floor plan of wall segments (columns: docs/rssi.md, "Your own room")."""
     from rfir_stages.importers.floorplan import import_floorplan
 
-    from ..artifacts import check_output
+    from rfir_core.artifacts import check_output
 
     overwrite = bool(getattr(options(ctx), "force", False))
 

@@ -7,7 +7,7 @@ import typer
 from rich.table import Column, Table
 
 from ..context import console, run_guarded
-from ..errors import ConfigError
+from rfir_core.errors import ConfigError
 
 
 def register(app: typer.Typer) -> None:
@@ -36,7 +36,7 @@ def info(
                 raise ConfigError("missing ARTIFACT: `rfir info ARTIFACT` describes an artifact, "
                                   "`rfir info --tracer` the tracer back-end")
             return
-        from ..artifacts import describe_artifact
+        from rfir_core.artifacts import describe_artifact
 
         summary = describe_artifact(artifact)
         _show(summary)
@@ -49,7 +49,7 @@ def info(
 
 def _show_materials(path: str) -> None:
     """The fitted materials of a physical rf model (datasets material/*), one row each."""
-    from ..artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
 
     art = read_artifact(path)
     if art.kind != "rf" or art.get("material/eps_r") is None:
@@ -83,7 +83,7 @@ def _show_row_counts(path: str) -> None:
     """Rows of a measurements artifact per frequency, range and split (what --freq/--range/--split pick)."""
     from rfir_stages.importers.select import row_counts
 
-    from ..artifacts import read_artifact
+    from rfir_core.artifacts import read_artifact
 
     for what, counts in row_counts(read_artifact(path, "measurements")).items():
         console.print(f"  rows per {what}: " + ", ".join(f"{k}: {v}" for k, v in counts.items()),

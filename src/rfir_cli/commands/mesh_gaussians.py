@@ -13,7 +13,7 @@ import numpy as np
 import typer
 
 from ..context import console, run_guarded
-from ..errors import ConfigError, InputFileError
+from rfir_core.errors import ConfigError, InputFileError
 
 
 def degenerate_facet_warnings(report: dict) -> list[str]:
@@ -111,7 +111,7 @@ def mesh_gaussians(
 
     def work():
         nonlocal object_cells, drop_contact_faces
-        from ..artifacts import check_output
+        from rfir_core.artifacts import check_output
 
         check_output(out, "scene", inputs=[mesh])   # before any work: never over the mesh, nor another kind
         if not spacing_m > 0:

@@ -8,8 +8,8 @@ import typer
 from rich.table import Table
 
 from ..context import RichReporter, console, options, run_guarded
-from ..errors import ConfigError
-from ..text import plural
+from rfir_core.errors import ConfigError
+from rfir_core.text import plural
 
 predict_app = typer.Typer(help="Predict radio quantities from a fitted rf artifact.", no_args_is_help=True,
                          rich_markup_mode=None)

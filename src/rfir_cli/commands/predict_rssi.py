@@ -8,7 +8,7 @@ import typer
 from rich.table import Table
 
 from ..context import RichReporter, comma_numbers, console, err_console, options, run_guarded
-from ..text import plural
+from rfir_core.text import plural
 from .predict import predict_app
 
 

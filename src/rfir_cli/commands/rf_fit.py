@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from ..context import RichReporter, console, options, run_guarded
-from ..text import plural
+from rfir_core.text import plural
 
 
 def register(app: typer.Typer) -> None:

@@ -1,6 +1,6 @@
 """Configuration: TOML defaults per stage in configs/, a user file, then `--set` overrides.
 
-The defaults are configs/*.toml at the top of the repository, installed inside the package as rfir_cli._configs
+The defaults are configs/*.toml at the top of the repository, installed inside the package as rfir_core._configs
 (pyproject.toml's package-dir), so that a wheel carries them; RFIR_CONFIG_DIR points at another folder instead.
 
 Resolution order (later wins): configs/<stage>.toml defaults, configs/recipes/<name>.toml when a
@@ -22,18 +22,18 @@ from .errors import ConfigError
 
 
 def config_dir() -> Path:
-    """The folder of default configs: RFIR_CONFIG_DIR when set, else the package data rfir_cli._configs (the
+    """The folder of default configs: RFIR_CONFIG_DIR when set, else the package data rfir_core._configs (the
     repository's configs/; an editable install made before that mapping existed reads configs/ beside src/)."""
     override = os.environ.get("RFIR_CONFIG_DIR")
     if override:
         return Path(override)
     try:
-        return Path(str(resources.files("rfir_cli._configs")))
+        return Path(str(resources.files("rfir_core._configs")))
     except ModuleNotFoundError:
         checkout = Path(__file__).resolve().parents[2] / "configs"
         if checkout.is_dir():
             return checkout
-        raise ConfigError("the default configs (package data rfir_cli._configs) are not installed: reinstall rfir "
+        raise ConfigError("the default configs (package data rfir_core._configs) are not installed: reinstall rfir "
                           "(pip install .), or set RFIR_CONFIG_DIR to a folder of configs/*.toml") from None
 
 
