@@ -24,7 +24,7 @@ DOTTED_REF = re.compile(r"\b((?:%s)(?:\.\w+)+)" % "|".join(PACKAGES))
 CONFIG_REF = re.compile(r"(?<![\w./-])((?:rf_fit|predict|geom|simulate|calibrate|reproduce|general)(?:\.[a-z_0-9]+)+)")
 FILE_SUFFIXES = {"h5", "toml", "py", "png", "json", "md", "ply", "csv", "pt", "sh"}
 def _doc_files() -> list[Path]:
-    return sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+    return sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
 
 
 def _script_files() -> list[Path]:
