@@ -3,11 +3,13 @@
     python -m rfir_stages.reproduce table TARGET [--quick] [--data DIR] [--out DIR] [--set KEY=VALUE]
     python -m rfir_stages.reproduce steps [TARGET...] [--quick] [--data DIR] [--out DIR] [--set KEY=VALUE]
     python -m rfir_stages.reproduce freqs MEASUREMENTS.h5 EVERY
+    python -m rfir_stages.reproduce results-page [--out DIR] [--page PATH] [--write]
 
 table: fill TARGET's table from its steps' results JSON and benchmark files and write
 OUT/<target>.md, .csv, .png and OUT/<target>.json (rows, rfir lowest, wall time of every step).
 steps: print the command line of every step (what the workflow would run). freqs: every EVERY-th
-frequency of a measurements file, comma separated (for `rfir predict rcs --freqs`).
+frequency of a measurements file, comma separated (for `rfir predict rcs --freqs`). results-page: the
+results page (docs/results.md) from the tables in OUT, printed (--write: written to --page).
 --set reproduce.<full|quick>.<key>=value overrides a size of configs/reproduce.toml.
 """
 from __future__ import annotations
@@ -22,7 +24,8 @@ import numpy as np
 
 from rfir_core.errors import RfirError
 
-from .plan import Plan, machine_record, reproduce_command
+from .page import PAGE, results_page, write_results_page
+from .plan import Plan, default_dirs, machine_record, reproduce_command
 from .tables import Table, to_markdown, write_table
 from .targets import TARGETS, declare
 
@@ -75,6 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--out", type=Path, default=None, help="tables, JSON, logs (default results/reproduce[-quick])")
         p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                        help="reproduce.<full|quick>.<key>=value over configs/reproduce.toml")
+    r = sub.add_parser("results-page", help="the results page from the tables in OUT")
+    r.add_argument("--out", type=Path, default=None, help="the tables (default results/reproduce)")
+    r.add_argument("--page", type=Path, default=PAGE, help="where the page lives, for its links (default %(default)s)")
+    r.add_argument("--write", action="store_true", help="write the page to --page instead of printing it")
     f = sub.add_parser("freqs", help="every EVERY-th frequency of a measurements file")
     f.add_argument("measurements", type=Path)
     f.add_argument("every", type=int)
@@ -86,6 +93,11 @@ def main(argv: list[str] | None = None) -> int:
             plan, _ = declare(a.targets or list(TARGETS), a.quick, a.data, a.out, a.overrides)
             for step in plan.steps.values():
                 print(f"{step.label}: {step.command}")
+        elif a.cmd == "results-page":
+            if a.write:
+                write_results_page(a.out or default_dirs(False)[1], a.page)
+            else:
+                sys.stdout.write(results_page(a.out, a.page))
         else:
             print(wideband_freqs(a.measurements, a.every))
     except RfirError as exc:
