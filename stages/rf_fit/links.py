@@ -11,7 +11,7 @@ from rfir_core.errors import InputFileError, StageError
 
 from .antennas import AntennaPattern
 from .occlusion import FrozenGeometry
-from .render import LinkSet
+from rfir_stages.model.link_set import LinkSet
 
 
 def geometry_from_artifact(art) -> FrozenGeometry:

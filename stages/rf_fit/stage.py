@@ -36,7 +36,7 @@ from .occlusion import make_provider
 from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_db, material_table,
                              physical_artifact_fields, physical_config, range_words, residual_training_attrs,
                              edge_waves_mode, selection_rule, sharing_candidates, split_candidate)
-from .render import RenderSettings
+from rfir_stages.model.link_set import RenderSettings
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows
 from .validation import MIN_VALIDATION_LINKS, validation_folds

@@ -129,7 +129,7 @@ def test_diffuse_term_conserves_energy_over_the_hemisphere():
     T, P = np.meshgrid(th, ph, indexing="ij")
     big_r = 5.0
     rx = np.stack([big_r * np.cos(T), big_r * np.sin(T) * np.cos(P), big_r * np.sin(T) * np.sin(P)], -1).reshape(-1, 3)
-    from rfir_stages.rf_fit.render import LinkSet
+    from rfir_stages.model.link_set import LinkSet
     m = len(rx)
     links = LinkSet(tx.expand(m, 3).contiguous(), torch.as_tensor(rx), torch.tensor([f], dtype=torch.float64),
                     torch.zeros(m, 3, dtype=torch.float64), torch.zeros(m, 3, dtype=torch.float64))
