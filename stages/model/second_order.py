@@ -46,7 +46,7 @@ import torch
 
 from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.occlusion import FrozenGeometry
-from rfir_stages.model.link_set import LinkSet
+from .link_set import LinkSet
 
 from .edges import patch_coverage_of
 from .link_rows import renumber_links
