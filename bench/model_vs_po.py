@@ -31,7 +31,7 @@ from rfir_stages.model.materials import itu_law
 from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs, scattered_field
 from rfir_stages.rf_fit.antennas import antenna_choice
 from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 
 class MeshVisibility:

@@ -34,7 +34,7 @@ from rfir_core.artifacts import read_artifact
 from rfir_stages.model.materials import itu_law, permittivity
 from rfir_stages.model.room_paths import THIRD_ORDER_SMALL_REFLECTIONS, build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
-from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
+from rfir_stages.model.occlusion import FrozenGeometry, make_provider
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene, set_devices
 from rfir_stages.simulate.rssi import clear_of_objects
 from rfir_stages.simulate.scenes import build_scene

@@ -7,7 +7,7 @@ import numpy as np
 
 from rfir_stages.predict.rssi_baselines import crossing_counts
 from rfir_stages.rf_fit.links import geometry_from_artifact
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 
 def crossings_from_artifact(art, tx: np.ndarray, rx: np.ndarray) -> np.ndarray:

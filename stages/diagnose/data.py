@@ -151,7 +151,7 @@ def incidence_deg(art, radar_m: np.ndarray, min_response: float = 0.3) -> np.nda
     import torch
 
     from rfir_stages.rf_fit.links import geometry_from_artifact
-    from rfir_stages.rf_fit.occlusion import make_provider
+    from rfir_stages.model.occlusion import make_provider
 
     geom = geometry_from_artifact(art)
     centre = geom.means.mean(0)

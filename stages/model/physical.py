@@ -41,7 +41,7 @@ from torch import nn
 
 from rfir_stages.po.geometry import single_thread_torch
 from rfir_stages.rf_fit.antennas import AntennaPattern
-from rfir_stages.rf_fit.occlusion import FrozenGeometry, OcclusionProvider, lit_stop
+from .occlusion import FrozenGeometry, OcclusionProvider, lit_stop
 from .link_set import LinkSet
 
 from .materials import C0, abs2, co_polar_reflection, fresnel, permittivity

@@ -17,7 +17,7 @@ import torch
 from rfir_core.progress import NullProgress
 from rfir_stages.rf_fit.antennas import antenna_from_attrs
 from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
-from rfir_stages.rf_fit.occlusion import make_provider
+from .occlusion import make_provider
 
 from .artifact import load_physical
 from .band import EXACT_MAX_FREQS, band_field, band_power

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from rfir_stages.po.geometry import single_thread_torch
-from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
+from .occlusion import FrozenGeometry, make_provider
 
 from .materials import C0, abs2, fresnel, slab_transmission
 from .physical import MaterialValues

@@ -33,7 +33,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from rfir_stages.rf_fit.occlusion import FrozenGeometry
+from .occlusion import FrozenGeometry
 
 from .link_rows import renumber_links
 from .materials import C0, abs2, fresnel, slab_transmission

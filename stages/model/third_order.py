@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from rfir_stages.rf_fit.antennas import AntennaPattern
-from rfir_stages.rf_fit.occlusion import FrozenGeometry
+from .occlusion import FrozenGeometry
 from .link_set import LinkSet
 
 from .edges import patch_coverage_of

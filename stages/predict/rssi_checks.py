@@ -12,7 +12,7 @@ import torch
 
 from rfir_core.errors import ConfigError
 from rfir_stages.rf_fit.links import _enclosed
-from rfir_stages.rf_fit.occlusion import FrozenGeometry
+from rfir_stages.model.occlusion import FrozenGeometry
 
 MAX_NAMED = 5
 CHECK_BLOCK = 4096   # points checked at a time (memory ~ CHECK_BLOCK x a few kB)

@@ -10,7 +10,7 @@ import torch
 from rfir_core.errors import InputFileError, StageError
 
 from .antennas import AntennaPattern
-from .occlusion import FrozenGeometry
+from rfir_stages.model.occlusion import FrozenGeometry
 from rfir_stages.model.link_set import LinkSet
 
 

@@ -32,7 +32,7 @@ from rfir_stages.model.sampling import cell_size_m, coarse_surfels_warning
 
 from .antennas import antenna_choice
 from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
-from .occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_db, material_table,
                              physical_artifact_fields, physical_config, range_words, residual_training_attrs,
                              edge_waves_mode, selection_rule, sharing_candidates, split_candidate)

@@ -1,7 +1,7 @@
 """Every piece of code and every configuration key the documentation names exists.
 
 docs/*.md and README.md name source files (`stages/model/band.py`, `scripts/edit_validation.sh`, ...)
-and dotted modules with an optional attribute (`rfir_stages.rf_fit.occlusion.TracerOcclusion`,
+and dotted modules with an optional attribute (`rfir_stages.model.occlusion.TracerOcclusion`,
 `rfir_core.physics.closed_forms.C0`). A file must exist; a dotted name must resolve to a module or
 package, and any remaining part to a name defined in that module's source. Globs (`room*.py`) and
 bare file names without a folder are not checked. A dotted configuration key (`rf_fit.physical.sharing`,
@@ -117,7 +117,7 @@ def test_every_config_key_the_docs_and_scripts_name_exists():
 
 def test_the_checks_catch_a_missing_module_file_name_and_key():
     assert resolve_dotted("rfir_stages.model.materials") is None
-    assert resolve_dotted("rfir_stages.rf_fit.occlusion.TracerOcclusion") is None
+    assert resolve_dotted("rfir_stages.model.occlusion.TracerOcclusion") is None
     assert resolve_dotted("rfir_core.physics.closed_forms.C0") is None
     assert resolve_dotted("rfir_stages.rf_fit.fit") is not None or not (ROOT / "stages/rf_fit/fit.py").exists()
     assert resolve_dotted("rfir_stages.predict.invariance") is not None

@@ -7,7 +7,7 @@ import torch
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.rf_fit.antennas import AntennaPattern
 from rfir_stages.rf_fit.links import make_links
-from rfir_stages.rf_fit.occlusion import FrozenGeometry
+from rfir_stages.model.occlusion import FrozenGeometry
 
 ISO = AntennaPattern("isotropic")
 
@@ -45,7 +45,7 @@ def double_bounce_error_db(verts, faces, aspects_deg, freq_hz, spacing_m=0.03, r
     monostatic at range_m; asserts the model has double-bounce items."""
     from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_field
     from rfir_stages.po import po_scattered_field
-    from rfir_stages.rf_fit.occlusion import make_provider
+    from rfir_stages.model.occlusion import make_provider
 
     geom, _ = surfels(verts, faces, spacing_m)
     pos, links = monostatic(aspects_deg, range_m, freq_hz)

@@ -8,7 +8,7 @@ import torch
 from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.model.second_order import polarisation_chain
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 from .helpers import ISO, monostatic, plate_mesh, rcs_dbsm, surfels
 

@@ -13,7 +13,7 @@ from rfir_stages.model.edges import patch_edges, wedge_fringe
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.model.second_order import planar_patches
 from rfir_stages.model.surfels import covariance, footprint_cells, surfel_areas
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 from .helpers import ISO, monostatic, plate_mesh, rcs_dbsm, surfels
 

@@ -13,7 +13,7 @@ from scipy.special import fresnel
 from rfir_core.physics.closed_forms import C0
 from rfir_stages.model.edges import utd_transition
 from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 from .helpers import ISO, monostatic, plate_mesh, rcs_dbsm, surfels
 

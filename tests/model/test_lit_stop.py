@@ -4,7 +4,7 @@ import numpy as np
 import torch
 
 from rfir_stages.model.physical import lit_state
-from rfir_stages.rf_fit.occlusion import lit_stop, make_provider
+from rfir_stages.model.occlusion import lit_stop, make_provider
 
 from .helpers import plate_mesh, surfels
 

@@ -10,7 +10,7 @@ from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, mat
 from rfir_stages.model.materials import fresnel, itu_law, permittivity
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.model.surfels import footprint_factor, surfel_areas
-from rfir_stages.rf_fit.occlusion import FrozenGeometry, make_provider
+from rfir_stages.model.occlusion import FrozenGeometry, make_provider
 
 from .helpers import ISO, monostatic, plate_mesh, rcs_dbsm, surfels
 

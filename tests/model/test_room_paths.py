@@ -21,7 +21,7 @@ import torch
 from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity, slab_transmission
 from rfir_stages.model.room_paths import build_patch_set, polarisation_vectors, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 from .helpers import plate_mesh, surfels
 
@@ -380,7 +380,7 @@ def test_a_coarse_wall_stays_one_patch_beside_finely_tiled_furniture():
     """Objects tiled at different spacings: the wall's surfels (1 m apart) are farther apart than the
     join radius of the fine furniture's median size, yet the wall is one patch and reflects as one."""
     from rfir_stages.geom.from_mesh import gaussians_from_mesh
-    from rfir_stages.rf_fit.occlusion import FrozenGeometry
+    from rfir_stages.model.occlusion import FrozenGeometry
 
     wall = plate_mesh((0, 0, 1.5), (0, 1, 0), (0, 0, 1), 10.0, 3.0)
     parts = [gaussians_from_mesh(*wall, 1.0, labels=np.zeros(2, np.int64))]

@@ -2,7 +2,7 @@
 import pytest
 import torch
 
-from rfir_stages.rf_fit.occlusion import BruteForceOcclusion, FrozenGeometry, make_provider
+from rfir_stages.model.occlusion import BruteForceOcclusion, FrozenGeometry, make_provider
 
 
 def _cloud(n=400, seed=3):

@@ -49,7 +49,7 @@ def room_geometry(spacing_m: float = 0.3, occlusion: str = "auto"):
     import torch
 
     from rfir_stages.model.room import RoomGeometry, RoomSettings
-    from rfir_stages.rf_fit.occlusion import FrozenGeometry
+    from rfir_stages.model.occlusion import FrozenGeometry
 
     fields, names = scene_fields(spacing_m)
     t = lambda k: torch.as_tensor(np.asarray(fields[k], np.float64))  # noqa: E731

@@ -21,7 +21,7 @@ from rfir_stages.model.physical import MaterialParams
 from rfir_stages.model.room import BLE_CHANNELS_HZ, BandLinks, RoomPredictor
 from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
-from rfir_stages.rf_fit.occlusion import make_provider
+from rfir_stages.model.occlusion import make_provider
 
 from .helpers import links as grid_links
 from .helpers import room_geometry, write_measurements, write_scene
@@ -32,7 +32,7 @@ FAST = ["--set", "rf_fit.physical.iterations=30", "--set", "rf_fit.physical.star
 
 def test_incoherent_power_of_a_metal_floor_is_the_sum_of_the_two_rays():
     from rfir_stages.geom import gaussians_from_mesh
-    from rfir_stages.rf_fit.occlusion import FrozenGeometry
+    from rfir_stages.model.occlusion import FrozenGeometry
 
     f = 2.4e9
     lam, k = C0 / f, 2 * math.pi * f / C0

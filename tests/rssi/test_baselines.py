@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from rfir_stages.predict import rssi_baselines as bl
-from rfir_stages.rf_fit.occlusion import BruteForceOcclusion, TracerOcclusion
+from rfir_stages.model.occlusion import BruteForceOcclusion, TracerOcclusion
 
 from ..rf_fit.helpers import geometry
 from .helpers import crosses_partition, links, scene_fields
