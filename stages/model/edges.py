@@ -67,7 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rfir_stages.rf_fit.antennas import AntennaPattern
+from .antenna_patterns import AntennaPattern
 from .occlusion import FrozenGeometry
 from .link_set import LinkSet
 

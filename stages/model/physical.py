@@ -40,7 +40,7 @@ import torch
 from torch import nn
 
 from rfir_stages.po.geometry import single_thread_torch
-from rfir_stages.rf_fit.antennas import AntennaPattern
+from .antenna_patterns import AntennaPattern
 from .occlusion import FrozenGeometry, OcclusionProvider, lit_stop
 from .link_set import LinkSet
 

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from rfir_core.progress import NullProgress
-from rfir_stages.rf_fit.antennas import antenna_from_attrs
+from .antenna_patterns import antenna_from_attrs
 from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
 from .occlusion import make_provider
 

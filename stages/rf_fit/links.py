@@ -9,7 +9,7 @@ import torch
 
 from rfir_core.errors import InputFileError, StageError
 
-from .antennas import AntennaPattern
+from rfir_stages.model.antenna_patterns import AntennaPattern
 from rfir_stages.model.occlusion import FrozenGeometry
 from rfir_stages.model.link_set import LinkSet
 

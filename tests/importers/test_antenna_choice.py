@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rfir_core.errors import ConfigError
-from rfir_stages.rf_fit.antennas import antenna_choice, antenna_from_attrs
+from rfir_stages.model.antenna_patterns import antenna_choice, antenna_from_attrs
 
 
 def meas(attrs=None, simulator=None):

@@ -139,7 +139,7 @@ def test_a_band_ripples_with_the_path_difference_of_two_plates():
     import torch
 
     from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
-    from rfir_stages.rf_fit.antennas import AntennaPattern
+    from rfir_stages.model.antenna_patterns import AntennaPattern
 
     from .helpers import geometry, radar, square
 

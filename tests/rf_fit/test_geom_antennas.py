@@ -8,7 +8,7 @@ import torch
 from rfir_core.errors import InputFileError
 from rfir_core.physics.gaussian_rf import covariance, projected_cross_section_m2, quaternion_to_matrix
 from rfir_stages.geom import gaussians_from_mesh
-from rfir_stages.rf_fit.antennas import AntennaPattern, from_table_file, resolve_antenna
+from rfir_stages.model.antenna_patterns import AntennaPattern, from_table_file, resolve_antenna
 from rfir_stages.simulate.scenes import box
 
 
