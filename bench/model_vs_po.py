@@ -30,7 +30,7 @@ from rfir_core.artifacts import read_artifact
 from rfir_stages.model.materials import itu_law
 from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs, scattered_field
 from rfir_stages.model.antenna_patterns import antenna_choice
-from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
+from rfir_stages.model.links import geometry_from_artifact, make_links, scene_centre
 from rfir_stages.model.occlusion import make_provider
 
 

@@ -29,7 +29,7 @@ import torch
 
 from rfir_core.artifacts import read_artifact
 from rfir_stages.baselines.wrfgs import WrfgsSettings, predict_wrfgs, train_wrfgs
-from rfir_stages.rf_fit.links import geometry_from_artifact
+from rfir_stages.model.links import geometry_from_artifact
 from rfir_stages.rf_fit.splits import describe, protocol_masks
 
 HOLDOUT_TX = [6, 11, 14, 17]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from rfir_stages.predict.rssi_baselines import crossing_counts
-from rfir_stages.rf_fit.links import geometry_from_artifact
+from rfir_stages.model.links import geometry_from_artifact
 from rfir_stages.model.occlusion import make_provider
 
 

@@ -150,7 +150,7 @@ def incidence_deg(art, radar_m: np.ndarray, min_response: float = 0.3) -> np.nda
     Gaussians, angle between its normal and the ray back to the radar; nan where the ray hits nothing."""
     import torch
 
-    from rfir_stages.rf_fit.links import geometry_from_artifact
+    from rfir_stages.model.links import geometry_from_artifact
     from rfir_stages.model.occlusion import make_provider
 
     geom = geometry_from_artifact(art)

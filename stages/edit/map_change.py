@@ -54,7 +54,7 @@ def rcs_change(path: Path, rf_before, rf_after, range_m: float = 3.0, step_deg: 
     from rfir_core.physics.closed_forms import rcs_from_path_gain
     from rfir_stages.predict.rcs import predict_path_gain_db
     from rfir_stages.model.antenna_patterns import antenna_from_attrs
-    from rfir_stages.rf_fit.links import geometry_from_artifact, radar_links, scene_centre
+    from rfir_stages.model.links import geometry_from_artifact, radar_links, scene_centre
 
     centre = scene_centre(geometry_from_artifact(rf_before)).numpy()   # the same radar for both
     aspects = np.radians(np.arange(0.0, 360.0, step_deg))

@@ -16,7 +16,7 @@ import torch
 
 from rfir_core.progress import NullProgress
 from .antenna_patterns import antenna_from_attrs
-from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
+from .links import geometry_from_artifact, make_links, scene_centre
 from .occlusion import make_provider
 
 from .artifact import load_physical

@@ -454,7 +454,7 @@ class RoomPredictor:
     def __init__(self, rf, occlusion: str = "auto"):
         from dataclasses import fields as dc_fields
 
-        from rfir_stages.rf_fit.links import geometry_from_artifact
+        from .links import geometry_from_artifact
 
         from .artifact import load_physical
 

@@ -26,7 +26,7 @@ from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import has_residual, require_physical
 from rfir_stages.model.predict import predict_physical_db
 from rfir_stages.model.antenna_patterns import antenna_from_attrs
-from rfir_stages.rf_fit.links import check_overlap, check_positions, geometry_from_artifact, radar_links, scene_centre
+from rfir_stages.model.links import check_overlap, check_positions, geometry_from_artifact, radar_links, scene_centre
 from rfir_stages.rf_fit.splits import describe as describe_split
 from rfir_stages.rf_fit.splits import protocol_masks
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from rfir_core.errors import ConfigError
-from rfir_stages.rf_fit.links import _enclosed
+from rfir_stages.model.links import _enclosed
 from rfir_stages.model.occlusion import FrozenGeometry
 
 MAX_NAMED = 5
@@ -39,7 +39,7 @@ def _name(points: np.ndarray, idx: np.ndarray) -> str:
 def enclosed(provider, geom: FrozenGeometry, points: torch.Tensor) -> torch.Tensor:
     """[P] bool: along all six axis directions the first surfel met faces away from the point (inside a
     closed surface with outward normals; a room's walls face inward, so its inside is not 'enclosed').
-    The traced version of rfir_stages.rf_fit.links._enclosed (6 rays per point through the BVH)."""
+    The traced version of rfir_stages.model.links._enclosed (6 rays per point through the BVH)."""
     dirs = torch.cat([torch.eye(3), -torch.eye(3)]).double()
     o = points.double().repeat_interleave(6, 0)
     d = dirs.repeat(len(points), 1)

@@ -14,7 +14,7 @@ import numpy as np
 from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 
-from .links import check_overlap, geometry_from_artifact, inside_words, positions_inside
+from rfir_stages.model.links import check_overlap, geometry_from_artifact, inside_words, positions_inside
 from .rssi_split import rssi_settings, training_rows
 
 

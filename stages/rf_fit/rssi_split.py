@@ -10,7 +10,7 @@ import numpy as np
 
 from rfir_core.errors import ConfigError, StageError
 
-from .links import pick_rows
+from rfir_stages.model.links import pick_rows
 
 SPLITS = ("file", "holdout_tx")
 

@@ -31,7 +31,7 @@ from rfir_stages.model.fit_physical import material_index, reflection_ranges
 from rfir_stages.model.sampling import cell_size_m, coarse_surfels_warning
 
 from rfir_stages.model.antenna_patterns import antenna_choice
-from .links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
+from rfir_stages.model.links import check_overlap, check_positions, geometry_from_artifact, make_links, pick_freqs, scene_centre
 from rfir_stages.model.occlusion import make_provider
 from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_db, material_table,
                              physical_artifact_fields, physical_config, range_words, residual_training_attrs,

@@ -12,7 +12,7 @@ import numpy as np
 from rfir_core.errors import ConfigError
 from rfir_stages.model.band import fit_columns
 
-from .links import pick_freqs
+from rfir_stages.model.links import pick_freqs
 
 
 def is_wideband_request(task: str, config: dict) -> bool:

@@ -17,7 +17,7 @@ def _radar_measurements(path, fields):
     5 deg steps, 2 m)."""
     from rfir_core.physics.closed_forms import rcs_from_path_gain
     from rfir_stages.po import channel_from_amplitude, po_scattered_field
-    from rfir_stages.rf_fit.links import radar_links
+    from rfir_stages.model.links import radar_links
     from rfir_stages.simulate.scenes import box
 
     v, f = box((-0.05, -0.05, -0.05), (0.05, 0.05, 0.05))

@@ -11,7 +11,7 @@ from rfir_core.artifacts import read_artifact
 from rfir_cli.context import GlobalOptions
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.importers import import_csv
-from rfir_stages.rf_fit.links import scene_centre
+from rfir_stages.model.links import scene_centre
 from rfir_stages.simulate.scenes import box
 
 from ..rf_fit.helpers import box_fields, geometry, po_measurements

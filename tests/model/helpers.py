@@ -6,7 +6,7 @@ import torch
 
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model.antenna_patterns import AntennaPattern
-from rfir_stages.rf_fit.links import make_links
+from rfir_stages.model.links import make_links
 from rfir_stages.model.occlusion import FrozenGeometry
 
 ISO = AntennaPattern("isotropic")

@@ -11,7 +11,7 @@ from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs
 from rfir_stages.model.residual import (ResidualConfig, blend_at, fit_gaussian, fit_smooth, kernel_predict, link_coords,
                                         physics_db, residual_folds, smooth_correction, smooth_weights,
                                         visible_lengths)
-from rfir_stages.rf_fit.links import make_links
+from rfir_stages.model.links import make_links
 
 from .helpers import ISO, monostatic, plate_mesh, surfels
 
@@ -220,7 +220,7 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     from rfir_stages.model.materials import C0
     from rfir_stages.predict.rcs import run_rcs
     from rfir_stages.rf_fit import run
-    from rfir_stages.rf_fit.links import radar_links
+    from rfir_stages.model.links import radar_links
 
     geom, _, fields = _two_plates()
     write_scene_artifact(tmp_path / "scene.h5", fields)

@@ -14,7 +14,7 @@ from rfir_stages.model.band import at_columns
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_field
 from rfir_stages.model.second_order import bounce_factors, reflection_chain
 from rfir_stages.po import trihedral_mesh
-from rfir_stages.rf_fit.links import make_links
+from rfir_stages.model.links import make_links
 from rfir_stages.model.occlusion import make_provider
 
 from .helpers import ISO, monostatic, plate_mesh, rcs_dbsm, surfels

@@ -15,7 +15,7 @@ from rfir_stages.model.artifact import load_physical
 from rfir_stages.model.band import fit_columns
 from rfir_stages.model.materials import C0
 from rfir_stages.po import channel_from_amplitude, po_scattered_field
-from rfir_stages.rf_fit.links import radar_links
+from rfir_stages.model.links import radar_links
 
 from .test_stage import _app
 

@@ -52,7 +52,7 @@ def test_antenna_patterns(tmp_path):
 
 def test_positions_inside_a_closed_box_are_refused_and_outside_accepted():
     """check_positions against the box's own geometry: every point well inside refused, outside fine."""
-    from rfir_stages.rf_fit.links import _enclosed, check_positions, geometry_from_artifact
+    from rfir_stages.model.links import _enclosed, check_positions, geometry_from_artifact
 
     from .helpers import box_fields
 

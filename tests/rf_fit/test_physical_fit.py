@@ -131,7 +131,7 @@ def test_truth_material_reproduces_the_po_simulator(metal_box):
 
     from rfir_stages.model.physical import MaterialParams, PairSettings, build_pairs, scattered_power
     from rfir_stages.model.antenna_patterns import AntennaPattern
-    from rfir_stages.rf_fit.links import geometry_from_artifact, make_links, scene_centre
+    from rfir_stages.model.links import geometry_from_artifact, make_links, scene_centre
     from rfir_stages.model.occlusion import make_provider
 
     scene, meas = read_artifact(metal_box / "scene.h5", "scene"), read_artifact(metal_box / "meas.h5", "measurements")

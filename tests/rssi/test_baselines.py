@@ -45,7 +45,7 @@ def test_class_names_strip_the_index():
 
 def test_position_checks_name_points_inside_objects_and_outside():
     from rfir_stages.predict.rssi_checks import check_points, enclosed
-    from rfir_stages.rf_fit.links import _enclosed
+    from rfir_stages.model.links import _enclosed
 
     fields, _ = scene_fields(0.3)
     geom = geometry(fields)
