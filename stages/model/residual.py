@@ -122,7 +122,7 @@ def training_spacing_deg(aspect_deg: np.ndarray) -> float | None:
     """The training aspects' spacing, degrees: the median over the distinct training aspects of the angle
     to the nearest other one (other ranges and frequencies of an aspect do not count; for a monostatic
     radar the kernel's angle between two links is their aspect difference). None for fewer than two."""
-    from rfir_stages.rf_fit.validation import distinct_aspects
+    from .validation_folds import distinct_aspects
     u = distinct_aspects(aspect_deg)[0]
     if len(u) < 2:
         return None
@@ -198,7 +198,7 @@ def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nda
     (rf_fit.validation.validation_folds); for the interpolation protocols (data, every-N) whole training
     aspects (every range of them), every KFOLDS-th aspect in turn, so that no fold is predicted from its own
     aspect at another range."""
-    from rfir_stages.rf_fit.validation import aspect_index, validation_folds
+    from .validation_folds import aspect_index, validation_folds
     name, _, arg = protocol.partition(":")
     if name == "sector" and aspect_deg is not None:
         return sector_blocks(aspect_deg, *(float(x) for x in arg.split(":")))

@@ -39,7 +39,7 @@ from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_d
 from rfir_stages.model.link_set import RenderSettings
 from .splits import describe as describe_split
 from .splits import protocol_masks, split_rows
-from .validation import MIN_VALIDATION_LINKS, validation_folds
+from rfir_stages.model.validation_folds import MIN_VALIDATION_LINKS, validation_folds
 from .wideband_stage import band_config, is_wideband_request
 
 
