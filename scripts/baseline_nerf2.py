@@ -7,7 +7,7 @@
 
 --task: rssi or rcs (default: the artifact's task). RSSI, --split random: the artifact's split
 column (1 = test, 0 = train); holdout_tx: transmitters 6, 11, 14, 17 (tx_id) are the test set, every
-link of the others trains. RCS, --protocol: rfir's train/test protocols (rfir_stages.rf_fit.splits);
+link of the others trains. RCS, --protocol: rfir's train/test protocols (rfir_stages.model.split_protocols);
 the Tx input is the radar position (tx_pos == rx_pos), the rays leave the radar toward the object's
 box (scene_bounds), and the score is on rcs_dbsm: the predicted path gain plus the file's per-row
 constant rcs_dbsm - path_gain_db; nearest- and linear-aspect baselines on the same split are added.
@@ -29,7 +29,7 @@ import torch
 from rfir_core.artifacts import read_artifact
 from rfir_stages.baselines.nerf2 import Nerf2Settings, predict_nerf2, train_nerf2
 from rfir_stages.predict.baselines import aspect_baselines, range_baselines
-from rfir_stages.rf_fit.splits import describe, protocol_masks
+from rfir_stages.model.split_protocols import describe, protocol_masks
 
 HOLDOUT_TX = [6, 11, 14, 17]
 MAX_EPOCHS_KEPT = 200   # per-epoch history entries written to the results JSON (thinned evenly, last kept)

@@ -9,7 +9,7 @@ The Gaussians (frozen geometry) come from the rfir `scene` artifact SCENE.h5 (--
 a random subset). rssi: --split random uses the file's split column (1 = test), holdout_tx holds out
 transmitters 6, 11, 14, 17 (tx_id). rcs: the radar (tx_pos == rx_pos) is the "transmitter" input and
 the rays from it are aimed at the Gaussians (a cone); --protocol picks train/test rows as rf-fit does
-(rfir_stages.rf_fit.splits). The model fits path_gain_db[:, freq_index]; for rcs the score is on
+(rfir_stages.model.split_protocols). The model fits path_gain_db[:, freq_index]; for rcs the score is on
 rcs_dbsm = predicted path gain + (rcs_dbsm - path_gain_db) of the row (a per-row constant of the file).
 --val-frac (default 0.1): a random part of the TRAINING rows is held out for validation and the
 epoch with the best validation MAE is kept (early stopping); the test rows are never looked at before
@@ -30,7 +30,7 @@ import torch
 from rfir_core.artifacts import read_artifact
 from rfir_stages.baselines.wrfgs import WrfgsSettings, predict_wrfgs, train_wrfgs
 from rfir_stages.model.links import geometry_from_artifact
-from rfir_stages.rf_fit.splits import describe, protocol_masks
+from rfir_stages.model.split_protocols import describe, protocol_masks
 
 HOLDOUT_TX = [6, 11, 14, 17]
 EDIT_NOTE = "the signal is learned per transmitter position; moving an object needs new measurements and retraining"

@@ -1,6 +1,6 @@
 """Validation folds for choosing between models on the training rows alone (the material sharing and
 the edge waves in rf-fit; the residual's folds for a held-out range), shaped like the test of the
-protocol (rfir_stages.rf_fit.splits). The test rows are never looked at."""
+protocol (rfir_stages.model.split_protocols). The test rows are never looked at."""
 from __future__ import annotations
 
 import numpy as np

@@ -27,8 +27,8 @@ from rfir_stages.model.artifact import has_residual, require_physical
 from rfir_stages.model.predict import predict_physical_db
 from rfir_stages.model.antenna_patterns import antenna_from_attrs
 from rfir_stages.model.links import check_overlap, check_positions, geometry_from_artifact, radar_links, scene_centre
-from rfir_stages.rf_fit.splits import describe as describe_split
-from rfir_stages.rf_fit.splits import protocol_masks
+from rfir_stages.model.split_protocols import describe as describe_split
+from rfir_stages.model.split_protocols import protocol_masks
 
 from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, baselines_beating_model, range_baselines

@@ -34,7 +34,7 @@ _MODEL = ("stages/model", "ext/rfir_tracer", "ext/csrc")
 # of the fitted model must not regenerate their data
 _MATERIAL_LAWS = ("stages/model/__init__.py", "stages/model/materials.py")
 CODE: dict[str, tuple[str, ...]] = {
-    "simulate": (*_CORE, "stages/simulate", "stages/po", "stages/render", "stages/rf_fit/splits.py", *_MATERIAL_LAWS,
+    "simulate": (*_CORE, "stages/simulate", "stages/po", "stages/render", "stages/model/split_protocols.py", *_MATERIAL_LAWS,
                  "configs/simulate.toml"),
     "mesh-gaussians": (*_CORE, "stages/geom", "configs/geom.toml"),
     "calibrate": (*_CORE, "stages/calibrate", "configs/calibrate.toml"),

@@ -94,7 +94,7 @@ RCS_METHODS = ["rfir", "NeRF2-style", "WRF-GS-style", "nearest aspect", "linear 
 
 def target_rcs(r: Plan) -> Table:
     """The paper's RCS table (lego and car at 2.4 and 5.8 GHz, even/odd aspects) plus harder protocols."""
-    t = Table("RCS: monostatic, 3 m, train/test protocols of rfir_stages.rf_fit.splits", RCS_METHODS)
+    t = Table("RCS: monostatic, 3 m, train/test protocols of rfir_stages.model.split_protocols", RCS_METHODS)
     freqs = [2.4e9] if r.quick else [2.4e9, 5.8e9]
     objects = ["lego"] if r.quick else ["lego", "car"]
     for obj in objects:
@@ -164,7 +164,7 @@ def target_rcs_po(r: Plan) -> Table:
     glass pane; car: a metal body; quick: the lego only), rfir's physical model against the fields and the
     simple baselines, at 2.4 GHz, the unseen-range row (3 m held out; full variant) and the unseen-frequency
     row (fit 2.4 GHz, predict 5.8 GHz)."""
-    t = Table("RCS on physical-optics data: monostatic, 2.4 GHz unless stated, train/test protocols of rfir_stages.rf_fit.splits",
+    t = Table("RCS on physical-optics data: monostatic, 2.4 GHz unless stated, train/test protocols of rfir_stages.model.split_protocols",
               RCS_METHODS)
     s = _sizes(r)
     physical = _fit_sets(r)

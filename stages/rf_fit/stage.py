@@ -37,8 +37,8 @@ from .physical_stage import (PhysicalSetup, attach_ranges, bound_warnings, mae_d
                              physical_artifact_fields, physical_config, range_words, residual_training_attrs,
                              edge_waves_mode, selection_rule, sharing_candidates, split_candidate)
 from rfir_stages.model.link_set import RenderSettings
-from .splits import describe as describe_split
-from .splits import protocol_masks, split_rows
+from rfir_stages.model.split_protocols import describe as describe_split
+from rfir_stages.model.split_protocols import protocol_masks, split_rows
 from rfir_stages.model.validation_folds import MIN_VALIDATION_LINKS, validation_folds
 from .wideband_stage import band_config, is_wideband_request
 

@@ -25,7 +25,7 @@ is drawn from its own stream of the seed, so changing one setting leaves the oth
   plan shows (SceneSpec.info["floorplan"]: shell, walls, windows, doors; no furniture) under the
   plan's names, which name no material; interior walls (info["interior_walls"]) moved along their
   normal by N(0, plan_error_std_m) each (a plan places partitions to a few centimetres).
-- splits (rfir_stages.rf_fit.splits): measurements_random.h5 (`random:F`), measurements_room.h5
+- splits (rfir_stages.model.split_protocols): measurements_random.h5 (`random:F`), measurements_room.h5
   (`holdout_box` of info["rooms"][holdout_room]: every transmitter in that room tests) and
   measurements_rx.h5 (`holdout_rx:N`): the same rows, each with its `split` column.
 
@@ -143,7 +143,7 @@ def _streams(seed: int) -> dict:
 
 
 def protocols(spec: SceneSpec, s: MeasuredLikeSettings) -> dict:
-    """{key: protocol string of rfir_stages.rf_fit.splits} for the three files."""
+    """{key: protocol string of rfir_stages.model.split_protocols} for the three files."""
     rooms = spec.info.get("rooms", {})
     if s.holdout_room not in rooms:
         raise ConfigError(f"simulate.measured_like.holdout_room = {s.holdout_room!r}: scene {spec.name!r} has rooms "
@@ -224,7 +224,7 @@ def run(sim_dir, out_dir, table: dict, seed: int = 0, config_toml: str = "", log
     """Read SIM_DIR/measurements.h5, write OUT_DIR (module docstring); returns {key: path written}."""
     from rfir_core.artifacts import read_artifact, write_artifact
     from rfir_core.provenance import Provenance
-    from rfir_stages.rf_fit.splits import describe, protocol_masks
+    from rfir_stages.model.split_protocols import describe, protocol_masks
 
     started = time.time()
     s = parse_settings(table)

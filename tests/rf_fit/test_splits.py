@@ -1,9 +1,9 @@
-"""Train/test protocols (rf_fit.split, stages/rf_fit/splits.py)."""
+"""Train/test protocols (rf_fit.split, stages/model/split_protocols.py)."""
 import numpy as np
 import pytest
 
 from rfir_core.errors import ConfigError, StageError
-from rfir_stages.rf_fit.splits import protocol_masks, split_rows
+from rfir_stages.model.split_protocols import protocol_masks, split_rows
 
 
 def _turntable(step_deg=1.0, ranges=(3.0,)):

@@ -1,7 +1,7 @@
 """The validation folds model selection holds out (stages/model/validation_folds.py), shaped like the protocol's test."""
 import numpy as np
 
-from rfir_stages.rf_fit.splits import split_rows
+from rfir_stages.model.split_protocols import split_rows
 from rfir_stages.model.validation_folds import KFOLD_MAX_LINKS, MIN_VALIDATION_LINKS, validation_folds, validation_rows
 
 from .test_splits import _turntable

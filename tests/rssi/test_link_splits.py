@@ -1,10 +1,10 @@
-"""The split protocols for links between placed antennas (rfir_stages.rf_fit.splits): random:F,
+"""The split protocols for links between placed antennas (rfir_stages.model.split_protocols): random:F,
 holdout_box:X0:X1:Y0:Y1 and holdout_rx:N, beside the existing ones."""
 import numpy as np
 import pytest
 
 from rfir_core.errors import ConfigError, StageError
-from rfir_stages.rf_fit.splits import describe, protocol_masks, split_rows
+from rfir_stages.model.split_protocols import describe, protocol_masks, split_rows
 
 
 def _links(n_tx=50, n_rx=6, seed=3):
