@@ -20,11 +20,13 @@ import re
 import tomllib
 from pathlib import Path
 
+from rfir_core.schema_doc import BEGIN as SCHEMA_BEGIN, END as SCHEMA_END
+
 ROOT = Path(__file__).resolve().parents[2]
 
 GENERATED_PAGES = {"docs/results.md"}
 GENERATED_FOLDERS = ("docs/reference/",)
-SCHEMA_BLOCK = ("<!-- BEGIN GENERATED SCHEMA", "<!-- END GENERATED SCHEMA")
+SCHEMA_BLOCK = (SCHEMA_BEGIN, SCHEMA_END)    # docs/artifacts.md's block that rfir_core.schema_doc writes
 
 # Closed forms and fixed physical facts a doc may state without a table, each with why it holds.
 ALLOWED: dict[str, str] = {
@@ -180,8 +182,8 @@ def test_the_figures_found_are_those_a_reader_sees():
         "0.29", "0.44", "0.80", "0.40", "3.2"]
     assert figures("a -80 dBm floor, 8.14 dBsm at broadside, 2.15 dBi gain, within 3 dB, 12.5 % of links") == []
     assert figures("2.88 -> 0.43 dB, 24 degrees, MAE 3 dB") == ["2.88", "0.43"]
-    assert prose_lines("run `--noise-db 0.5` with 0.25 dB\n<!-- BEGIN GENERATED SCHEMA -->\n1.5 dB\n"
-                       "<!-- END GENERATED SCHEMA -->\nend") == [(1, "run   with 0.25 dB"), (5, "end")]
+    assert prose_lines(f"run `--noise-db 0.5` with 0.25 dB\n{SCHEMA_BEGIN}\n1.5 dB\n{SCHEMA_END}\nend") == [
+        (1, "run   with 0.25 dB"), (5, "end")]
 
 
 def test_a_figure_matches_at_its_own_decimals_only():
@@ -194,7 +196,9 @@ def test_a_drifted_figure_is_reported_with_its_file_and_line(tmp_path):
     (tmp_path / "docs").mkdir()
     (tmp_path / "results" / "reproduce").mkdir(parents=True)
     (tmp_path / "configs").mkdir()
-    (tmp_path / "results" / "reproduce" / "rssi.md").write_text("| classroom | **0.35** | 3.29 |\n")
+    (tmp_path / "results" / "reproduce" / "rssi.md").write_text(
+        "MAE in dB:\n\n| row | rfir | log-distance |\n|---|---|---|\n| classroom | **0.35** | 3.29 |\n\n"
+        "Wall time (minutes):\n\n| row | rfir |\n|---|---|\n| classroom | 0.36 |\n")
     (tmp_path / "configs" / "predict.toml").write_text("[predict.rcs.flashes]\ntolerance_db = 3.5\n")
     (tmp_path / "docs" / "rssi.md").write_text("# RSSI\nrfir scores 0.35 dB (flashes within 3.5 dB).\n\n"
                                                "Copied by hand: 0.36 dB, twice the power is 3.01 dB.\n")
