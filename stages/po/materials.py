@@ -1,15 +1,15 @@
-"""Radio materials for the PO solver, as numpy wrappers of rfir_stages.model.materials.
+"""Radio materials for the PO solver, as numpy wrappers of rfir_core.physics.materials.
 
 The material laws (ITU-R P.2040), Fresnel and slab coefficients are defined once, in
-rfir_stages.model.materials (docs/physics.md section 8); this module gives the PO solver numpy
+rfir_core.physics.materials (docs/physics.md section 8); this module gives the PO solver numpy
 arrays, material names per facet and the scalar-PO reflection of a facet.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from rfir_stages.model import materials as _m
-from rfir_stages.model.materials import C0, EPS0, ITU_MATERIALS, PEC  # noqa: F401 - re-exported
+from rfir_core.physics import materials as _m
+from rfir_core.physics.materials import C0, EPS0, ITU_MATERIALS, PEC  # noqa: F401 - re-exported
 
 
 def known_materials() -> list[str]:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_stages.model import materials as m
+from rfir_core.physics import materials as m
 from rfir_stages.po import materials as po_materials
 
 
