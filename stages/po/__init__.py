@@ -13,7 +13,7 @@ Public API:
 """
 from .currents import po_coefficients
 from .geometry import dihedral_mesh, icosphere, plate_mesh, polarization_vector, triangle_phase_factor, trihedral_mesh
-from .materials import (ITU_MATERIALS, face_reflection_from_materials, fresnel, itu_reflection_coefficient,
+from .facet_materials import (ITU_MATERIALS, face_reflection_from_materials, fresnel, itu_reflection_coefficient,
                         known_materials, relative_permittivity)
 from .scene import antenna_weight, scene_mesh, scene_rcs
 from .solver import channel_from_amplitude, po_rcs, po_scattered_field, provenance, rcs_dbsm

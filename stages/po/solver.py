@@ -46,7 +46,7 @@ import numpy as np
 
 from .currents import _dot, _sum_into, po_coefficients
 from .geometry import facet_table, polarization_vector, single_thread_torch, subdivide_facets, triangle_phase_factor
-from .materials import C0, permittivity_array
+from .facet_materials import C0, permittivity_array
 from .visibility import Occluder
 
 _REFINE_BLOCK = 1 << 18  # sub-triangles per shadow-refinement block (bounds memory)

@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[2]
 # changes the step's code version and reruns it. Everything reads src/rfir_cli (artifacts, config).
 _CORE = ("src/rfir_cli", "configs/general.toml")
 _MODEL = ("stages/model", "ext/rfir_tracer", "ext/csrc")
-# the simulators use the model package for its material laws only (rfir_stages.po.materials): a change
+# the simulators use the model package for its material laws only (rfir_stages.po.facet_materials): a change
 # of the fitted model must not regenerate their data
 _MATERIAL_LAWS = ("stages/model/__init__.py", "stages/model/materials.py")
 CODE: dict[str, tuple[str, ...]] = {

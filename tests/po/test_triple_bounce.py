@@ -16,7 +16,7 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from rfir_stages.po import (dihedral_mesh, plate_mesh, po_scattered_field, polarization_vector, provenance,
                             relative_permittivity, trihedral_mesh)
-from rfir_stages.po.materials import fresnel
+from rfir_stages.po.facet_materials import fresnel
 
 FREQS = np.array([2.4e9, 5.8e9])
 LAM = 299_792_458.0 / FREQS
