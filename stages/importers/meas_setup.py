@@ -192,7 +192,7 @@ def boresight_gain(attrs: dict, side: str) -> float:
     if kind == "dipole":
         return 1.5
     if kind == "horn":
-        from rfir_stages.simulate.antennas import horn_boresight_gain
+        from rfir_core.physics.antennas import horn_boresight_gain
         return float(horn_boresight_gain(float(arg)))
     if kind == "table":
         return float(10 ** (np.asarray(attrs[f"{side}_table_gain_dbi"], float)[0] / 10))

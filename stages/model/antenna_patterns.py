@@ -25,7 +25,7 @@ class AntennaPattern:
     """A rotationally symmetric antenna pattern.
 
     kind: "isotropic", "dipole" (1.5 sin^2 of the angle to the axis), "horn" (G0 cos^q over the
-    front hemisphere, exactly rfir_stages.simulate.antennas), or "table".
+    front hemisphere, exactly rfir_core.physics.antennas), or "table".
     hpbw_deg: horn half-power beamwidth [deg]. table_deg / table_gain: tabulated pattern, angle off
     boresight [deg] ascending and linear gain (use `from_table_file`).
     """
@@ -44,7 +44,7 @@ class AntennaPattern:
     def boresight_gain(self) -> float:
         """Linear gain on boresight (G0 in the radar equation)."""
         if self.kind == "horn":
-            from rfir_stages.simulate.antennas import horn_boresight_gain
+            from rfir_core.physics.antennas import horn_boresight_gain
             return float(horn_boresight_gain(self.hpbw_deg))
         if self.kind == "dipole":
             return 1.5
@@ -65,7 +65,7 @@ class AntennaPattern:
         if self.kind == "dipole":
             return 1.5 * (1.0 - cos_t**2)
         if self.kind == "horn":
-            from rfir_stages.simulate.antennas import horn_boresight_gain, horn_exponent
+            from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
             q = horn_exponent(self.hpbw_deg)
             return torch.where(cos_t > 0, horn_boresight_gain(self.hpbw_deg) * cos_t.clamp(min=0.0) ** q,
                                torch.zeros_like(cos_t))

@@ -40,7 +40,7 @@ def antenna_weight(tx_antennas, rx_antennas=None):
 
     tx_antennas / rx_antennas: sequences (one per aspect row of tx_pos / rx_pos) of objects with
     `.gain(unit_directions (N,3)) -> (N,)` linear power gain toward directions leaving the antenna
-    (e.g. rfir_stages.simulate.antennas.Antenna). rx_antennas None = the same antennas (monostatic
+    (e.g. rfir_core.physics.antennas.Antenna). rx_antennas None = the same antennas (monostatic
     radar). Each facet's contribution is multiplied by sqrt(G_T(u_tx) G_R(u_rx)).
     """
     rx_antennas = tx_antennas if rx_antennas is None else rx_antennas

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .antennas import Antenna
+from rfir_core.physics.antennas import Antenna
 from .rcs import RadarGrid, RcsRaw
 from .settings import PoSettings
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .antennas import Antenna
+from rfir_core.physics.antennas import Antenna
 from .sampling import cone_for_sphere, focused_available, focused_sampling
 from .solve import PhysicsEffects, combine_paths
 

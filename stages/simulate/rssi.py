@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .antennas import Antenna
+from rfir_core.physics.antennas import Antenna
 from .solve import PhysicsEffects, combine_paths
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .antennas import Antenna, unit_from_theta_phi
+from rfir_core.physics.antennas import Antenna, unit_from_theta_phi
 from .radio_scene import C0
 
 

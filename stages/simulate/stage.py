@@ -11,7 +11,7 @@ import numpy as np
 from rfir_core.errors import ConfigError, StageError
 from rfir_core.progress import NullProgress
 
-from .antennas import horn_boresight_gain, horn_exponent
+from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
 from .measurement import MeasurementEffects, apply_measurement_effects
 from .scene_edits import RECORD_SEPARATOR, apply_scene_edits
 from .scenes import SceneSpec, build_scene, write_meshes
@@ -279,7 +279,7 @@ def _rcs_data(task, grid, out_f, raw, s: SimulateSettings) -> dict:
 
 def _antenna_attrs(s: SimulateSettings) -> dict:
     return {"antenna_tx": "horn", "antenna_rx": "horn",
-            "antenna_pattern": "cos^q over the front hemisphere, G0 = 2 (q + 1) (rfir_stages.simulate.antennas)",
+            "antenna_pattern": "cos^q over the front hemisphere, G0 = 2 (q + 1) (rfir_core.physics.antennas)",
             "horn_hpbw_deg": float(s.horn_hpbw_deg), "horn_q": float(horn_exponent(s.horn_hpbw_deg)),
             "horn_boresight_gain_dbi": float(10 * math.log10(horn_boresight_gain(s.horn_hpbw_deg))),
             "geometry": "object fixed at origin; aspect theta = radar at azimuth -theta",

@@ -88,7 +88,7 @@ def test_differentiable_power_equals_the_simulators_path_combination(tmp_path):
     import drjit as dr
     import sionna.rt as rt
 
-    from rfir_stages.simulate.antennas import Antenna
+    from rfir_core.physics.antennas import Antenna
     from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene, set_devices
     from rfir_stages.simulate.solve import combine_paths
 

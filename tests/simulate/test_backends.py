@@ -12,7 +12,7 @@ from rfir_core.artifacts import read_artifact, validate_artifact
 from rfir_cli.context import GlobalOptions
 from rfir_core.errors import ConfigError, StageError
 from rfir_core.progress import NullProgress
-from rfir_stages.simulate.antennas import horn_boresight_gain
+from rfir_core.physics.antennas import horn_boresight_gain
 from rfir_stages.simulate.po_backend import simulate_monostatic_po
 from rfir_stages.simulate.rcs import RadarGrid, aspect_grid, object_radius
 from rfir_stages.simulate.scenes import SceneSpec, plate, rotate_z

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("sionna.rt")
 
-from rfir_stages.simulate.antennas import horn_boresight_gain  # noqa: E402
+from rfir_core.physics.antennas import horn_boresight_gain  # noqa: E402
 from rfir_stages.simulate.radio_scene import C0, MaterialEffects, load_radio_scene  # noqa: E402
 from rfir_stages.simulate.rcs import RadarGrid, object_radius, simulate_monostatic  # noqa: E402
 from rfir_stages.simulate.scenes import build_scene, ground_plate, plate  # noqa: E402

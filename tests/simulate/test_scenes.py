@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rfir_core.errors import ConfigError
-from rfir_stages.simulate.antennas import Antenna, horn_boresight_gain, horn_exponent, horn_gain
+from rfir_core.physics.antennas import Antenna, horn_boresight_gain, horn_exponent, horn_gain
 from rfir_stages.simulate.measurement import MeasurementEffects, apply_measurement_effects
 from rfir_stages.simulate.scenes import SCENES, box, build_scene, write_meshes
 from rfir_stages.simulate.settings import parse_settings
