@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from rfir_core.artifacts import read_artifact
-from rfir_stages.model.materials import itu_law
+from rfir_core.physics.materials import itu_law
 from rfir_stages.model.physical import MaterialValues, PairSettings, build_pairs, scattered_field
 from rfir_stages.model.antenna_patterns import antenna_choice
 from rfir_stages.model.links import geometry_from_artifact, make_links, scene_centre

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from rfir_core.artifacts import read_artifact
-from rfir_stages.model.materials import itu_law, permittivity
+from rfir_core.physics.materials import itu_law, permittivity
 from rfir_stages.model.room_paths import THIRD_ORDER_SMALL_REFLECTIONS, build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.model.occlusion import FrozenGeometry, make_provider

@@ -84,7 +84,7 @@ def parse_operation(text: str) -> Operation:
             raise ConfigError(f"{where}: expected label:NAME")
         return Operation("label", name=rest.strip(), text=text)
     if kind == "material":
-        from rfir_stages.model.materials import material_key
+        from rfir_core.physics.materials import material_key
         try:
             return Operation("material", name=material_key(rest), text=text)
         except ValueError as e:

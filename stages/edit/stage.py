@@ -235,7 +235,7 @@ def new_material_values(data: dict, key: str, was: int, exponent: float = 1.0) -
     S stays because it describes the surface, not its bulk material: in the effective-roughness model
     the specular share sqrt(1 - S^2) is set by the surface's height profile (docs/physics.md section 8.8),
     which an edit of the material does not change."""
-    from rfir_stages.model.materials import itu_law
+    from rfir_core.physics.materials import itu_law
 
     f = float(np.asarray(data["rf/freq_hz"], np.float64)[0])
     eps, sigma = itu_law(key, f)

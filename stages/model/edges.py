@@ -72,7 +72,7 @@ from .occlusion import FrozenGeometry
 from .link_set import LinkSet
 
 from .link_rows import renumber_links
-from .materials import C0
+from rfir_core.physics.materials import C0
 
 WEDGE_T_COS = 0.9       # outer edges of two patches with tangents this parallel, on one line: one wedge
 WEDGE_ACROSS_HALF = 1.0  # ... and at most this many surfel half-sides apart across their tangent (see patch_edges)

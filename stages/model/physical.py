@@ -44,7 +44,7 @@ from .antenna_patterns import AntennaPattern
 from .occlusion import FrozenGeometry, OcclusionProvider, lit_stop
 from .link_set import LinkSet
 
-from .materials import C0, abs2, co_polar_reflection, fresnel, permittivity
+from rfir_core.physics.materials import C0, abs2, co_polar_reflection, fresnel, permittivity
 from .link_rows import renumber_links
 from .edges import EdgeTerms, aggregate_edges, edge_field, edge_reflection, edge_terms, patch_edges
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches

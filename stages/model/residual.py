@@ -45,7 +45,7 @@ import torch
 
 from rfir_stages.po.geometry import single_thread_torch
 
-from .materials import abs2
+from rfir_core.physics.materials import abs2
 from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms
 
 FORMS = ("auto", "smooth", "blend", "gaussian", "off")

@@ -24,7 +24,7 @@ import torch
 from rfir_stages.po.geometry import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
-from .materials import C0, abs2, fresnel, slab_transmission
+from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import CROSSING_NODES, MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from .link_rows import renumber_links
-from .materials import C0, abs2, fresnel, slab_transmission
+from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
 from .room_paths import PatchSet, _dot, leg_crossings
 
 NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees of a cell's |Gamma|^2, linear between them

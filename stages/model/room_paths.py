@@ -36,7 +36,7 @@ import torch
 from .occlusion import FrozenGeometry
 
 from .link_rows import renumber_links
-from .materials import C0, abs2, fresnel, slab_transmission
+from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
 from .second_order import Patches, mirror_points, planar_patches
 from .surfels import footprint_cells
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .materials import C0
+from rfir_core.physics.materials import C0
 from .surfels import footprint_cells
 
 MAX_CELL_WAVELENGTHS = 0.25   # long side of the cells, in wavelengths, above which lobes and levels drift

@@ -50,7 +50,7 @@ from .link_set import LinkSet
 
 from .edges import patch_coverage_of
 from .link_rows import renumber_links
-from .materials import C0
+from rfir_core.physics.materials import C0
 from .plane_merge import merge_coplanar, offset_scatter_m
 from .surfels import COPLANAR_M, covariance, footprint_factor
 

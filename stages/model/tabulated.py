@@ -36,7 +36,7 @@ import torch
 from rfir_stages.po.geometry import single_thread_torch
 
 from .identifiability import block_standard_error
-from .materials import ITU_MATERIALS
+from rfir_core.physics.materials import ITU_MATERIALS
 from .physical import MaterialParams
 
 # typical slab thickness [m] of each tabulated material (a name's starting value and a candidate's thickness)

@@ -32,7 +32,7 @@ _CORE = ("src/rfir_cli", "configs/general.toml")
 _MODEL = ("stages/model", "ext/rfir_tracer", "ext/csrc")
 # the simulators use the model package for its material laws only (rfir_stages.po.facet_materials): a change
 # of the fitted model must not regenerate their data
-_MATERIAL_LAWS = ("stages/model/__init__.py", "stages/model/materials.py")
+_MATERIAL_LAWS = ("stages/model/__init__.py", "src/rfir_core/physics/materials.py")
 CODE: dict[str, tuple[str, ...]] = {
     "simulate": (*_CORE, "stages/simulate", "stages/po", "stages/render", "stages/model/split_protocols.py", *_MATERIAL_LAWS,
                  "configs/simulate.toml"),

@@ -176,7 +176,7 @@ def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], st
 def name_priors(names: list[str]) -> dict:
     """{material index: (eps_r, sigma at 1 GHz [S/m], thickness [m])} for materials whose name contains an
     ITU-R P.2040 material ("glass_partition" -> glass), the law's values at 1 GHz and a typical thickness."""
-    from rfir_stages.model.materials import ITU_MATERIALS
+    from rfir_core.physics.materials import ITU_MATERIALS
 
     out = {}
     for i, name in enumerate(names):

@@ -26,7 +26,7 @@ def object_class(name: str) -> str:
 def true_materials(scene_name: str, names: list[str], freq_hz: float, scene_edits: list[str] = ()) -> dict:
     """{class name: (ITU name, thickness m, eps_r, sigma S/m at freq_hz, |Gamma(0)|)} for the classes in
     `names` of the simulator's scene `scene_name` after `scene_edits` (the first object of each class)."""
-    from rfir_stages.model.materials import C0, itu_law, normal_incidence_reflection, permittivity
+    from rfir_core.physics.materials import C0, itu_law, normal_incidence_reflection, permittivity
     from rfir_stages.simulate import build_scene
     from rfir_stages.simulate.scene_edits import apply_scene_edits
 

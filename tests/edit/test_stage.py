@@ -240,7 +240,7 @@ def test_links_ranges_of_fitted_materials_survive_a_move_but_not_a_new_material(
 def test_material_edit_states_the_values_it_assumed(rf_path, tmp_path):
     """material:NAME prints (and keeps in the history) the ITU values at the model's frequency and the
     thickness and S it keeps from the material it replaces; re-materialling twice keeps the first's."""
-    from rfir_stages.model.materials import itu_law
+    from rfir_core.physics.materials import itu_law
 
     out = tmp_path / "e.h5"
     r = _edit(rf_path, "-o", out, "--select", "label:crate", "--op", "material:metal",

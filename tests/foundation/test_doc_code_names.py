@@ -116,12 +116,12 @@ def test_every_config_key_the_docs_and_scripts_name_exists():
 
 
 def test_the_checks_catch_a_missing_module_file_name_and_key():
-    assert resolve_dotted("rfir_stages.model.materials") is None
+    assert resolve_dotted("rfir_core.physics.materials") is None
     assert resolve_dotted("rfir_stages.model.occlusion.TracerOcclusion") is None
     assert resolve_dotted("rfir_core.physics.closed_forms.C0") is None
     assert resolve_dotted("rfir_stages.rf_fit.fit") is not None or not (ROOT / "stages/rf_fit/fit.py").exists()
     assert resolve_dotted("rfir_stages.predict.invariance") is not None
-    assert "defines no" in resolve_dotted("rfir_stages.model.materials.no_such_function")
+    assert "defines no" in resolve_dotted("rfir_core.physics.materials.no_such_function")
     assert FILE_REF.findall("see `stages/model/link_set.py` and scripts/edit_validation.sh.") == [
         "stages/model/link_set.py", "scripts/edit_validation.sh"]
     assert FILE_REF.findall("results/reproduce/json/a.json, data/x/stages/y.py, `room*.py`") == []

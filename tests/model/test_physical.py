@@ -7,7 +7,7 @@ import torch
 
 from rfir_core.physics.closed_forms import C0, plate_rcs_broadside_m2
 from rfir_stages.model.fit_physical import PhysicalFitConfig, fit_materials, material_index
-from rfir_stages.model.materials import fresnel, itu_law, permittivity
+from rfir_core.physics.materials import fresnel, itu_law, permittivity
 from rfir_stages.model.physical import AggregatedPairs, MaterialParams, PairSettings, build_pairs, scattered_power
 from rfir_stages.model.surfels import footprint_factor, surfel_areas
 from rfir_stages.model.occlusion import FrozenGeometry, make_provider

@@ -217,7 +217,7 @@ def test_rf_fit_writes_the_residual_check_validates_it_and_predict_applies_it(tm
     scores the odd aspects below the physics alone (reported beside it)."""
     from rfir_core.artifacts import read_artifact, validate_artifact, write_artifact
     from rfir_stages.geom import write_scene_artifact
-    from rfir_stages.model.materials import C0
+    from rfir_core.physics.materials import C0
     from rfir_stages.predict.rcs import run_rcs
     from rfir_stages.rf_fit import run
     from rfir_stages.model.links import radar_links

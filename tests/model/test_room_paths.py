@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity, slab_transmission
+from rfir_core.physics.materials import C0, fresnel, itu_law, permittivity, slab_transmission
 from rfir_stages.model.room_paths import build_patch_set, polarisation_vectors, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.model.occlusion import make_provider
@@ -555,7 +555,7 @@ def test_a_metal_slab_gives_finite_gradients_in_the_diffuse_transmittance():
 
 
 def test_abs2_equals_the_squared_modulus():
-    from rfir_stages.model.materials import abs2
+    from rfir_core.physics.materials import abs2
 
     z = torch.tensor([3 + 4j, 0j, 1e-170 + 1e-170j, 1e-310 + 0j, -2j], dtype=torch.complex128, requires_grad=True)
     np.testing.assert_allclose(abs2(z).detach().numpy(), np.abs(z.detach().numpy()) ** 2, rtol=1e-12)

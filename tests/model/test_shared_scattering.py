@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from rfir_stages.model.fit_physical import PhysicalFitConfig, _raw, fit_materials
-from rfir_stages.model.materials import C0, fresnel
+from rfir_core.physics.materials import C0, fresnel
 from rfir_stages.model.physical import MaterialParams
 from rfir_stages.model.tabulated import tabulated_values
 

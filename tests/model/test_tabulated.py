@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from rfir_stages.model.identifiability import block_standard_error
-from rfir_stages.model.materials import C0, fresnel, slab_transmission
+from rfir_core.physics.materials import C0, fresnel, slab_transmission
 from rfir_stages.model.physical import MaterialParams
 from rfir_stages.model.tabulated import candidates, named_material, take_tabulated, tabulated_values
 

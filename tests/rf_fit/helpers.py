@@ -8,7 +8,7 @@ import torch
 
 from rfir_core.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh
-from rfir_stages.model.materials import C0
+from rfir_core.physics.materials import C0
 from rfir_stages.po import channel_from_amplitude, po_scattered_field
 from rfir_stages.model.links import radar_links
 from rfir_stages.model.occlusion import FrozenGeometry

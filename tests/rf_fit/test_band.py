@@ -13,7 +13,7 @@ from rfir_stages.geom.from_mesh import gaussians_from_mesh
 from rfir_stages.model import predict as model_predict
 from rfir_stages.model.artifact import load_physical
 from rfir_stages.model.band import fit_columns
-from rfir_stages.model.materials import C0
+from rfir_core.physics.materials import C0
 from rfir_stages.po import channel_from_amplitude, po_scattered_field
 from rfir_stages.model.links import radar_links
 

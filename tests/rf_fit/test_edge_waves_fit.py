@@ -14,7 +14,7 @@ from rfir_core.errors import ConfigError
 from rfir_stages.fullwave.meshes import plate_screen
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
-from rfir_stages.model.materials import C0
+from rfir_core.physics.materials import C0
 from rfir_stages.model.links import radar_links
 from rfir_stages.rf_fit.physical_stage import sharing_candidates
 

@@ -10,7 +10,7 @@ from rfir_core.artifacts import read_artifact, validate_artifact
 from rfir_core.progress import NullProgress
 from rfir_stages.geom import write_scene_artifact
 from rfir_stages.geom.from_mesh import gaussians_from_mesh
-from rfir_stages.model.materials import C0, fresnel, itu_law, permittivity
+from rfir_core.physics.materials import C0, fresnel, itu_law, permittivity
 from rfir_stages.simulate.scenes import box
 
 from .helpers import po_measurements

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
-from rfir_stages.model.materials import C0
+from rfir_core.physics.materials import C0
 from rfir_stages.model.physical import MaterialParams
 from rfir_stages.model.room import BLE_CHANNELS_HZ, BandLinks, RoomPredictor
 from rfir_stages.model.room_paths import build_patch_set, trace_room_paths

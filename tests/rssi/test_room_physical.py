@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from rfir_core.artifacts import read_artifact
 from rfir_cli.main import app
 from rfir_stages.model.artifact import load_physical
-from rfir_stages.model.materials import C0, ITU_MATERIALS, slab_transmission
+from rfir_core.physics.materials import C0, ITU_MATERIALS, slab_transmission
 
 from .helpers import write_measurements, write_scene
 

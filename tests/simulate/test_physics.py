@@ -142,7 +142,7 @@ def _wall(material: str, thickness_m: float, size_m: float = 30.0):
 
 
 def _eta(material: str, freq_hz: float) -> complex:
-    from rfir_stages.model.materials import itu_law, permittivity
+    from rfir_core.physics.materials import itu_law, permittivity
 
     eps, sig = itu_law(material, freq_hz)
     return complex(permittivity(float(eps), float(sig), freq_hz))
@@ -155,7 +155,7 @@ def test_wall_transmission_is_the_slab_formula_of_the_room_model(tmp_path, mater
     reflections, T_TE on (e . s) s and T_TM on (e . p) p), at incidence 0-57 degrees, pure TE and mixed."""
     import torch
 
-    from rfir_stages.model.materials import slab_transmission
+    from rfir_core.physics.materials import slab_transmission
     from rfir_stages.model.room_paths import polarisation_vectors
 
     f = 2.4e9
@@ -184,7 +184,7 @@ def test_wall_transmission_is_the_slab_formula_of_the_room_model(tmp_path, mater
 def test_reflection_off_a_dielectric_wall_is_the_slab_formula_of_the_room_model(tmp_path):
     """Both antennas in front of a 20 cm concrete wall, in a horizontal plane (V polarisation: pure TE):
     Sionna's direct + reflected field is the two-ray sum with rfir's slab R_TE, interference included."""
-    from rfir_stages.model.materials import fresnel
+    from rfir_core.physics.materials import fresnel
 
     f = 2.4e9
     scene = load_radio_scene(_wall("concrete", 0.2), tmp_path, f)

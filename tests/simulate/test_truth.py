@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from rfir_stages.model.materials import C0, itu_law
+from rfir_core.physics.materials import C0, itu_law
 from rfir_stages.simulate.truth import object_class, true_materials
 
 
