@@ -1,7 +1,7 @@
 """Radio materials: ITU-R P.2040 laws, Fresnel reflection, slab reflection and transmission.
 
 The one definition of each term in rfir (docs/physics.md section 8); the physical-optics simulator
-(rfir_stages.po.materials) and the fitted physical model (rfir_stages.model.physical) both call it.
+(rfir_stages.po.facet_materials) and the fitted physical model (rfir_stages.model.physical) both call it.
 
 Conventions (those of Sionna RT and ITU-R P.2040):
 - time factor exp(+j omega t); complex relative permittivity `eta = eps_r - j sigma / (eps_0 omega)`;
