@@ -31,6 +31,7 @@ from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M
 
 from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, choose_device_gains, held_out_rows
 from .physical_stage import attach_ranges, bound_warnings, range_words
+from .result import RfFitResult
 
 MODEL_KIND = "rssi_physical"
 SHARINGS = ("auto", "class", "label", "segment", "global")
@@ -338,7 +339,6 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
              measurements_path, out_path, config: dict, render_cfg, cfg: dict, *, seed: int, config_toml: str,
              progress, t_start: float):
     """Trace, fit and write; returns stage.RfFitResult."""
-    from .stage import RfFitResult
 
     depth, ideal = simulated_depth(meas), ideal_devices(meas)
     settings, fit_cfg, sharing = room_config(config, depth, ideal)

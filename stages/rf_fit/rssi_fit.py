@@ -15,6 +15,7 @@ from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 
 from rfir_stages.model.links import check_overlap, geometry_from_artifact, inside_words, positions_inside
+from .room_stage import run_room
 from .rssi_split import rssi_settings, training_rows
 
 
@@ -23,7 +24,6 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     """Fit the room model to the RSSI links of `meas`; see the module docstring. config: the [rf_fit] table.
     fit_cfg (rf-fit's FitConfig) is not used: the room model's optimiser settings are [rf_fit.physical].
     Returns stage.RfFitResult."""
-    from .room_stage import run_room
 
     progress = progress or NullProgress()
     t_start = time.time()

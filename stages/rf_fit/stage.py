@@ -15,7 +15,6 @@ import dataclasses
 import hashlib
 import json
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,27 +39,9 @@ from rfir_stages.model.link_set import RenderSettings
 from rfir_stages.model.split_protocols import describe as describe_split
 from rfir_stages.model.split_protocols import protocol_masks, split_rows
 from rfir_stages.model.validation_folds import MIN_VALIDATION_LINKS, validation_folds
+from .result import RfFitResult
+from .rssi_fit import run_rssi
 from .wideband_stage import band_config, is_wideband_request
-
-
-@dataclass
-class RfFitResult:
-    """Summary of one rf-fit run."""
-
-    path: Path
-    num_gaussians: int
-    num_train_links: int
-    freqs_hz: list
-    train_mae_db: float
-    initial_mae_db: float
-    iterations: int       # Adam steps the final fit ran in all (its starts, switch rounds and rf_fit.physical.iterations)
-    wall_time_s: float
-    trace_time_s: float
-    occlusion: str
-    timings_s: dict = field(default_factory=dict)
-    selection: dict = field(default_factory=dict)    # material sharing requested / selected, validation MAEs
-    materials: list = field(default_factory=list)    # one dict per fitted material
-    warnings: list = field(default_factory=list)
 
 
 def sharing_words(sharing: str) -> str:
@@ -115,7 +96,6 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         config = dict(config, physical=dict(phys, polarisation=str(meas.attrs["polarisation"])))
     fit_cfg, pair_settings, phys_table = physical_config(config, render_cfg)   # refused here when wrong
     if task == "rssi":  # the room model (docs/physics.md section 8.10): stages/rf_fit/rssi_fit.py
-        from .rssi_fit import run_rssi
         if resume:
             raise ConfigError("--resume: RSSI fits write no checkpoints yet")
         if select:
