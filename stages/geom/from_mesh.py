@@ -17,7 +17,7 @@ each sub-triangle becomes one Gaussian:
 - normal: the face normal (winding v0 -> v1 -> v2, right hand);
 - in-plane covariance: the sub-triangle's own second moments, scaled so that the Gaussian's
   projected cross-section along the normal, pi sqrt(det Sigma_2D), equals the sub-triangle's
-  area. So the areas A_l seen face-on add up to the mesh area (docs/physics.md sections 2 and 4.1);
+  area. So the areas A_l seen face-on add up to the mesh area (docs/physics.md sections 2 and 8.6);
 - thickness: `thickness_ratio` times the smaller in-plane standard deviation.
 
 Sliver facets (a 32-sided cylinder's side: 1 cm wide, 30 cm tall) would tile into thousands of

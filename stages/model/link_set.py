@@ -1,7 +1,7 @@
 """Links and the tracing settings that rf-fit, predict and the physical model (rfir_stages.model) share.
 
 A LinkSet is M links (transmitter, receiver, antenna axes) at K frequencies; RenderSettings are the
-[rf_fit] keys that say how visibility is traced (docs/physics.md section 8.5): whether at all, with
+[rf_fit] keys that say how visibility is traced (docs/physics.md section 4.1): whether at all, with
 which RF opacity per Gaussian, from which Gaussian response on, and when a ray stops.
 """
 from __future__ import annotations

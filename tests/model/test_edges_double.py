@@ -85,7 +85,7 @@ def test_square_plate_h_polarisation_against_second_order_gtd(freq_hz, spacing_m
     doubly diffracted edge-to-edge paths, the return paths and the round trips) within 0.5 dB MAE, within
     1.0 dB at every aspect to 80 degrees; the first-order form alone differs from it by 3+ dB at 60-84. Beyond
     84 degrees the closed form falls as cos^4 while the plate's horizontal edges, seen nearly end-on, keep a
-    first-order fringe (docs/physics.md 8.13, limits; test_edges_grazing)."""
+    first-order fringe (docs/physics.md section 8.13, left out; test_edges_grazing)."""
     a = 0.3
     geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), a, a), spacing_m)
     theta = np.arange(15.0, 85.0, 1.0)

@@ -100,7 +100,7 @@ def test_plate_h_near_grazing_against_the_strip_reference(freq_hz, spacing_m, le
     ((2 L^2 / lambda) sigma_2D): within tol dB MAE, where the model without the return path, the round trips
     and Keller's coefficient at the far edge was 3.7-13 dB off (in the comments). Beyond 84 degrees the square
     plate's horizontal edges, seen nearly end-on, keep a first-order fringe that the exact sheet does not have
-    (docs/physics.md 8.13, limits); a plate four times longer along its edges dilutes it to 88 degrees. V
+    (docs/physics.md section 8.13, left out); a plate four times longer along its edges dilutes it to 88 degrees. V
     (the soft case) within 0.6 dB of the TM reference there."""
     lam = C0 / freq_hz
     geom, _ = surfels(*plate_mesh((0, 0, 0), (0, 1, 0), (0, 0, 1), WIDTH_M, length_m), spacing_m)
