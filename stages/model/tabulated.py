@@ -13,13 +13,12 @@ increase is within `margin` standard errors (identifiability.block_standard_erro
 rule, a difference the links cannot resolve), both against the state before it and against the lowest error
 reached so far (so replacements taken in turn cannot drift further than one such margin); the rounds end when
 none is. A replacement may lower the error too: the starts of the fit can leave a material in a poorer optimum
-than a tabulated one (docs/rssi.md, "Tabulated materials"). Cost: materials x candidates evaluations of the
+than a tabulated one (docs/physics.md section 8.12). Cost: materials x candidates evaluations of the
 training links, then about materials^2 x SHORTLIST / 2.
 
 The links are rf-fit's training links the fit did not use where it fitted a subset (rf_fit.room.fit_links;
 rf_fit.room_stage._check_links): on the links the values were fitted to, every alternative looks worse than it
-is by the fit's optimism (the unseen-transmitter classroom fit's 2 cm chairs of eps_r 1.57: the simulator's wood
-costs +1.01 standard errors on the fit links and gains 1.35 on the others).
+is by the fit's optimism, so a tabulated material the data agree with could be refused there.
 
 The materials stay what they were where the links tell them apart from every tabulated one; a
 measured room of unlisted materials loses nothing the links can see.
