@@ -42,9 +42,9 @@ from .surfels import footprint_cells
 
 # paths with more interactions than this, reflections and surfaces crossed counted alike (a ray tracer's depth;
 # Sionna RT's max_depth counts them so), are dropped. 8 keeps what thin furniture lets through (a floor reflection
-# under a desk crosses the top's two faces: five interactions); 3, the simulator's depth, follows its paths closer
-# and cuts a fit's cost by 40 % at the same training error, but the classroom's metal whiteboard is then fitted at
-# |Gamma| 0.83 (docs/rssi.md, "Interactions per path"); RoomSettings takes its default from here
+# under a desk crosses the top's two faces: five interactions); a shallower depth is cheaper but drops those paths,
+# and the fit then bends the materials to make up for them (a metal whiteboard below |Gamma| 1); RoomSettings takes
+# its default from here
 MAX_INTERACTIONS = 8
 # (image row, link) pairs of reflection_paths evaluated at once (memory: about 200 bytes each)
 PAIR_CHUNK = 250_000
@@ -56,9 +56,7 @@ FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 
 # centimetres, and legs that graze it cross it falsely.
 TILE_CLOSING = 1.0
 # the occupancy grid's cell, in tile sides: a crossing point is placed to half a cell, and a leg that passes
-# a chair's back or a desk's edge by millimetres must not cross it (on the classroom's rectangle surfels a
-# quarter tile, tiles a tenth wider, left the model 0.31 dB median from Sionna's paths on the same faces, a tenth
-# exact tiles 0.18; docs/rssi.md "Edges")
+# a chair's back or a desk's edge by millimetres must not cross it, as in a ray tracer's exact geometry
 CELL_PER_TILE = 0.1
 PATCH_EXTENTS = ("disks", "tiles")
 # reflections up to MAX_ORDER; second order off patches of at least HIGHER_ORDER_MIN_AREA_M2 (walls, floor,
@@ -192,7 +190,7 @@ EXTENT_GRID_FIELDS = ("grid", "grid_offset", "grid_shape", "grid_origin", "cell_
 
 def extent_grids(patches: PatchSet) -> dict[str, np.ndarray]:
     """A PatchSet's occupancy grids as arrays to store (the grid packed 8 cells a byte) for build_patch_set's
-    `extents`: rasterising them is most of what building a classroom's patches costs (5 s of 6)."""
+    `extents`: rasterising them is most of what building a room's patches costs."""
     out = {f: np.asarray(getattr(patches, f)) for f in EXTENT_GRID_FIELDS[1:]}
     out["grid"] = np.packbits(patches.grid)
     out["grid_cells"] = np.asarray(patches.grid.size, np.int64)
