@@ -191,9 +191,9 @@ def name_priors(names: list[str]) -> dict:
 def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_materials: int, target_db: np.ndarray,
                        fit_cfg: PhysicalFitConfig, progress, priors: dict, devices, weights: np.ndarray | None = None):
     """fit_physical.fit_materials on the traced links; where the third order reflects off desk-sized patches
-    (third_order_small_reflections), first without those paths, then with them from there: with them from the
-    starts alone, the classroom's fit ended in a poorer optimum than the materials of the fit without them give
-    (docs/rssi.md, "Third order off desk tops")."""
+    (third_order_small_reflections), first without those paths, then with them from there: those many weak paths
+    make the loss rougher, and started from the simpler fit's materials the fit does not end in a poorer optimum
+    than that fit already found."""
     kept = min(fit_cfg.starts_kept, len(STARTS))
     if kept > 1:
         progress.log(f"the {kept} best starting materials after {fit_cfg.start_iterations} steps are "
@@ -487,7 +487,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     prov.add_input(measurements_path)
     prov.wall_time_s = time.time() - t_start
     prov.extra = {"seed": seed, "train_rows": int(len(rows)), "trace_time_s": trace_s, "fit_time_s": res.wall_time_s}
-    # the patches' occupancy grids: loading the model then rasterises nothing (most of a classroom's load time)
+    # the patches' occupancy grids: loading the model then rasterises nothing (most of a room's load time)
     model_attrs["patch_extents_key"] = room.extents_key()
     grids = {f"patch_{k}": v for k, v in extent_grids(room.patches).items()}
     free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table()), **map_rows, **grids},
