@@ -191,9 +191,9 @@ def name_priors(names: list[str]) -> dict:
 def fit_room_materials(links, room: RoomGeometry, settings: RoomSettings, num_materials: int, target_db: np.ndarray,
                        fit_cfg: PhysicalFitConfig, progress, priors: dict, devices, weights: np.ndarray | None = None):
     """fit_physical.fit_materials on the traced links; where the third order reflects off desk-sized patches
-    (third_order_small_reflections), first without those paths, then with them from there: those many weak paths
-    make the loss rougher, and started from the simpler fit's materials the fit does not end in a poorer optimum
-    than that fit already found."""
+    (third_order_small_reflections), first without those paths, then with them from there: from the starts alone
+    the full fit can end in a poorer optimum than the simpler fit's materials, and started from those it keeps
+    the better of the two."""
     kept = min(fit_cfg.starts_kept, len(STARTS))
     if kept > 1:
         progress.log(f"the {kept} best starting materials after {fit_cfg.start_iterations} steps are "
