@@ -178,8 +178,7 @@ def lit_state(transmittance: torch.Tensor, threshold: float) -> torch.Tensor:
     one tiled surface keeps about 1 - opacity (0.03-0.1 at opacity 0.9), and one that passes near a
     surface's edge is dimmed by the tails of the edge Gaussians, which reach past the edge. Kept
     soft, the first lets the far faces of a solid shine through and the second dims faces beside an
-    edge; on the lego (physical-optics data, 3 cm surfels, first order) the soft state costs 2.3 dB
-    MAE at 2.4 GHz against 1.2 dB with the threshold 0.2 (docs/physics.md section 8.6)."""
+    edge; the threshold lies between those two errors (docs/physics.md section 8.6)."""
     if threshold <= 0:
         return transmittance
     return (transmittance > threshold).to(transmittance.dtype)
