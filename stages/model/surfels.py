@@ -15,9 +15,8 @@
   (S the 2 x 2 in-plane covariances, d_lm the in-plane offset of the means; the self term is 1/2),
   then the largest Cbar among l and its close neighbours on the surface (overlap above half the
   self term). The average, not C at the mean: a tiling's coverage ripples between its Gaussians'
-  peaks and C(mu_l) sits on a peak (a triangle tiling's plate came out 0.23-0.30 dB short, more the
-  finer the tiling), while the ripple averages out of Cbar (2.00 to 0.1 %: the level does not depend
-  on the density). Along an edge the coverage drops towards 1 for want of neighbours, not of layers:
+  peaks and C(mu_l) sits on a peak, which would leave a tiled plate short, while the ripple averages
+  out of Cbar: the level does not depend on the density. Along an edge the coverage drops towards 1 for want of neighbours, not of layers:
   the floor at 1 keeps a single layer's edge Gaussians at their own area, and the neighbours' value
   gives a doubled layer's edge the interior's sharing.
 - `footprint_cells`: the rectangle cell a surfel stands for: its two in-plane axes (those of the
@@ -27,8 +26,8 @@
   the side, `q = w_i + w_o`): the phase variation across a surfel. A tiling of such cells sums to
   the plate's exact integral (the cell's zeros fall on the tiling's grating lobes), so a plate's
   sidelobes (the edge returns a radar sees off the specular direction) keep their level at any
-  spacing; a Gaussian weight instead tapers them by `exp(-0.5 k^2 q^T Sigma_w q)`, measured 3 dB low
-  on the lego's off-specular returns at 5.8 GHz (docs/physics.md section 8.6).
+  spacing; a Gaussian weight instead tapers them by `exp(-0.5 k^2 q^T Sigma_w q)`, which leaves an
+  object's off-specular returns low (docs/physics.md section 8.6).
 """
 from __future__ import annotations
 
