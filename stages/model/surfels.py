@@ -16,7 +16,8 @@
   then the largest Cbar among l and its close neighbours on the surface (overlap above half the
   self term). The average, not C at the mean: a tiling's coverage ripples between its Gaussians'
   peaks and C(mu_l) sits on a peak, which would leave a tiled plate short, while the ripple averages
-  out of Cbar: the level does not depend on the density. Along an edge the coverage drops towards 1 for want of neighbours, not of layers:
+  out of Cbar: the level does not depend on the density. Along an edge the coverage drops towards 1
+  for want of neighbours, not of layers:
   the floor at 1 keeps a single layer's edge Gaussians at their own area, and the neighbours' value
   gives a doubled layer's edge the interior's sharing.
 - `footprint_cells`: the rectangle cell a surfel stands for: its two in-plane axes (those of the
