@@ -2,10 +2,9 @@
 
 Each surfel stands for a rectangle cell (surfels.footprint_cells, docs/physics.md section 8.6); the
 cells approximate the mesh's sub-triangles, and the error of that approximation grows with k times
-the cell's size. Measured against physical-optics data with the true materials, nothing fitted
-(docs/rf-model.md, "Fidelity"): 3 cm surfels (cells 2.1 cm long: 0.4 wavelengths at 5.8 GHz) leave
-2.45 dB on the car at 5.8 GHz, 1.5 cm surfels (cells 1.1 cm, 0.2 wavelengths) 0.66 dB, and 3 cm surfels
-at 2.4 GHz (0.17 wavelengths) 0.63 dB.
+the cell's size: against physical-optics data with the true materials and nothing fitted, cells
+longer than about a quarter wavelength leave errors that finer surfels remove (docs/rf-model.md,
+"Fidelity", has the measurements).
 A fit or a prediction at a frequency where most of the surface lies in cells longer than
 MAX_CELL_WAVELENGTHS says so, with the spacing that would do.
 """
