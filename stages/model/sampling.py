@@ -3,8 +3,7 @@
 Each surfel stands for a rectangle cell (surfels.footprint_cells, docs/physics.md section 8.6); the
 cells approximate the mesh's sub-triangles, and the error of that approximation grows with k times
 the cell's size: against physical-optics data with the true materials and nothing fitted, cells
-longer than about a quarter wavelength leave errors that finer surfels remove (docs/rf-model.md,
-"Fidelity", has the measurements).
+longer than about a quarter wavelength leave errors that finer surfels remove.
 A fit or a prediction at a frequency where most of the surface lies in cells longer than
 MAX_CELL_WAVELENGTHS says so, with the spacing that would do.
 """
