@@ -1,4 +1,4 @@
-"""docs/tutorial-own-data.md runs as written: its commands, in order, on the measured survey in tests/data."""
+"""docs/guide/rssi-survey.md runs as written: its commands, in order, on the measured survey in tests/data."""
 import json
 import re
 import shlex
@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-TUTORIAL = ROOT / "docs" / "tutorial-own-data.md"
+TUTORIAL = ROOT / "docs" / "guide" / "rssi-survey.md"
 
 
 def tutorial_commands() -> list[list[str]]:
-    """The `rfir` lines of the tutorial's first bash block, split as a shell would."""
+    """The `rfir` lines of the guide page's first bash block, split as a shell would."""
     block = re.search(r"```bash\n(.*?)```", TUTORIAL.read_text(), re.S).group(1)
     return [shlex.split(line) for line in block.splitlines() if line.startswith("rfir ")]
 
