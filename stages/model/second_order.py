@@ -15,7 +15,7 @@ specularly towards Rx (a corner reflector's flash), b_XY = c_XY cos_i' (the pola
 `polarisation_chain` times the obliquity) and b_X0 = 0; away from it the incident field's own
 currents radiate too (b_X0, independent of B's material: (cos_o - cos_i') / 2 for a wave in B's plane
 of incidence), and the symmetric obliquity (cos_i' + cos_o) / 2 of the single bounce would leave
-them out (a metal plate lit at 25 degrees and seen at 85: 5 dB low). A term exists only when c
+them out (a double bounce seen far from B's specular direction would come out low). A term exists only when c
 lies inside A's boundary, the level line at half A's interior coverage (`edges.patch_coverage`, the
 boundary the edge waves use): a hard aperture at A's true edge, as the geometric-optics
 first bounce of the PO solver's ray tubes; A's edge diffraction is left out, and a crossing past A's
