@@ -10,7 +10,7 @@ over 160 MHz) needs no other model, only bounded memory:
   EXACT_MAX_FREQS frequencies, the exact pair sum is evaluated in frequency chunks of about BUDGET
   (pair, frequency) values (`band_field`); more frequencies (a band) use the fit's aggregated form
   (`band_power`: Gamma on 2-degree incidence-angle nodes, the weakest 1 % of double-bounce cells
-  dropped), faster than the exact sum and held to it by a test.
+  dropped), faster than the exact sum; tests/model/test_physical.py holds that form to the pair sum.
 Everything physical is imported from physical.py: this module only slices and loops.
 """
 from __future__ import annotations
