@@ -337,16 +337,13 @@ def fit_smooth(coords, phys_db: np.ndarray, target_db: np.ndarray, folds: list[n
     physics alone by one standard error: it is applied even where the physics alone validates better.
     Why: a held-out training aspect lies a whole spacing from the rest, twice as far as any test aspect,
     and the two can disagree in sign where the residual decorrelates within a spacing; where a longer
-    length wins on validation (a smooth curve) it wins at the test aspects too. Measured end to end on
-    rows of seven objects (docs/rf-model.md "Residual"): a thin cylinder's every 10th aspect, where
-    validation kept the physics alone (3.37 dB; linear interpolation 1.42), scores 0.94 with it. The
-    physics alone is still scored and reported.
+    length wins on validation (a smooth curve) it wins at the test aspects too. The physics alone is
+    still scored and reported.
     With spacing_deg, validated candidates shorter than half of it are not offered (`visible_lengths`):
     at a held-out aspect a whole spacing from the rest such a kernel is nearly zero, so validation
     scores it as the physics alone while at the test aspects, half a spacing away, it moves the
-    prediction; the one-standard-error test then passes on a difference of hundredths of a dB (a
-    plate's every 10th aspect: a 4-degree blend validated 0.79 against the physics' 0.79 and scored
-    1.38 against 1.00 on the test)."""
+    prediction; the one-standard-error test would then pass on a difference of hundredths of a dB and
+    keep a kernel that changes the test aspects unvalidated."""
     t0 = time.time()
     val_all = np.concatenate(folds)
     errors = {"physics only": np.abs(phys_db[val_all] - target_db[val_all])}
