@@ -271,8 +271,7 @@ def one_standard_error_choice(scores: dict, errors: dict, materials: dict) -> tu
     """The candidate with the fewest materials whose validation MAE is within one standard error of the
     best's (the one-standard-error rule; ties in material count go to the lower score): the free
     parameters grow with the materials, and on a few held-out links a richer model's lower score is often
-    noise (12 links of a metal box: eight segment materials 3.69 dB against one 3.87, and the one
-    material predicts the test better). scores {candidate: MAE dB}; errors {candidate: |error| dB of
+    noise. scores {candidate: MAE dB}; errors {candidate: |error| dB of
     each held-out entry}; materials {candidate: count}. Returns (chosen, best, standard error dB: of the
     best's mean absolute error over its held-out entries)."""
     best = min(scores, key=scores.get)
