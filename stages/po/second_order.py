@@ -33,7 +33,7 @@ from .geometry import normalize, polarization_vector, sinc_u
 from .currents import _dot, _sum_into, po_coefficients, reflect_field_basis
 
 REFINE_MAX = 32     # a tube side is cut into at most this many parts where its footprint is long (grazing bounces)
-TUBES_PER_WAVELENGTH = 20   # default tube side lambda_min / 20: converged within ~0.3 dB MAE on the lego (docs/po.md)
+TUBES_PER_WAVELENGTH = 20   # default tube side lambda_min / 20: finer tubes change the sum little (docs/po.md)
 MAX_TUBES = 1 << 17         # ... unless the object's grid of tubes would exceed this many per aspect
 
 
