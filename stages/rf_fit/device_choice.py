@@ -1,8 +1,8 @@
 """Which device gains a room fit of measured data gets ("auto"): chosen by validation on held-out positions.
 
-A gain per device position fits the training links exactly and carries nowhere: a walk survey with one
-receiver carried to 572 positions got 572 receiver gains, a training error of 0.00 dB and a test error
-worse than no gains. So the choice between no gains, a gain per transmitter, per receiver or both is made
+A gain per device position fits the training links exactly and carries nowhere (a walk survey's receiver
+carried to many positions would get one gain per position, a training error of zero and a test error worse
+than no gains). So the choice between no gains, a gain per transmitter, per receiver or both is made
 on links at positions the fit did not see: the materials are fitted once without gains on the other links,
 each candidate's gains are then the ridge solution of that fit's residuals (device_gains.ridge_gains, the
 fit's own prior), and a candidate wins only where it lowers the held-out error by MARGIN_DB over every
