@@ -21,7 +21,7 @@ class single_thread_torch:
     """Context manager: torch intra-op threads = 1 inside (restored after).
 
     The PO kernels call torch on blocks of ~1e5 elements; with 2 threads on a shared, busy CPU the
-    thread hand-offs cost more than the work (measured 25x slower wall time under load)."""
+    thread hand-offs cost more than the work."""
 
     def __enter__(self):
         try:
