@@ -42,8 +42,8 @@ A step reruns when its command line, its code or an input changed; `python -m rf
 prints every step's command. Sizes (fit steps, surfel spacing, the baselines' budgets) are in
 `configs/reproduce.toml`. Each table names the command that made it and the machine that wrote it (with a
 cluster profile, the machine that submitted the steps). Per-step wall times and memory are in
-`results/reproduce/<target>.md` and `results/reproduce/benchmarks/`. The baselines are described in
-[baselines.md](baselines.md).
+`results/reproduce/<target>.md` and `results/reproduce/benchmarks/`. Running the workflow, on a cluster
+too: [guide/reproduce.md](guide/reproduce.md); the baselines: [baselines.md](baselines.md).
 """
 
 _STEPS_HEADING = "Steps of this target"
@@ -109,7 +109,7 @@ def _target_section(name: str, out: Path, page_dir: Path) -> list[str]:
 def _diagnose_section(out: Path, page_dir: Path) -> list[str]:
     md = out / "diagnose" / f"{DIAGNOSE}.md"
     head = ['<a id="diagnose"></a>', "## diagnose: the blind set", "", ABOUT[DIAGNOSE], "",
-            "- Command: `make reproduce-diagnose` (the page [diagnose.md](diagnose.md) explains the effects)", ""]
+            "- Command: `make reproduce-diagnose` (the page [guide/diagnose.md](guide/diagnose.md) explains the effects)", ""]
     if not md.exists():
         return head + ["Not run yet.", ""]
     lines = md.read_text().rstrip("\n").splitlines()

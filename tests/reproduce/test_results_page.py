@@ -6,6 +6,9 @@ import csv
 import json
 import re
 import shlex
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 from rfir_stages.reproduce.__main__ import main, write_target
@@ -124,3 +127,22 @@ def test_the_full_wave_table_shows_the_gap_by_region():
     assert "| plate 0.3 m, V | specular | 4 | 0.12 | 0.50 | -0.25 |" in md
     assert "| plate 0.3 m, V | empty | 0 | | | |" in md
     assert "| plate 0.3 m | broadside | 8.14 | 8.12 | 8.14 |" in md
+
+
+def test_the_workflow_writes_the_page_beside_other_tables(tmp_path):
+    """The real Snakefile's results_page rule (which every target rule runs after its tables) writes the
+    page of a non-default folder into that folder, not over docs/results.md."""
+    shutil.copytree(ROOT / "workflow", tmp_path / "workflow")
+    out = tmp_path / "o"
+    out.mkdir()
+    shutil.copy(RESULTS / "wideband.json", out)
+    shutil.copy(RESULTS / "wideband.md", out)
+    proc = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "-s", "workflow/Snakefile", "--cores", "1",
+                           "results_page", "--config", "quick=true", f"out={out}"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert not (tmp_path / "docs").exists()
+    page = (out / "results.md").read_text()
+    assert page == results_page(out, out / "results.md", root=tmp_path)
+    first_row = next(line for line in (out / "wideband.md").read_text().splitlines() if line.startswith("| h-target"))
+    assert first_row in page and "Not run yet" in page
