@@ -19,23 +19,22 @@ from pathlib import Path
 import numpy as np
 
 from rfir_core.artifacts import check_output, read_artifact, write_artifact
-from rfir_core.errors import ConfigError, SchemaError, StageError
+from rfir_core.errors import ConfigError, StageError
 from rfir_core.physics.closed_forms import rcs_from_path_gain
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
-from rfir_stages.model.artifact import has_residual, require_physical
-from rfir_stages.model.predict import predict_physical_db
+from rfir_stages.diagnose.apply import apply_recorded_effects
 from rfir_stages.model.antenna_patterns import antenna_from_attrs
-from rfir_stages.model.links import check_overlap, check_positions, geometry_from_artifact, radar_links, scene_centre
+from rfir_stages.model.artifact import has_residual
+from rfir_stages.model.links import check_overlap, check_positions, radar_links, scene_centre
+from rfir_stages.model.radio_model import load_model
 from rfir_stages.model.split_protocols import describe as describe_split
-from rfir_stages.model.split_protocols import protocol_masks
 
 from .attribute_maps import plot_attribute_maps, render_attribute_maps
 from .baselines import aspect_baselines, baselines_beating_model, range_baselines
 from .flashes import flash_defaults, score_flashes
 from .plots import attribute_views, rcs_vs_aspect
-from .rssi_model_io import ROOM_KIND
-from .wideband import default_freqs, is_band_fit, spectrum_plots
+from .wideband import is_band_fit, spectrum_plots
 
 
 @dataclass
@@ -53,13 +52,13 @@ class PredictResult:
     flashes: dict | None = None   # flashes on the test rows (flashes.score_flashes), with measurements
 
 
-def predict_path_gain_db(rf, tx, rx, freqs, task: str, *, occlusion: str = "auto", chunk_links: int = 64,
+def predict_path_gain_db(rf, tx, rx, freqs, task: str = "rcs", *, occlusion: str = "auto", chunk_links: int = 64,
                          progress=None) -> np.ndarray:
-    """Path gain [L, K] dB predicted by an `rf` artifact (the physical model, any frequency; docs/physics.md
-    section 8) for links tx/rx [L, 3] m at freqs [K] Hz."""
-    require_physical(rf)
-    return predict_physical_db(rf, tx, rx, freqs, task, occlusion=occlusion, chunk_links=chunk_links,
-                               progress=progress)
+    """Path gain [L, K] dB predicted by the RCS model of an `rf` artifact (any frequency; docs/physics.md
+    section 8) for links tx/rx [L, 3] m at freqs [K] Hz, without the effects diagnose recorded. One call: a
+    caller that predicts more than once keeps the model of rfir_stages.model.radio_model.load_model."""
+    model = load_model(rf, quantity="rcs", occlusion=occlusion)
+    return model.predict(tx, rx, freqs, progress=progress, chunk_links=chunk_links)
 
 
 def _assert_not_input(out: Path, inputs: list[Path]) -> None:
@@ -81,11 +80,8 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         _assert_not_input(Path(results_path), [rf_path, measurements_path])
     check_output(out_path, "predictions", [p for p in (rf_path, measurements_path) if p is not None])
     rf = read_artifact(rf_path, "rf")
-    if str(rf.attrs.get("task", "")) == "rssi" or str(rf.free.get("model@attrs", {}).get("model_kind", "")) == ROOM_KIND:
-        raise SchemaError("holds an RSSI model (rf-fit on task 'rssi' measurements), not an RCS one: predict it with "
-                          "`rfir predict rssi`", path=rf_path)
-    require_physical(rf)
-    geom = geometry_from_artifact(rf)
+    model = load_model(rf, quantity="rcs", occlusion=str(config.get("occlusion", "auto")))
+    geom = model.geometry
     centre = scene_centre(geom).numpy()
     meas = None
     if measurements_path is not None:
@@ -98,14 +94,14 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         asp, rng = np.asarray(meas["aspect_rad"]), np.asarray(meas["range_m"])
         f_all = np.asarray(meas["freq_hz"], np.float64)
         # any measured frequency that is asked for (default: the fitted ones, or a band fit's band)
-        want = default_freqs(rf, f_all) if freqs_hz is None else np.asarray(freqs_hz, np.float64)
+        want = model.default_freqs(f_all) if freqs_hz is None else np.asarray(freqs_hz, np.float64)
         cols = np.flatnonzero([np.any(np.abs(want - f) <= 1e-6 * f) for f in f_all])
         if cols.size == 0:
             raise StageError("none of the measured frequencies was fitted "
                              f"(measured {', '.join(f'{x / 1e9:g}' for x in f_all[:8])} GHz)", path=measurements_path)
         freqs = f_all[cols]
         meas_rcs = np.asarray(meas["rcs_dbsm"], np.float64)[:, cols]
-        split = _protocol_split(rf, meas, str(measurements_path))
+        split = model.training_split(meas)   # 0 train, 1 test, -1 unused, as the fit split the rows
         rows = np.arange(len(tx))
         if aspects_deg is not None:  # a subset of the measured rows
             keep = np.any(np.abs(np.mod(asp[:, None] - np.radians(aspects_deg)[None] + math.pi, 2 * math.pi)
@@ -122,25 +118,19 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
     else:
         aspects = np.radians(np.arange(0.0, 360.0, 1.0) if aspects_deg is None else np.asarray(aspects_deg, float))
         ranges = np.asarray([3.0] if ranges_m is None else ranges_m, float)
-        freqs = default_freqs(rf) if freqs_hz is None else np.asarray(freqs_hz, np.float64)
+        freqs = model.default_freqs() if freqs_hz is None else np.asarray(freqs_hz, np.float64)
         tx, rx, asp, rng = radar_links(aspects, ranges, centre, float(config.get("separation_m", 0.002)))
         meas_rcs, split = None, None
     check_positions(geom, np.concatenate([tx, rx]), "links", float(config.get("min_clearance_m", 0.02)))
     ant = antenna_from_attrs(rf.free.get("model@attrs", {}))
 
     t0 = time.time()
-    physics_db = None
-    if has_residual(rf):   # a model with a residual: the physics alone is scored beside it
-        pg_db, physics_db = predict_physical_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
-                                                chunk_links=int(config.get("chunk_links", 64)), progress=progress,
-                                                with_physics_only=True)
-    else:
-        pg_db = predict_path_gain_db(rf, tx, rx, freqs, "rcs", occlusion=str(config.get("occlusion", "auto")),
-                                     chunk_links=int(config.get("chunk_links", 64)), progress=progress)
+    # a model with a residual: the physics alone is scored beside it
+    pg_db, physics_db = model.predict_with_physics_only(tx, rx, freqs, progress=progress,
+                                                        chunk_links=int(config.get("chunk_links", 64)),
+                                                        physics_only=has_residual(rf))
     render_s = time.time() - t0
-    from rfir_stages.diagnose.apply import apply_recorded_effects   # effects named by `rfir diagnose`
-
-    pg_db = apply_recorded_effects(rf, pg_db, tx, rx, freqs, aspect_rad=asp, range_m=rng)
+    pg_db = apply_recorded_effects(rf, pg_db, tx, rx, freqs, aspect_rad=asp, range_m=rng)   # named by `rfir diagnose`
     g0 = ant.boresight_gain
     rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg_db / 10), rng[:, None], freqs[None], g0, g0))
 
@@ -178,15 +168,6 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         result.results_json = _results(Path(results_path), name or out_path.stem, rf, rf_path, measurements_path,
                                        result, seed, split)
     return result
-
-
-def _protocol_split(rf, meas, where: str) -> np.ndarray:
-    """Per row: 0 train, 1 test, -1 unused, by the split protocol the rf artifact was fitted with."""
-    protocol = str(rf.free.get("training@attrs", {}).get("split", "data"))
-    if protocol == "data" and meas.get("split") is None:
-        return np.full(len(meas["tx_pos"]), -1)
-    train, test = protocol_masks(meas, protocol, where)
-    return np.where(test, 1, np.where(train, 0, -1))
 
 
 def _test_baselines(meas_rcs, split, asp, rng) -> dict:

@@ -30,16 +30,17 @@ from rfir_core.artifacts import check_output, read_artifact, write_artifact
 from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
+from rfir_stages.diagnose.apply import apply_recorded_effects
+from rfir_stages.model.radio_model import load_model
 
 from . import rssi_baselines as bl
 from . import rssi_maps
 from .baselines import baselines_beating_model
 from .heatmap import error_limits, fov_maps, radio_map
 from .rssi_checks import check_points, floor_grid, grid_shape
-from .rssi_model_io import load_predictor
 
 if TYPE_CHECKING:
-    from rfir_stages.model.room import RoomPredictor
+    from rfir_stages.model.radio_model import RadioModel
 
 
 
@@ -112,54 +113,36 @@ FIXED_BYTES = 640 * 2**20
 POINTS_PER_BLOCK = 8192
 
 
-def memory_estimate_bytes(pred: RoomPredictor, num_points: int, chunk_links: int) -> int:
+def memory_estimate_bytes(model: RadioModel, num_points: int, chunk_links: int) -> int:
     """Estimated peak memory [bytes] of predicting num_points links (see BYTES_PER_POINT)."""
-    block = pred.memory_estimate_bytes(min(num_points, POINTS_PER_BLOCK), chunk_links)
+    block = model.memory_estimate_bytes(min(num_points, POINTS_PER_BLOCK), chunk_links)
     return int(FIXED_BYTES + block + CROSSING_CACHE_BYTES + num_points * BYTES_PER_POINT)
 
 
-def _refuse_large(pred: RoomPredictor, num_points: int, cfg: dict) -> None:
+def _refuse_large(model: RadioModel, num_points: int, cfg: dict) -> None:
     """Refuse, with the estimate (memory_estimate_bytes), a request above predict.rssi.max_memory_gb."""
-    need = memory_estimate_bytes(pred, num_points, int(cfg["chunk_links"]))
+    need = memory_estimate_bytes(model, num_points, int(cfg["chunk_links"]))
     if need > float(cfg["max_memory_gb"]) * 2**30:
-        raise StageError(f"{num_points} points ({pred.geom.num} Gaussians) need about {need / 2**30:.1f} GiB, above "
-                         f"predict.rssi.max_memory_gb = {cfg['max_memory_gb']:g}; use a coarser --grid STEP or fewer --rx")
+        raise StageError(f"{num_points} points ({model.geometry.num} Gaussians) need about {need / 2**30:.1f} GiB, "
+                         f"above predict.rssi.max_memory_gb = {cfg['max_memory_gb']:g}; use a coarser --grid STEP or fewer --rx")
 
 
-def _path_gain_blocks(pred: RoomPredictor, rf, txs: np.ndarray, rx: np.ndarray, chunk_links: int, bar) -> np.ndarray:
-    """Predicted path gain [N] dB of links txs / rx [N, 3] m, POINTS_PER_BLOCK links at a time, with the
-    effects `rfir diagnose` recorded."""
-    from rfir_stages.diagnose.apply import apply_recorded_effects   # effects named by `rfir diagnose`
-
+def _path_gain_blocks(model: RadioModel, txs: np.ndarray, rx: np.ndarray, freq_hz: float, chunk_links: int,
+                      bar) -> np.ndarray:
+    """Predicted path gain [N] dB of links txs / rx [N, 3] m at freq_hz, POINTS_PER_BLOCK links at a time, with
+    the effects `rfir diagnose` recorded."""
     out = np.empty(len(rx))
-    freqs = np.asarray([pred.freq_hz])
+    freqs = np.asarray([freq_hz])
     for lo in range(0, len(rx), POINTS_PER_BLOCK):
         hi = min(len(rx), lo + POINTS_PER_BLOCK)
-        pg = pred.path_gain_db(txs[lo:hi], rx[lo:hi], chunk_links, bar)
-        out[lo:hi] = apply_recorded_effects(rf, pg[:, None], txs[lo:hi], rx[lo:hi], freqs)[:, 0]
+        pg = model.predict(txs[lo:hi], rx[lo:hi], freqs, chunk_links=chunk_links, advance=bar.advance)
+        out[lo:hi] = apply_recorded_effects(model.artifact, pg, txs[lo:hi], rx[lo:hi], freqs)[:, 0]
     return out
 
 
 def _near_tx(rx: np.ndarray, tx: np.ndarray, min_m: float) -> np.ndarray:
     """[N] bool: receivers rx [N, 3] m closer than min_m to the transmitter tx [3] m."""
     return np.linalg.norm(rx - tx, axis=1) < min_m
-
-
-def _test_train_rows(rf, meas) -> tuple[np.ndarray, np.ndarray, str]:
-    attrs = rf.free.get("training@attrs", {})
-    protocol = str(attrs.get("split", "file"))
-    if protocol == "holdout_tx":
-        held = np.asarray(rf.free.get("training", {}).get("holdout_tx_ids", []), np.int64)
-        tx_id = meas.get("tx_id")
-        if tx_id is None or held.size == 0:
-            raise StageError("the model held transmitters out, but the measurements have no tx_id", path=meas.path)
-        test = np.isin(np.asarray(tx_id), held)
-        return np.flatnonzero(test), np.flatnonzero(~test), f"transmitters {held.tolist()} held out"
-    split = meas.get("split")
-    if split is None:
-        raise StageError("the measurements have no 'split' to score against", path=meas.path)
-    split = np.asarray(split)
-    return np.flatnonzero(split == 1), np.flatnonzero(split == 0), "the file's split column (test rows: split == 1)"
 
 
 def _baselines(pred, rf, geom_labels, provider, tx, rx, y, train, test) -> dict:
@@ -250,11 +233,12 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
                           num_tx=0 if txs_map is None else len(txs_map)):
         check_output(f, None, inputs=inputs)
     rf = read_artifact(rf_path, "rf")
-    pred = load_predictor(rf, str(config.get("occlusion", "auto")))
+    model = load_model(rf, quantity="rssi", occlusion=str(config.get("occlusion", "auto")))
+    freq_hz = float(model.default_freqs()[0])
     meas = read_artifact(measurements_path, "measurements") if measurements_path is not None else None
     if meas is not None and str(meas.attrs.get("task", "")) != "rssi":
         raise StageError("`predict rssi` needs task 'rssi' measurements", path=measurements_path)
-    bounds = pred.geom.means.min(0).values.numpy(), pred.geom.means.max(0).values.numpy()
+    bounds = model.geometry.means.min(0).values.numpy(), model.geometry.means.max(0).values.numpy()
 
     measured = split = grid_info = None
     warnings: list[str] = []
@@ -264,7 +248,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         elif grid is not None or meas is None or several:
             height, step = grid if grid is not None else cfg["grid"]
             nx, ny = grid_shape(bounds, step)
-            _refuse_large(pred, nx * ny * len(txs_map), cfg)
+            _refuse_large(model, nx * ny * len(txs_map), cfg)
             rx = floor_grid(bounds, height, step)
             grid_info = rssi_maps.GridInfo(nx, ny, (float(rx[0, 0]), float(rx[0, 1])), float(step), float(height))
         else:
@@ -274,7 +258,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
                                  path=measurements_path)
             rx = np.asarray(meas["rx_pos"])[rows]
             measured = np.asarray(meas["path_gain_db"], np.float64)[rows, 0]
-        _refuse_large(pred, len(rx) * len(txs_map), cfg)
+        _refuse_large(model, len(rx) * len(txs_map), cfg)
         # receivers at (or next to) a transmitter: no far-field path gain there; left out of that map
         min_m = float(cfg["min_tx_distance_m"])
         near = np.stack([_near_tx(rx, t, min_m) for t in txs_map])            # [T, N]
@@ -288,31 +272,31 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         keep = ~near
         t_idx, r_idx = np.nonzero(keep)                                       # links: transmitter-major
         txs, rx_links = txs_map[t_idx], rx[r_idx]
-        warnings += check_points(pred.geom, txs_map, "transmitter", bounds, provider=pred.provider)
+        warnings += check_points(model.geometry, txs_map, "transmitter", bounds, provider=model.provider)
     else:
         txs, rx_links = np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)
         measured = np.asarray(meas["path_gain_db"], np.float64)[:, 0]
         rx = rx_links
-        _refuse_large(pred, len(rx), cfg)
-        warnings += check_points(pred.geom, np.unique(txs, axis=0), "transmitter", bounds, provider=pred.provider)
-    warnings += check_points(pred.geom, rx, "receiver", bounds, provider=pred.provider)   # the CLI prints them
+        _refuse_large(model, len(rx), cfg)
+        warnings += check_points(model.geometry, np.unique(txs, axis=0), "transmitter", bounds, provider=model.provider)
+    warnings += check_points(model.geometry, rx, "receiver", bounds, provider=model.provider)   # the CLI prints them
 
     t0 = time.time()
     with progress.task("predict rssi", total=len(rx_links)) as bar:
-        pg = _path_gain_blocks(pred, rf, txs, rx_links, int(cfg["chunk_links"]), bar)
+        pg = _path_gain_blocks(model, txs, rx_links, freq_hz, int(cfg["chunk_links"]), bar)
     predict_s = time.time() - t0
 
     metrics, test = {}, None
     maps = None
     if txs_map is None:
-        test, train, protocol = _test_train_rows(rf, meas)
+        test, train, protocol = model.held_out_rows(meas)
         split = np.zeros(len(rx), np.int64)
         split[test] = 1
         metrics = {"split": protocol, "num_test": int(test.size), "num_train": int(train.size),
                    "mae_db": float(np.mean(np.abs(pg[test] - measured[test]))),
                    "mae_train_db": float(np.mean(np.abs(pg[train] - measured[train])))}
         labels = rf.get("gaussians/labels")
-        metrics.update(_baselines(pg, rf, labels, pred.provider, txs, rx, measured, train, test))
+        metrics.update(_baselines(pg, rf, labels, model.provider, txs, rx, measured, train, test))
         warnings += baselines_beating_model(metrics)   # printed and in the results JSON
         warnings += baselines_beating_model({"mae_db": metrics["mae_train_db"], **{
             k.replace("_mae_train_db", "_mae_db"): v for k, v in metrics.items() if k.endswith("_mae_train_db")}},
@@ -335,7 +319,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         if tx_power_dbm is not None:
             metrics["tx_power_dbm"] = float(tx_power_dbm)
 
-    data = {"tx_pos": txs, "rx_pos": rx_links, "freq_hz": np.asarray([pred.freq_hz]), "path_gain_db": pg[:, None]}
+    data = {"tx_pos": txs, "rx_pos": rx_links, "freq_hz": np.asarray([freq_hz]), "path_gain_db": pg[:, None]}
     if measured is not None:
         data["measured_db"] = measured[:, None]
     if split is not None:
@@ -354,7 +338,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         attrs["tx_power_dbm"] = float(tx_power_dbm)   # the map files and plots are in dBm; path_gain_db stays dB
     write_artifact(out_path, "predictions", data, attrs=attrs, provenance=prov,
                    free={"metrics": {"@attrs": flat}} if flat else None)
-    result = RssiPredictResult(out_path, len(rx_links), pred.freq_hz, time.time() - t_start, predict_s, metrics,
+    result = RssiPredictResult(out_path, len(rx_links), freq_hz, time.time() - t_start, predict_s, metrics,
                                warnings)
     if maps is not None:
         result.num_tx, result.unit = len(txs_map), "dBm" if tx_power_dbm is not None else "dB"
@@ -365,10 +349,10 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
                                                 txs_map, result.unit, quantity, grid_info)
     if plots_dir is not None:
         if maps is not None:
-            result.plots = _map_plots(Path(plots_dir), pred, rf, txs_map, rx, maps, measured, keep[0], tx_power_dbm,
+            result.plots = _map_plots(Path(plots_dir), model, rf, txs_map, rx, maps, measured, keep[0], tx_power_dbm,
                                       threshold_dbm)
         else:
-            result.plots = _plots(Path(plots_dir), pred, rf, meas, txs, rx, pg, measured, test)
+            result.plots = _plots(Path(plots_dir), model, rf, meas, txs, rx, pg, measured, test)
     if results_path is not None and metrics:
         result.results_json = _results(Path(results_path), name or out_path.stem, rf, rf_path, measurements_path,
                                        result, seed)
@@ -385,23 +369,23 @@ def _stats(values: np.ndarray) -> dict:
             "left_out": int(v.size - have.size)}
 
 
-def _floor_xy(pred: RoomPredictor) -> np.ndarray:
-    means = pred.geom.means.numpy()
+def _floor_xy(model: RadioModel) -> np.ndarray:
+    means = model.geometry.means.numpy()
     z_lo, z_hi = means[:, 2].min(), means[:, 2].max()
     return means[(means[:, 2] > z_lo + 0.05) & (means[:, 2] < z_hi - 0.05), :2]   # walls and objects
 
 
-def _map_plots(folder: Path, pred: RoomPredictor, rf, txs_map, rx, maps, measured, kept, tx_power_dbm,
+def _map_plots(folder: Path, model: RadioModel, rf, txs_map, rx, maps, measured, kept, tx_power_dbm,
                threshold_dbm) -> list:
     """Heatmaps of a map request (points left out of a map blank): each transmitter's map (rssi_predicted.png
     for one, rssi_predicted_txI.png for several), measured and error for one measured transmitter, the best
     server (several), the coverage (with a threshold) and the FoV attribute renders from the first transmitter.
     Colour bars say the unit: received power [dBm] with tx_power_dbm, else path gain [dB]."""
-    floor = _floor_xy(pred)
+    floor = _floor_xy(model)
     dbm = tx_power_dbm is not None
     label = "received power [dBm]" if dbm else "path gain [dB]"
     what = f"predicted received power (P_T = {tx_power_dbm:g} dBm)" if dbm else "predicted path gain"
-    ghz = f"{pred.freq_hz / 1e9:g} GHz"
+    ghz = f"{model.default_freqs()[0] / 1e9:g} GHz"
     at = lambda t: f"({', '.join(f'{x:.2f}' for x in t)}) m"   # noqa: E731
     import matplotlib
 
@@ -437,12 +421,12 @@ def _map_plots(folder: Path, pred: RoomPredictor, rf, txs_map, rx, maps, measure
                                txs_map[0], floor, f"coverage: {100 * share:.1f} % of the points at or above "
                                f"{threshold_dbm:g} dBm, {ghz}", "covered (1) or not (0)", cmap="RdYlGn",
                                vmin=0.0, vmax=1.0))
-    paths.append(fov_maps(folder / "fov_attributes.png", pred.geom, rf, txs_map[0]))
+    paths.append(fov_maps(folder / "fov_attributes.png", model.geometry, rf, txs_map[0]))
     return paths
 
 
-def _plots(folder: Path, pred: RoomPredictor, rf, meas, txs, rx, pg, measured, test) -> list:
-    means = pred.geom.means.numpy()
+def _plots(folder: Path, model: RadioModel, rf, meas, txs, rx, pg, measured, test) -> list:
+    means = model.geometry.means.numpy()
     z_lo, z_hi = means[:, 2].min(), means[:, 2].max()
     floor = means[(means[:, 2] > z_lo + 0.05) & (means[:, 2] < z_hi - 0.05), :2]   # walls and objects
     if test is not None:  # evaluation: the maps of the transmitter with the most test links
@@ -454,7 +438,7 @@ def _plots(folder: Path, pred: RoomPredictor, rf, meas, txs, rx, pg, measured, t
     else:
         sel = np.arange(len(rx))
     tx = txs[sel[0]]
-    where = f"Tx ({', '.join(f'{x:.2f}' for x in tx)}) m, {pred.freq_hz / 1e9:g} GHz"
+    where = f"Tx ({', '.join(f'{x:.2f}' for x in tx)}) m, {model.default_freqs()[0] / 1e9:g} GHz"
     lo = float(np.nanmin(pg[sel] if measured is None else np.concatenate([pg[sel], measured[sel]])))
     hi = float(np.nanmax(pg[sel] if measured is None else np.concatenate([pg[sel], measured[sel]])))
     paths = [radio_map(folder / "rssi_predicted.png", rx[sel], pg[sel], tx, floor, f"predicted path gain, {where}",
@@ -467,7 +451,7 @@ def _plots(folder: Path, pred: RoomPredictor, rf, meas, txs, rx, pg, measured, t
         paths.append(radio_map(folder / "rssi_error.png", rx[sel], err, tx, floor,
                                f"error (predicted - measured), {where}; MAE {np.mean(np.abs(err)):.2f} dB",
                                "error [dB]", cmap="RdBu_r", vmin=e_lo, vmax=e_hi))
-    paths.append(fov_maps(folder / "fov_attributes.png", pred.geom, rf, tx))
+    paths.append(fov_maps(folder / "fov_attributes.png", model.geometry, rf, tx))
     return paths
 
 

@@ -1,7 +1,7 @@
-"""Default frequencies and spectrum plots of a physical model fitted on a band (docs/wideband.md).
+"""Spectrum plots of a physical model fitted on a band (docs/guide/rcs-sweep.md).
 
-A band fit is predicted by rfir_stages.model.predict like any physical model; `default_freqs` gives
-its band when no frequency is asked for.
+A band fit is predicted by rfir_stages.model.predict like any physical model, which predicts its band when
+no frequency is asked for (`band_default_freqs`).
 """
 from __future__ import annotations
 
@@ -9,25 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-BAND_TOL = 1e-9  # relative tolerance on the band edges
-
 
 def is_band_fit(rf) -> bool:
-    """True for a physical model fitted on a band (rf-fit on wideband measurements, docs/wideband.md)."""
+    """True for a physical model fitted on a band (rf-fit on wideband measurements)."""
     return "band.num_freqs" in rf.free.get("model@attrs", {})
-
-
-def default_freqs(rf, measured_hz=None) -> np.ndarray:
-    """Frequencies [K] Hz predicted when none are asked for: a band fit's whole band (the measured
-    frequencies inside it, or its num_freqs evenly spaced without measurements); otherwise the fitted ones."""
-    if not is_band_fit(rf):
-        return np.asarray(rf["rf/freq_hz"], np.float64)
-    attrs = rf.free["model@attrs"]
-    lo, hi = float(attrs["band.f_min_hz"]), float(attrs["band.f_max_hz"])
-    if measured_hz is None:
-        return np.linspace(lo, hi, int(attrs["band.num_freqs"]))
-    f = np.asarray(measured_hz, np.float64)
-    return f[(f >= lo * (1 - BAND_TOL)) & (f <= hi * (1 + BAND_TOL))]
 
 
 def spectrum_plots(folder: Path, aspect_rad, range_m, freqs_hz, pred_dbsm, meas_dbsm=None, split=None,
