@@ -30,6 +30,9 @@ from rfir_core.physics.closed_forms import C0  # noqa: F401 - the speed of light
 
 
 EPS0 = 8.8541878128e-12
+# The one conductivity of a metal in rfir [S/m]: ITU-R P.2040-3 Table 3's "metal" row (c = 1e7, d = 0), the value
+# Sionna RT's itu_metal gives the simulated data sets, so the fitter's metal is the simulator's.
+METAL_SIGMA_S_PER_M = 1e7
 
 # ITU-R P.2040-3, Table 3 (the 1-100 GHz rows; validity range in GHz): eps_r = a f^b, sigma = c f^d
 # [S/m], f in GHz. "plastic" is NOT an ITU material: rfir's stand-in for ABS (eps_r ~ 2.7,
@@ -47,7 +50,7 @@ ITU_MATERIALS: dict[str, tuple[float, float, float, float, float, float]] = {
     "plywood": (2.71, 0.0, 0.33, 0.0, 1.0, 40.0),
     "marble": (7.074, 0.0, 0.0055, 0.9262, 1.0, 60.0),
     "floorboard": (3.66, 0.0, 0.0044, 1.3515, 50.0, 100.0),
-    "metal": (1.0, 0.0, 1e7, 0.0, 1.0, 100.0),
+    "metal": (1.0, 0.0, METAL_SIGMA_S_PER_M, 0.0, 1.0, 100.0),
     "very_dry_ground": (3.0, 0.0, 0.00015, 2.52, 1.0, 10.0),
     "medium_dry_ground": (15.0, -0.1, 0.035, 1.63, 1.0, 10.0),
     "wet_ground": (30.0, -0.4, 0.15, 1.30, 1.0, 10.0),
@@ -88,11 +91,27 @@ def permittivity(eps_r, sigma_s_per_m, freq_hz) -> torch.Tensor:
     return _c128(eps_r) - 1j * _c128(_f64(sigma_s_per_m) / (EPS0 * omega))
 
 
+def power_law(value_1ghz, exponent, freq_hz):
+    """The ITU-R P.2040 frequency law of a material parameter: value_1ghz (f / 1 GHz)^exponent.
+
+    eps_r = a f^b and sigma = c f^d [S/m] (f in GHz) are this law with (a, b) and (c, d). Broadcasts numpy
+    arrays, floats and torch tensors alike (the result has the arguments' type)."""
+    return value_1ghz * (freq_hz / 1e9) ** exponent
+
+
+def law_permittivity(eps_r_1ghz, eps_r_exponent, sigma_1ghz, sigma_exponent, freq_hz) -> torch.Tensor:
+    """Complex relative permittivity at freq_hz of a material following the ITU-R P.2040 law: eps_r =
+    eps_r_1ghz (f / 1 GHz)^eps_r_exponent, sigma = sigma_1ghz (f / 1 GHz)^sigma_exponent [S/m]; broadcast,
+    complex128 (differentiable in every torch argument)."""
+    f = _f64(freq_hz)
+    return permittivity(power_law(eps_r_1ghz, eps_r_exponent, f), power_law(sigma_1ghz, sigma_exponent, f), f)
+
+
 def itu_law(name: str, freq_hz) -> tuple[np.ndarray, np.ndarray]:
     """(eps_r, sigma [S/m]) of a table material at freq_hz (the power law, extrapolated outside its range)."""
     a, b, c, d, _, _ = ITU_MATERIALS[material_key(name)]
-    fg = np.asarray(freq_hz, dtype=float) / 1e9
-    return a * fg**b, c * fg**d
+    f = np.asarray(freq_hz, dtype=float)
+    return power_law(a, b, f), power_law(c, d, f)
 
 
 def itu_range_ghz(name: str) -> tuple[float, float]:
@@ -167,6 +186,13 @@ def co_polar_reflection(r_te: torch.Tensor, r_tm: torch.Tensor, te_share) -> tor
     at normal incidence the result is R_TE whatever te_share is."""
     te = _f64(te_share)
     return te * r_te - (1.0 - te) * r_tm
+
+
+def specular_share(scattering):
+    """sqrt(1 - S^2): the share of a surface's reflected field amplitude that stays specular for scattering
+    coefficient S in [0, 1] (ITU-R P.2040's effective roughness: the power S^2 goes diffuse). S a torch tensor;
+    values past 1 give 0, not NaN."""
+    return torch.sqrt((1.0 - scattering ** 2).clamp(min=0.0))
 
 
 def normal_incidence_reflection(eta, k0=None, thickness_m=None) -> torch.Tensor:
