@@ -2,7 +2,7 @@
 
 `true_materials(scene, names, freq_hz, scene_edits)` gives each object class's ITU-R P.2040 material, slab
 thickness, eps_r and sigma at the frequency, and |Gamma(0)|: the normal-incidence reflection of
-that slab (materials.normal_incidence_reflection, docs/physics.md section 8.2), which is what
+that slab (materials.normal_incidence_reflection, docs/physics.md sections 8.3-8.4), which is what
 rf-fit reports for a fitted material. An object class is the object name without a trailing
 "_<number>" (desk_03 and desk_07 are "desk"). `scene_edits` are the simulator's edits of the scene
 (`simulate.scene_edits`, read back from a measurements file by

@@ -1,4 +1,4 @@
-"""A Gaussian's covariance and projected cross-section against closed forms (docs/physics.md section 8.6)."""
+"""A Gaussian's covariance and projected cross-section against closed forms (docs/physics.md sections 2 and 8.6)."""
 import math
 
 import numpy as np
