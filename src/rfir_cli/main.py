@@ -11,7 +11,7 @@ from .context import GlobalOptions, run_guarded
 from .help_format import RfirGroup
 
 # A command is listed here only once it works end to end.
-COMMANDS = ("info", "check", "import_", "import_floorplan", "simulate", "calibrate", "geom", "mesh_gaussians", "rf_fit", "predict", "predict_rssi",
+COMMANDS = ("info", "check", "import_", "import_floorplan", "simulate", "calibrate", "geom", "structure", "mesh_gaussians", "rf_fit", "predict", "predict_rssi",
             "edit", "diagnose")
 
 app = typer.Typer(
