@@ -1,4 +1,4 @@
-"""Benchmark of `rfir rf-fit` on RSSI links (the room model, docs/rssi.md): how its cost grows with the
+"""Benchmark of `rfir rf-fit` on RSSI links (the room model, docs/physics.md section 8.10): how its cost grows with the
 number of Gaussians and with the number of links it fits (issue 23's speed target: the classroom within
 5 minutes on the 2-core CPU, model selection included).
 
@@ -47,7 +47,7 @@ TARGET_S = 300.0                      # issue 23: rf-fit of the classroom within
 # furniture patches as well.
 TILINGS = {"full": [(0.8, 0), (0.25, 0), (0.15, 0), (0.8, 12), (0.4, 24)], "quick": [(0.8, 0), (0.8, 12)]}
 LINKS = {"full": [500, 1500, 4000], "quick": [500, 1500]}
-LINKS_TILING = (0.8, 12)              # the link counts are run on this tiling (the default of docs/rssi.md)
+LINKS_TILING = (0.8, 12)              # the link counts are run on this tiling (the default of mesh-gaussians --preset room)
 
 
 def classroom_links(seed: int = 0) -> dict:

@@ -46,7 +46,7 @@ NEW_TX = np.array([[4.1, 3.3, 1.7], [6.0, 2.0, 2.2], [2.5, 5.1, 2.0], [7.2, 4.4,
 
 def classroom_fields(spacing_m: float, object_cells: int):
     """Surfels of the code-built classroom as `mesh-gaussians --spacing --object-cells` tiles its mesh, with
-    `--rectangles --drop-contact-faces` where object_cells > 0 (the room recipe of docs/rssi.md)."""
+    `--rectangles --drop-contact-faces` where object_cells > 0 (mesh-gaussians --preset room)."""
     from rfir_stages.geom.from_mesh import scene_triangles
     from rfir_stages.geom.mesh_io import Mesh, object_spacings, surfels_per_object, without_contact_faces
 

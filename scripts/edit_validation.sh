@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Edits checked against the independent simulator (docs/edit.md): simulate the edited scenes, apply the
+# Edits checked against the independent simulator (docs/guide/edit.md): simulate the edited scenes, apply the
 # same edit with `rfir edit` to a fit of the unedited scene, compare (stages/edit/validate.py).
 # usage: scripts/edit_validation.sh DATA_DIR
 #   needs DATA_DIR/classroom/measurements.h5 (rfir simulate classroom DATA_DIR/classroom --no-photos)
@@ -21,10 +21,10 @@ val() {  # name rf before after [--select S --op O]...
     --results "results/edit_$name.json" --plots docs/images/edit_validation --work "$E/work"
 }
 
-# The classroom: the room model (docs/rssi.md) fitted on the unedited scene.
+# The classroom: the room model (docs/physics.md) fitted on the unedited scene.
 C=$D/classroom/measurements.h5
 [ -f "$E/classroom/scene.h5" ] || $R mesh-gaussians "$D/classroom/meshes/classroom_gt.ply" \
-  -o "$E/classroom/scene.h5" --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces      # the room recipe (docs/rssi.md)
+  -o "$E/classroom/scene.h5" --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces      # the room recipe (docs/guide/photos-to-scene.md)
 [ -f "$E/classroom/rf.h5" ] || $R --seed 0 rf-fit "$E/classroom/scene.h5" "$C" -o "$E/classroom/rf.h5"
 sim whiteboard_removed classroom 'whiteboard:delete'
 sim desk_row_moved classroom 'desk_0[0369]|chair_0[0369]:translate:0,1,0'

@@ -190,7 +190,7 @@ _register(KindSpec(
 
 _register(KindSpec(
     "rf",
-    "A scene with the physical radio model's materials fitted to measurements (docs/rf-model.md).",
+    "A scene with the physical radio model's materials fitted to measurements (docs/physics.md).",
     _GAUSSIANS + (
         F("rf/opacity", "float", ("G",), "1", "RF opacity a in [0, 1] of the traced visibility"),
         F("rf/roughness", "float", ("G",), "1", "lobe exponent (1: the physical model has none)"),

@@ -1,6 +1,6 @@
 """Stage `diagnose`: where a model and measurements disagree, which missing effect explains it, add it.
 
-See docs/diagnose.md. `run` is the entry point; rows, breakdown, effects and select hold the parts.
+See docs/guide/diagnose.md. `run` is the entry point; rows, breakdown, effects and select hold the parts.
 """
 from __future__ import annotations
 

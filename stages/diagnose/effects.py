@@ -2,7 +2,7 @@
 
 Each effect turns the model's prediction P (path gain, dB in `base_db`) into P' = P + correction, with
 a few parameters fitted on the training rows. Its signature (what it leaves in the residual
-measured - predicted) is in its docstring and in docs/diagnose.md. Power-adding effects work in
+measured - predicted) is in its docstring and in docs/guide/diagnose.md. Power-adding effects work in
 linear power: P' = P + A * reference, the reference being free space (links) or the radar equation
 for 1 m^2 (monostatic rows), see Rows.reference_power.
 """

@@ -1,5 +1,5 @@
 """`rfir diagnose MODEL measurements.h5 -o report/`: where the model and the data disagree, which
-missing effect explains it, the effect added and refitted, the gap before and after (docs/diagnose.md).
+missing effect explains it, the effect added and refitted, the gap before and after (docs/guide/diagnose.md).
 
 Steps: (1) where: breakdowns of the residual with held-out structure tests (breakdown.py);
 (2)-(3) what and which: every candidate of the catalogue (effects.py) fitted on the training rows

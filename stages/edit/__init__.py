@@ -1,6 +1,6 @@
 """Stage `edit`: select Gaussians of an `rf` artifact and move, rotate, delete, duplicate or re-material them.
 
-See docs/edit.md. `run` is the stage entry point; selection.py and operations.py hold the pure parts.
+See docs/guide/edit.md. `run` is the stage entry point; selection.py and operations.py hold the pure parts.
 """
 from __future__ import annotations
 

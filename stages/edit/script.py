@@ -1,6 +1,6 @@
 """Edit lists: from `--select`/`--op` pairs or a TOML edit script.
 
-Script format (docs/edit.md):
+Script format (docs/guide/edit.md):
     [[edit]]
     select = "sphere:0,0,0,0.2"
     op = "translate:1,0,0"

@@ -131,7 +131,7 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
             records.append(rec)
             bar.advance(1)
     drop_residual = "residual/tx_pos" in art.data and any(r["op"] is not None for r in records)
-    if drop_residual:   # its corrections describe the unedited scene's links (docs/edit.md, the lego rotation)
+    if drop_residual:   # its corrections describe the unedited scene's links (docs/guide/edit.md)
         warnings.append("the model's residual (a correction of the unedited scene's training links in link "
                         "geometry) is dropped: the edited scene is predicted by the physics alone")
     result = EditResult(None, len(before), scene.count, records, warnings)

@@ -2,7 +2,7 @@
 
 - `stage.run` (`rfir geom`): Gaussians with learnable normals trained on calibrated photos through
   the ext/ tracer (modules data, init, model, render, losses, densify, train, evaluate, tsdf,
-  export_ply; docs/geom.md).
+  export_ply; docs/guide/photos-to-scene.md).
 - `from_mesh` (`rfir mesh-gaussians`): a triangle mesh tiled with flat Gaussians (surfels), a
   geometry oracle for rf-fit and tests.
 """

@@ -5,7 +5,7 @@ back face in the wall's plane. Both surfaces are there in the mesh, but nothing 
 them: a ray tracer that meets the two coincident faces takes one of them for the other at random (Sionna RT
 on `rfir simulate`'s classroom), and a surfel model that keeps both reflects twice off the same spot (the
 floor under the teacher's desk, and again off the desk's bottom as a slab of wood), which the fit
-then pays for with the wrong material on the desk (docs/rssi.md, "Materials recovered").
+then pays for with the wrong material on the desk.
 
 A face is a contact face when its three vertices and its centroid lie within `tol_m` of faces of another
 label whose normal is opposite to its own (cos below -1 + 1e-6) and whose planes are its own: the face

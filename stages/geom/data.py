@@ -1,6 +1,6 @@
 """Training views for stage `geom`: calibrated photos, resized, with their rays.
 
-Conventions (docs/calibrate.md): pinhole K in pixels with OpenCV's pixel centres (top-left pixel
+Conventions (docs/guide/photos-to-scene.md): pinhole K in pixels with OpenCV's pixel centres (top-left pixel
 centre at (0, 0)); `world_from_camera` [4, 4] maps OpenCV camera axes (x right, y down, z
 forward) to the world frame (z up, metres).
 """

@@ -74,7 +74,7 @@ def object_spacings(mesh: Mesh, spacing_m: float, object_cells: int) -> dict[int
     size is the largest side of the object's axis-aligned bounding box [m]. A room's walls are tiled
     at spacing_m, while a desk or a chair gets about object_cells surfels across: its outline, the
     extent of its reflections and the rays it blocks are then resolved to a fraction 1/object_cells
-    of its size rather than to the room's spacing (docs/rssi.md, "Surfels for rooms").
+    of its size rather than to the room's spacing (docs/guide/photos-to-scene.md).
     object_cells <= 0 or an unlabelled mesh: every face at spacing_m (key -1 for the unlabelled)."""
     if object_cells <= 0 or mesh.labels is None:
         return {-1: spacing_m} if mesh.labels is None else {int(v): spacing_m for v in np.unique(mesh.labels)}

@@ -1,4 +1,4 @@
-"""The physical model on a band of frequencies (docs/wideband.md).
+"""The physical model on a band of frequencies (docs/physics.md; use: docs/guide/rcs-sweep.md).
 
 Frequency is an input of the physical model (physical.py): the material laws give each frequency
 its Fresnel coefficients, the geometry its phases and footprints. A band (e.g. 2000 frequencies

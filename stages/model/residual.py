@@ -1,4 +1,4 @@
-"""A regularised residual on top of the fitted physical model (docs/rf-model.md "Residual").
+"""A regularised residual on top of the fitted physical model (docs/physics.md).
 
 The materials are fitted first and then held fixed; the residual adds freedom the physics lacks
 (facets the surfels miss, edge waves, small errors of level), with a weight chosen by validation on
@@ -216,7 +216,7 @@ def sector_blocks(aspect_deg: np.ndarray, a_deg: float, b_deg: float) -> tuple[l
     wide as the sector (at least 2), going round from its end, each held out in turn. A block is predicted
     across a gap like the sector's, so the validation sees how far a residual carries into unmeasured
     aspects; chosen on the rows next to the sector alone (rf_fit.validation.validation_folds), residuals lost to
-    the physics alone inside the sector on 8 of 14 measured rows (docs/rf-model.md "Residual")."""
+    the physics alone inside the sector on 8 of 14 measured rows."""
     width = (b_deg - a_deg) % 360.0 or 360.0
     off = np.mod(np.asarray(aspect_deg, float) - b_deg, 360.0)          # from the sector's end, 0 .. 360 - width
     span = max(360.0 - width, 1e-9)
@@ -248,7 +248,7 @@ def choose(errors: dict) -> tuple[str, dict]:
     Why one and not two: the validation folds hold out whole training aspects, so a held-out aspect
     lies twice as far from the remaining ones as a test aspect of the even/odd protocol lies from the
     training ones; validation understates what an interpolating residual gains on dense rows, and a
-    stricter margin rejected residuals that halved the test error (docs/rf-model.md "Residual")."""
+    stricter margin rejected residuals that halved the test error."""
     scores = {k: float(np.mean(v)) for k, v in errors.items()}
     best = min(scores, key=scores.get)
     keep = best == "physics only" or beats(errors[best], errors["physics only"])

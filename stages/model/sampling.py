@@ -48,4 +48,4 @@ def coarse_surfels_warning(cell_m: float, freqs_hz) -> str | None:
     return (f"the surfels' cells ({cell_m * 100:.1f} cm long) exceed {MAX_CELL_WAVELENGTHS:g} wavelengths at "
             f"{f_max / 1e9:g} GHz ({wavelength * 100:.1f} cm): the physical optics of the surface is sampled too "
             f"coarsely there (expect dB-level errors); tile the mesh finer, `rfir mesh-gaussians --spacing "
-            f"{spacing:.3f}` or less (docs/rf-model.md, fidelity)")
+            f"{spacing:.3f}` or less (docs/guide/rcs-sweep.md)")

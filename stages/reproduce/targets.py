@@ -3,7 +3,7 @@
 Sizes (full / quick; fit steps, surfel spacing and baseline budgets in configs/reproduce.toml):
 - data: Sionna RT as `rfir simulate` makes it / physical optics (lego, h-target) or a small
   Sionna classroom; geometry for rfir and the WRF-GS-style field: surfels on the true mesh
-  (`rfir mesh-gaussians`; docs/geom.md shows photo geometry scores the same on the lego).
+  (`rfir mesh-gaussians`).
 - rfir: the physical model (RCS, wideband) and the room model (RSSI) with their configured step counts /
   30 steps (quick).
 - NeRF2- and WRF-GS-style fields: a wall-clock budget of a few minutes each / one epoch.
@@ -207,7 +207,7 @@ def target_rcs_po(r: Plan) -> Table:
         "trio: a metal dihedral (3 mm sheets), a wooden block and a 6 mm glass pane; lego: plasterboard bricks"
         + ("" if r.quick else "; car: a metal body"),
         "rfir: the physical model (per-object materials with eps_r, sigma, "
-        "thickness and S on surfel physical optics, the residual chosen by validation; docs/rf-model.md) on "
+        "thickness and S on surfel physical optics, the residual chosen by validation; docs/physics.md) on "
         f"surfels of the true mesh ({s['spacing'] * 100:g} cm), fitted at 2.4 GHz on the protocol's training rows"
         + (f" ({physical['rf_fit.physical.iterations']} steps, quick)" if r.quick else ""),
         "protocols: even/odd: odd aspects test (each 1 degree from a training one); every Nth: aspects with index "
@@ -259,7 +259,7 @@ def _wideband_freqs(meas: Path, every: int) -> str:
 
 def target_wideband(r: Plan) -> Table:
     """h-target, 160 MHz around 5.8 GHz (physical optics): rfir's physical model on the band
-    (docs/wideband.md) beside the simple baselines."""
+    (docs/guide/rcs-sweep.md) beside the simple baselines."""
     t = Table("Wideband: h-target 5.72-5.88 GHz, even/odd aspects", ["rfir", "NeRF2-style", "WRF-GS-style",
               "nearest aspect", "linear interpolation"])
     sets = {"simulate.rcs_backend": "po"}
@@ -286,7 +286,7 @@ def target_wideband(r: Plan) -> Table:
           {"rfir": res.cell(), "NeRF2-style": Cell(note=SINGLE_FREQ), "WRF-GS-style": Cell(note=SINGLE_FREQ),
            "nearest aspect": res.metric("baseline_nearest_mae_db"),
            "linear interpolation": res.metric("baseline_linear_mae_db")})
-    t.notes.append("rfir: the physical model on the band (materials, frequency an input; docs/wideband.md)")
+    t.notes.append("rfir: the physical model on the band (materials, frequency an input; docs/physics.md)")
     return t
 
 
@@ -295,7 +295,7 @@ def _classroom(r: Plan) -> tuple[Path, Path]:
     sets = {} if not r.quick else {"simulate.rssi.tx_grid": "[2,2]", "simulate.rssi.rx_grid": "[6,5]"}
     meas = _simulate(r, "classroom", "classroom", sets, ["--no-photos"] if r.quick else [])
     # the walls at 0.8 m, each piece of furniture about 12 surfels across: reflections off desks and chairs
-    # near the receivers need their extent (docs/rssi.md)
+    # near the receivers need their extent (docs/physics.md)
     return meas, _surfels(r, "classroom", "classroom", 1.2 if r.quick else 0.8, 6 if r.quick else 12)
 
 
@@ -353,7 +353,7 @@ def target_rssi(r: Plan) -> Table:
             row["ray tracing (geom mesh, calibrated)"] = Cell(note="random split only")
         t.add(f"classroom, {'random 80/20' if split == 'random' else '4 unseen Tx'}", row)
     t.notes += ["rfir: the physical room model (paths through and off the surfaces, fitted physical materials per "
-                "object class; docs/rssi.md)",
+                "object class; docs/physics.md)",
                 "log-distance, multi-wall, nearest links: fitted on the same training rows (rfir's predict JSON)",
                 "ray tracing: Sionna RT, every face concrete (a user's guess; the true materials are mixed); calibrated: "
                 "eps_r and sigma per object class fitted by gradient descent through Sionna's differentiable solver on "
@@ -474,7 +474,7 @@ def target_measured(r: Plan) -> Table:
                 "their links); held-out area: `--split block-tx:6` (the beacon positions binned in 6 m squares, "
                 "whole squares test until 20 % of the links); unseen anchors: `--split holdout-rx:2` (every link of "
                 "2 of the 12 receivers test)",
-                "rfir: the physical room model (docs/rssi.md), rf-fit's defaults (device gains chosen by validation, "
+                "rfir: the physical room model (docs/physics.md), rf-fit's defaults (device gains chosen by validation, "
                 "links weighted by their packet count and spread; no radio-map cache: rf_fit.room.map_visibility = "
                 "false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else ""),
                 "log-distance, multi-wall, nearest links: fitted on the same training links (rfir's predict JSON)",
@@ -517,7 +517,7 @@ def target_ablation(r: Plan) -> Table:
                                            "_one_material").cell(),
             "without diffuse": _rssi_physical(r, label, cscene, cmeas, "random", {"rf_fit.room.diffuse": "false"},
                                               "_no_diffuse").cell()})
-    t.notes += ["rfir: the physical model with every term (docs/rf-model.md, docs/rssi.md); each other column "
+    t.notes += ["rfir: the physical model with every term (docs/physics.md); each other column "
                 "turns one term off and refits on the same rows",
                 "RCS data: physical optics (rcs-po target; quick: the rcs target's lego, 3 m, 6-degree aspects); "
                 "every-10: aspects with index divisible by 10 train; sector: aspects in [45, 135) degrees test",
@@ -576,7 +576,7 @@ def target_edit(r: Plan) -> Table:
     t.notes += ["rfir: the fit of the unedited scene plus `rfir edit`, scored against the simulator on the "
                 "edited scene (target: within 1.5x of the unedited MAE)",
                 "lego: physical-optics data, one material for the bricks (one object class); the edit drops the "
-                "model's residual, so the edited scene is predicted by the physics alone (docs/edit.md)",
+                "model's residual, so the edited scene is predicted by the physics alone (docs/guide/edit.md)",
                 "NeRF2- and WRF-GS-style fields learn one fixed scene: an edit means new measurements and a new "
                 "training run (their time and data, not a prediction)"]
     return t
@@ -586,7 +586,7 @@ DIAGNOSE = "diagnose_blind"
 
 
 def declare_diagnose(r: Plan) -> str:
-    """The blind diagnose set (stages/diagnose/blind.py, docs/diagnose.md): hidden effects in copies of
+    """The blind diagnose set (stages/diagnose/blind.py, docs/guide/diagnose.md): hidden effects in copies of
     simulated data, diagnosed without their answers, scored; it writes its own table to
     OUT/diagnose/diagnose_blind.{md,json} (and a report per case)."""
     out = r.out / "diagnose"

@@ -2,7 +2,7 @@
 
 Called by stage.run when the measurement file's task is "rssi". Checks the request, picks the
 training rows (`[rf_fit.rssi] split`, rssi_split.py), the frequency column and the training targets,
-then fits the room model (docs/physics.md section 8.10, docs/rssi.md) and writes its `rf` artifact.
+then fits the room model (docs/physics.md section 8.10) and writes its `rf` artifact.
 """
 from __future__ import annotations
 

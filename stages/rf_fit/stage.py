@@ -2,7 +2,7 @@
 
 run(scene.h5, measurements.h5, rf.h5, config) reads a `scene` (or `rf`) artifact and a
 `measurements` artifact, traces the geometry of every (training link, lit surfel) pair once, fits
-the materials (eps_r, sigma, thickness, S; docs/rf-model.md) of each material sharing candidate
+the materials (eps_r, sigma, thickness, S; docs/physics.md) of each material sharing candidate
 chosen by validation, refits the best on every training link, fits the residual on top and writes
 the `rf` artifact of rfir_stages.model.artifact: the scene's Gaussians, material/*, rf/* (the
 attribute-map values), residual/*; group model/ (the model's settings as attributes) and group
@@ -112,7 +112,7 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
         rows, _ = select_rows(meas, select, str(measurements_path), rows)
         progress.log(f"rf-fit: {select.describe()} keeps {len(rows)} training rows")
     band_attrs = {}
-    if is_wideband_request(task, config):  # docs/wideband.md: the physical model on the band
+    if is_wideband_request(task, config):  # the physical model on the band (docs/physics.md section 7)
         config, band_attrs = band_config(config, meas, str(measurements_path), progress)
         fit_cfg, pair_settings, phys_table = physical_config(config, render_cfg)
     cols = pick_freqs(meas["freq_hz"], config.get("freqs_hz"), str(measurements_path))

@@ -1,5 +1,5 @@
 """`rfir rf-fit` on a band (task "wideband" or rf_fit.wideband.enabled = true): the settings that
-turn a band into a fit of the physical model (docs/wideband.md, docs/physics.md section 7).
+turn a band into a fit of the physical model (docs/physics.md section 7).
 
 Frequency is an input of the physical model, so a band is a setting, not another model: the
 materials are fitted on rf_fit.wideband.fit_freqs evenly spaced frequencies of the band and the

@@ -186,7 +186,7 @@ def test_plot_adds_the_rcs_change_of_an_rcs_model(rf_path, tmp_path):
 
 def test_an_edit_drops_the_link_space_residual_and_predicts_the_physics_alone(tmp_path):
     """A smooth residual corrects the unedited scene's training links in link geometry; after an edit the
-    model predicts the physics alone (docs/edit.md: the lego rotation)."""
+    model predicts the physics alone (docs/guide/edit.md)."""
     from rfir_core.artifacts import write_artifact
     from rfir_stages.model.residual import ResidualFit, residual_fields
 

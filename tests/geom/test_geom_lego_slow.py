@@ -1,5 +1,5 @@
 """`rfir geom` at demo size: the lego's 60 photos (640 x 480), calibrated by SfM, trained at the default
-settings; checks the held-out figures against the ground-truth mesh (docs/geom.md). Several minutes."""
+settings; checks the held-out figures against the ground-truth mesh (docs/guide/photos-to-scene.md). Several minutes."""
 import json
 
 import pytest

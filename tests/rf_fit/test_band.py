@@ -1,4 +1,4 @@
-"""The physical model on a band (docs/wideband.md): rf-fit on wideband measurements, the artifact,
+"""The physical model on a band (docs/physics.md section 7): rf-fit on wideband measurements, the artifact,
 prediction of every frequency, and bad input. Data: a metal dihedral (a double-bounce flash) from
 the PO simulator, 24 frequencies over 5.72-5.88 GHz."""
 import math

@@ -1,6 +1,6 @@
 """`rfir edit RF -o OUT --select S --op O [...]`: move, rotate, delete, duplicate or re-material Gaussians.
 
-Selections and operations are strings (docs/edit.md): `--select sphere:0,0,0,0.2 --op translate:1,0,0`;
+Selections and operations are strings (docs/guide/edit.md): `--select sphere:0,0,0,0.2 --op translate:1,0,0`;
 repeat the pair for several edits, or give a TOML edit script with --script.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ def edit(
         "--op", metavar="OP", help="translate:DX,DY,DZ | rotate:AX,AY,AZ,DEG[,PX,PY,PZ] | delete | duplicate:DX,DY,DZ | "
                      "material:NAME (an ITU-R P.2040 material, e.g. metal) | label:NAME (repeatable).")] = None,
     script: Annotated[Optional[Path], typer.Option(
-        "--script", metavar="FILE", help="TOML edit script: a list of edit tables with select and op keys (docs/edit.md).")] = None,
+        "--script", metavar="FILE", help="TOML edit script: a list of edit tables with select and op keys (docs/guide/edit.md).")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List what each edit selects; write nothing.")] = False,
     allow_empty: Annotated[bool, typer.Option("--allow-empty", help="Skip edits whose selection is empty.")] = False,
     plot: Annotated[Optional[Path], typer.Option(

@@ -1,7 +1,7 @@
 """`rfir import floorplan walls.csv -o room.ply --height 2.7`: a 2D floor plan -> a labelled room mesh.
 
 The mesh and its labels.json are what `rfir mesh-gaussians room.ply -o scene.h5 --preset room` reads
-(rfir_stages.importers.floorplan; docs/rssi.md, "Your own room").
+(rfir_stages.importers.floorplan; docs/guide/rssi-survey.md).
 """
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def import_floorplan_command(
     ceiling_material: Annotated[Optional[str], typer.Option(
         "--ceiling-material", metavar="NAME", help="Name the ceiling's material (label ceiling_<material>).")] = None,
 ) -> None:
-    """Build a room mesh from a floor plan of wall segments (columns: docs/rssi.md, "Your own room")."""
+    """Build a room mesh from a floor plan of wall segments (columns: docs/guide/rssi-survey.md)."""
     from rfir_stages.importers.floorplan import import_floorplan
 
     from rfir_core.artifacts import check_output

@@ -41,7 +41,7 @@ def contact_words(mesh, contact) -> str:
 
 
 # Tiling presets: (spacing [m], object cells, rectangles, drop contact faces). "object" is the tiling the RCS checks
-# were made on; "room" the room recipe of docs/rssi.md.
+# were made on; "room" the room recipe of docs/guide/photos-to-scene.md.
 PRESETS = {"room": (0.8, 12, True, True), "object": (0.03, 0, False, False)}
 LARGE_COUNT = 100_000   # no preset given and more Gaussians than this estimated: a warning naming --preset room
 
@@ -85,15 +85,15 @@ def mesh_gaussians(
     rectangles_flag: Annotated[Optional[bool], typer.Option(
         "--rectangles/--no-rectangles", help="Tile each pair of triangles that forms a rectangle (a box's face, a wall "
         "panel) as the rectangle's cells, at most spacing / 2 a side, so that surfaces end at their edges: for rooms "
-        "(docs/rssi.md). Off: every face split into smaller triangles (the tiling the RCS checks were made on). "
+        "(docs/guide/photos-to-scene.md). Off: every face split into smaller triangles (the tiling the RCS checks were made on). "
         "Default: the preset's (room on, object off).")] = None,
     drop_contact_faces_flag: Annotated[Optional[bool], typer.Option(
         "--drop-contact-faces/--no-drop-contact-faces", help="Leave out the faces of a labelled mesh that rest against "
-        "another object's surface (a box's bottom on the floor: hidden; rfir_stages.geom.contact_faces): for rooms (docs/rssi.md). "
+        "another object's surface (a box's bottom on the floor: hidden; rfir_stages.geom.contact_faces): for rooms (docs/guide/photos-to-scene.md). "
         "Off: every face kept (as the RCS checks were made). Default: the preset's (room on, object off).")] = None,
     preset: Annotated[Optional[str], typer.Option(
         "--preset", metavar="room|object",
-        help="room: --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces (docs/rssi.md); "
+        help="room: --spacing 0.8 --object-cells 12 --rectangles --drop-contact-faces (docs/guide/photos-to-scene.md); "
         "object: --spacing 0.03, no object cells, rectangles or dropped faces (the RCS tiling; also the default). "
         "Flags given as well override the preset's.")] = None,
     up: Annotated[Optional[str], typer.Option(
