@@ -26,7 +26,7 @@ import torch
 
 from rfir_core.progress import NullProgress
 from rfir_core.text import plural
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_core.threads import single_thread_torch
 
 from .device_gains import DeviceGains
 from .physical import AggregatedPairs, MaterialParams

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from rfir_core.progress import NullProgress
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_core.threads import single_thread_torch
 
 from .physical import THICKNESS_M, MaterialParams
 

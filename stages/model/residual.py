@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_core.threads import single_thread_torch
 
 from rfir_core.physics.materials import abs2
 from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms

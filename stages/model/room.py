@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_core.threads import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
 from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission

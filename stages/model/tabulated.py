@@ -32,7 +32,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_core.threads import single_thread_torch
 
 from .identifiability import block_standard_error
 from rfir_core.physics.materials import ITU_MATERIALS

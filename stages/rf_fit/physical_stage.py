@@ -18,7 +18,8 @@ from rfir_core.errors import ConfigError
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
 from rfir_stages.model.identifiability import range_note
-from rfir_stages.model.physical import EPS_R_MAX, POLARISATIONS, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
+from rfir_core.physics.polarisation import POLARISATIONS
+from rfir_stages.model.physical import EPS_R_MAX, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
 from rfir_stages.model.residual import (FORMS, INTERPOLATION, ResidualConfig, ResidualFit, fit_gaussian, fit_smooth,
                                         link_coords, physics_db, residual_folds, training_spacing_deg,
