@@ -195,7 +195,7 @@ def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nda
                    num_rows: int) -> tuple[list[np.ndarray], str]:
     """Folds of training rows for choosing the residual, shaped like the protocol's test: blocks of
     training aspects as wide as a held-out sector (`sector_blocks`), each training range in turn
-    (rf_fit.validation.validation_folds); for the interpolation protocols (data, every-N) whole training
+    (validation_folds.validation_folds); for the interpolation protocols (data, every-N) whole training
     aspects (every range of them), every KFOLDS-th aspect in turn, so that no fold is predicted from its own
     aspect at another range."""
     from .validation_folds import aspect_index, validation_folds
@@ -215,7 +215,7 @@ def sector_blocks(aspect_deg: np.ndarray, a_deg: float, b_deg: float) -> tuple[l
     """Folds for a held-out sector [a, b) degrees: the training aspects cut into contiguous blocks about as
     wide as the sector (at least 2), going round from its end, each held out in turn. A block is predicted
     across a gap like the sector's, so the validation sees how far a residual carries into unmeasured
-    aspects; chosen on the rows next to the sector alone (rf_fit.validation.validation_folds), residuals lost to
+    aspects; chosen on the rows next to the sector alone (validation_folds.validation_folds), residuals lost to
     the physics alone inside the sector on 8 of 14 measured rows."""
     width = (b_deg - a_deg) % 360.0 or 360.0
     off = np.mod(np.asarray(aspect_deg, float) - b_deg, 360.0)          # from the sector's end, 0 .. 360 - width

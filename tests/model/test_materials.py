@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from rfir_core.physics import materials as m
-from rfir_stages.po import materials as po_materials
+from rfir_stages.po import facet_materials as po_materials
 
 
 def test_itu_law_concrete_at_2_4_ghz():
