@@ -39,6 +39,8 @@ def resolve(dotted: str) -> str | None:
             if err.name is None or not ".".join(parts[:i]).startswith(err.name):
                 return f"importing {'.'.join(parts[:i])} failed: {err}"
             i -= 1
+        except ImportError as err:   # the module exists but cannot be imported: report it, do not hide it
+            return f"importing {'.'.join(parts[:i])} failed: {err}"
     if module is None:
         return f"no module {parts[0]}"
     obj = module
