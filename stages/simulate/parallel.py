@@ -10,9 +10,9 @@ takes its task with it and `Pool.map` waits forever: that is the hang. Here:
   loads the radio scene from the exported XML itself (`_init_worker`);
 - each worker runs Dr.Jit with one thread (`drjit.set_thread_count`) so N workers use N cores
   instead of N x cores threads fighting over 2 cores. One thread is also what makes a solve
-  reproducible: with 2 Dr.Jit threads, repeating the same focused lego solve in the same process
-  changed the path gain by up to 0.03 dB (diffuse samples are gathered in thread order); with one
-  thread repeats, block splits and separate processes give bit-identical arrays. The in-process
+  reproducible: with several Dr.Jit threads a repeated solve can differ by hundredths of a dB (diffuse
+  samples are gathered in thread order); with one thread repeats, block splits and separate processes
+  give bit-identical arrays. The in-process
   path (workers = 1) therefore also solves with one Dr.Jit thread;
 - `concurrent.futures.ProcessPoolExecutor` marks the pool broken when a worker dies
   (`BrokenProcessPool`), and the main process waits with a timeout: a dead, failing or silent
