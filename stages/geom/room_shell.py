@@ -39,6 +39,8 @@ class ShellSettings:
     corner_m: float = 1.0
     cell_m: float = 0.1
     close_m: float = 0.3
+    inset_color: float = 0.12
+    inset_min_m2: float = 0.5
 
 
 @dataclass
@@ -47,7 +49,8 @@ class Surface:
     plane); members [M]: Gaussians on it; origin [3], u [3], v [3]: its extent's corner and in-plane unit axes;
     occupied [nu, nv] bool: cell (i, j) of cell_m at origin + (i + 1/2) cell u + (j + 1/2) cell v is surface
     (False: an opening); tilt_deg: the fitted plane's angle from horizontal (floor, ceiling) or vertical (wall)
-    before snapping (nan when inferred); inferred: placed from other surfaces (a ceiling at the walls' top)."""
+    before snapping (nan when inferred); inferred: placed from other surfaces (a ceiling at the walls' top);
+    inset_cells [nu, nv] bool: a wall's cells given to its insets (wall_insets), None without."""
     name: str
     kind: str
     normal: np.ndarray
@@ -66,10 +69,16 @@ class Surface:
         """Extent along u and v [m]."""
         return self.occupied.shape[0] * self.cell_m, self.occupied.shape[1] * self.cell_m
 
+    inset_cells: np.ndarray | None = None
+
     @property
     def openings_m2(self) -> float:
-        """Area of the empty cells inside the extent [m^2]."""
-        return float((~self.occupied).sum()) * self.cell_m ** 2
+        """Area [m^2] of the empty cells within the bounding box of the occupied ones, less those of its insets."""
+        if not self.occupied.any():
+            return 0.0
+        i, j = np.nonzero(self.occupied)
+        empty = ~self.occupied if self.inset_cells is None else ~(self.occupied | self.inset_cells)
+        return float(empty[i.min():i.max() + 1, j.min():j.max() + 1].sum()) * self.cell_m ** 2
 
 
 def _tilt_from_vertical_deg(normal: np.ndarray) -> float:
@@ -304,3 +313,44 @@ def surface_quads(surface: Surface) -> tuple[np.ndarray, np.ndarray]:
         tri = [[0, 1, 2], [0, 2, 3]] if not flip else [[0, 2, 1], [0, 3, 2]]
         faces += [[4 * k + t for t in f] for f in tri]
     return np.asarray(verts, float).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3)
+
+
+def wall_insets(x: np.ndarray, colors: np.ndarray, walls: list[Surface], settings: ShellSettings) -> list[Surface]:
+    """Parts of the walls of another colour (a door, a window pane, a board on the wall): surfaces of their own in
+    their wall's plane, named WALL_inset_NN (so that rf-fit's class sharing gives each wall's insets a material of
+    their own), cut out of the wall's occupancy.
+
+    x [N, 3] m, colors [N, 3] RGB in [0, 1]. A Gaussian on the wall (within distance_m, inside its extent) is of
+    another colour when its RGB lies farther than inset_color from the wall's median colour; such Gaussians in
+    one connected piece (DBSCAN at 2 cell_m) covering at least inset_min_m2 of cells (closed as the wall's
+    own cells are, holes filled) make an inset."""
+    from scipy import ndimage
+
+    from .planes import connected_pieces
+
+    insets = []
+    r = int(round(settings.close_m / settings.cell_m))
+    for wall in walls:
+        rel = x - wall.origin
+        a, b = rel @ wall.u, rel @ wall.v
+        w, h = wall.size_m
+        on = (np.abs(x @ wall.normal - wall.offset) <= settings.distance_m) & (a >= 0) & (a <= w) & (b >= 0) & (b <= h)
+        idx = np.flatnonzero(on)
+        if len(idx) < 20:
+            continue
+        median = np.median(colors[idx], axis=0)
+        other = idx[np.linalg.norm(colors[idx] - median, axis=1) > settings.inset_color]
+        piece = connected_pieces(x[other], 2 * settings.cell_m, 20)
+        k = 0
+        for p in np.unique(piece[piece >= 0]):
+            cells = ndimage.binary_fill_holes(_closed(_cells(x[other[piece == p]], wall, wall.occupied.shape), r))
+            cells &= wall.occupied
+            if cells.sum() * settings.cell_m ** 2 < settings.inset_min_m2:
+                continue
+            insets.append(Surface(f"{wall.name}_inset_{k:02d}", "inset", wall.normal, wall.offset, other[piece == p],
+                                  wall.tilt_deg, origin=wall.origin, u=wall.u, v=wall.v, occupied=cells,
+                                  cell_m=wall.cell_m))
+            wall.occupied = wall.occupied & ~cells
+            wall.inset_cells = cells if wall.inset_cells is None else wall.inset_cells | cells
+            k += 1
+    return insets

@@ -5,9 +5,11 @@ The shell (floor, ceiling, walls) is tiled anew with flat square surfels over ea
 left out (from_mesh.gaussians_from_mesh on the extent's rectangles, at `spacing_m` as `mesh-gaussians --preset
 room` tiles a mesh), so that the room model's patches are its planes with their edges. The Gaussians off the
 shell inside it are joined into object segments (DBSCAN); those on one of the object planes are projected onto
-it, with the plane's normal and their footprint flattened into it. Gaussians in no segment, and those behind
-the shell, stay as they were, unlabelled (-1): the free Gaussians. Labels are named by class (floor, ceiling,
-wall_NN, object_NN), so rf-fit's class sharing gives one material to the walls, one to the objects.
+it, with the plane's normal and their footprint flattened into it. Parts of a wall of another colour (a door, window
+panes, a board) become its insets (room_shell.wall_insets). Gaussians in no segment, and those behind the shell,
+stay as they were, unlabelled (-1): the free Gaussians. Labels are named by class (floor, ceiling, wall_NN,
+wall_NN_inset_NN, object_NN), so rf-fit's class sharing gives one material to the walls, one to each wall's
+insets, one to the objects.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ import numpy as np
 from rfir_core.errors import ConfigError, InputFileError, StageError
 
 from .planes import Plane, connected_pieces, find_planes
-from .room_shell import ShellSettings, Surface, build_shell, surface_quads
+from .room_shell import ShellSettings, Surface, build_shell, surface_quads, wall_insets
 
 
 @dataclass
@@ -113,6 +115,9 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     except ValueError as exc:
         raise StageError(f"{scene_path}: no room shell in {len(planes)} planes: {exc}") from None
 
+    colors = art.data.get("gaussians/colors")
+    if colors is not None and np.asarray(colors).shape[1] == 3 and settings.inset_color > 0:
+        surfaces += wall_insets(x, np.asarray(colors, float), [s for s in surfaces if s.kind == "wall"], settings)
     on_shell, behind = _shell_sides(x, surfaces, settings.distance_m)
     inside = ~on_shell & ~behind
     piece = np.full(len(x), -1)
@@ -129,7 +134,8 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     out = {k: np.concatenate([fields_out[k], objects[k], free[k]]) for k in fields_out}
 
     warnings = [f"{s.name} is {s.tilt_deg:.2f} deg from {'vertical' if s.kind == 'wall' else 'horizontal'} "
-                f"(over 1 deg: is the frame's z up?)" for s in surfaces if np.isfinite(s.tilt_deg) and s.tilt_deg > 1.0]
+                f"(over 1 deg: is the frame's z up?)" for s in surfaces
+                if s.kind != "inset" and np.isfinite(s.tilt_deg) and s.tilt_deg > 1.0]
     scale = None
     if known is not None:
         measured = surface_distance(surfaces, known[0], known[1])

@@ -10,6 +10,8 @@ from rfir_core.errors import InputFileError, StageError
 ROOM = (6.0, 4.0, 2.8)                 # x, y, z size [m]
 DOOR = (1.0, 1.9, 0.0, 2.0)            # in the y = 4 wall: x from, x to, z from, z to [m]
 TABLE = ((2.5, 1.5, 0.0), (3.7, 2.3, 0.75))
+BOARD = (1.0, 3.0, 1.0, 2.0)           # on the x = 0 wall: y from, y to, z from, z to [m] ...
+PLASTER, BOARD_RGB = (0.85, 0.83, 0.78), (0.93, 0.94, 0.95)   # ... whiteboard against plaster, as the classroom's
 OFFSET_NOISE_M = 0.025                 # photo Gaussians scatter 2-3 cm along the normal ...
 TILT_NOISE_DEG = 4.0                   # ... their normals some degrees
 
@@ -30,7 +32,7 @@ def _patch(rng, corner, side_u, side_v, normal, density, hole=None):
 
 def sampled_room(rng, density=150.0, tilt_deg=0.0):
     """Gaussian fields of a box room (ROOM) with a door opening, a table, a ceiling seen only near the walls, photo
-    noise and 2 % outliers; the whole room turned by tilt_deg about x. Returns (fields, true rotation [3, 3])."""
+    a whiteboard on the x = 0 wall (another colour), noise and 2 % outliers; the whole room turned by tilt_deg about x. Returns (fields, true rotation [3, 3])."""
     lx, ly, lz = ROOM
     parts = [
         _patch(rng, (0, 0, 0), (lx, 0, 0), (0, ly, 0), (0, 0, 1), density),                 # floor
@@ -48,6 +50,13 @@ def sampled_room(rng, density=150.0, tilt_deg=0.0):
         parts.append(_patch(rng, corner, su, (0, 0, z1), normal, density * 2))
     x = np.concatenate([p[0] for p in parts])
     n = np.concatenate([p[1] for p in parts])
+    # a colour per surface, shaded +-0.03; the board on the x = 0 wall bluish white against the wall's plaster
+    shade = rng.uniform(0.35, 0.85, (len(parts), 3))
+    shade[2] = PLASTER
+    colors = np.concatenate([np.broadcast_to(c, (len(p[0]), 3)) for c, p in zip(shade, parts)])
+    on_board = (np.abs(x[:, 0]) < 1e-9) & (x[:, 1] >= BOARD[0]) & (x[:, 1] <= BOARD[1]) \
+        & (x[:, 2] >= BOARD[2]) & (x[:, 2] <= BOARD[3])
+    colors = np.where(on_board[:, None], BOARD_RGB, colors) + rng.uniform(-0.03, 0.03, (len(x), 3))
     x = x + n * rng.normal(0.0, OFFSET_NOISE_M, (len(x), 1))
     tilt = rng.normal(0.0, np.radians(TILT_NOISE_DEG) / np.sqrt(2), (len(x), 3))
     n = n + np.cross(tilt, n)
@@ -55,13 +64,14 @@ def sampled_room(rng, density=150.0, tilt_deg=0.0):
     outliers = int(0.02 * len(x))
     x = np.concatenate([x, rng.random((outliers, 3)) * np.array(ROOM) * 1.2 - 0.1 * np.array(ROOM)])
     n = np.concatenate([n, _unit(rng.normal(size=(outliers, 3)))])
+    colors = np.concatenate([colors, rng.random((outliers, 3))]).clip(0, 1)
     c, s = np.cos(np.radians(tilt_deg)), np.sin(np.radians(tilt_deg))
     rot = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
     x, n = x @ rot.T, n @ rot.T
     g = len(x)
     return {"gaussians/means": x, "gaussians/normals": n, "gaussians/log_scales": np.log(np.full((g, 3), 0.03)),
             "gaussians/rotations": np.tile([1.0, 0, 0, 0], (g, 1)), "gaussians/opacities": np.ones(g),
-            "gaussians/colors": rng.random((g, 3))}, rot
+            "gaussians/colors": colors}, rot
 
 
 def _unit(v):
@@ -153,6 +163,23 @@ def test_artifact_has_labelled_planes_objects_and_free(room_result):
     # outliers are free (label -1), and every input Gaussian is accounted for
     assert result.num_free == (labels == -1).sum() > 0
     assert result.num_on_shell + result.num_in_objects + result.num_free == len(fields["gaussians/means"])
+
+
+def test_board_is_an_inset_of_its_wall(room_result):
+    result, art, _ = room_result
+    insets = [s for s in result.surfaces if s.kind == "inset"]
+    assert len(insets) == 1 and insets[0].name.endswith("_inset_00")
+    board = insets[0]
+    wall = next(s for s in result.surfaces if s.name == board.name.rsplit("_inset", 1)[0])
+    assert wall.normal[0] > 0.99
+    board_m2 = (BOARD[1] - BOARD[0]) * (BOARD[3] - BOARD[2])
+    area = board.occupied.sum() * board.cell_m ** 2
+    assert abs(area - board_m2) < 0.15 * board_m2
+    assert not (board.occupied & wall.occupied).any()          # cut out of the wall: no surface twice
+    names = [str(n) for n in art.attrs["label_names"]]
+    x = art.data["gaussians/means"][art.data["gaussians/labels"] == names.index(board.name)]
+    assert np.allclose(x[:, 0], 0.0, atol=0.02)
+    assert x[:, 1].min() > BOARD[0] - 0.1 and x[:, 1].max() < BOARD[1] + 0.1
 
 
 def test_tilted_frame_is_reported(tmp_path):
