@@ -43,6 +43,10 @@ SCATTERING_CHOICES = ("shared", "per_material")
 # averaged over them); "incoherent": their powers |a_p|^2, no phases; "auto": chosen (rf_fit.room_stage).
 BANDS = ("auto", "coherent", "ble", "incoherent")
 BLE_CHANNELS_HZ = (2.402e9, 2.426e9, 2.480e9)
+# the range [GHz] over which ITU-R P.2040 states its building materials' laws (eps_r = a f^b, sigma = c f^d; Table 3:
+# concrete, plasterboard, wood, glass, ceiling board, chipboard, metal, 1-100 GHz), the form a fitted material's
+# law takes: a room model predicts inside it (RoomPredictor.frequency_range_hz)
+FITTED_LAW_RANGE_GHZ = (1.0, 100.0)
 
 
 @dataclass
@@ -174,14 +178,32 @@ class RoomGeometry:
             return specular(pending.result(), diffuse)
 
 
-    def band_links(self, tx_m, rx_m, freq_hz: float, band: str) -> "RoomLinks | BandLinks":
-        """The links tx_m, rx_m [M, 3] m as `band` (BANDS; "auto" is taken as "coherent") sums their paths:
-        traced at freq_hz [Hz] (coherent, incoherent) or once per BLE advertising channel (ble)."""
-        if band == "ble":
-            return BandLinks([self.links(tx_m, rx_m, np.full(len(tx_m), f)) for f in BLE_CHANNELS_HZ])
-        links = self.links(tx_m, rx_m, np.full(len(tx_m), float(freq_hz)))
-        links.incoherent = band == "incoherent"
-        return links
+    def band_links(self, tx_m, rx_m, freq_hz: float, band: str, fitted_hz: float | None = None
+                   ) -> "RoomLinks | BandLinks":
+        """The links tx_m, rx_m [M, 3] m as `band` (BANDS; "auto" is taken as "coherent") sums their paths at
+        freq_hz [Hz], traced once (band_of)."""
+        return band_of(self.links(tx_m, rx_m, np.full(len(tx_m), float(freq_hz))), band, freq_hz, fitted_hz)
+
+
+def band_frequencies(band: str, freq_hz: float, fitted_hz: float | None = None) -> tuple[float, ...]:
+    """The frequencies [Hz] whose powers `band` averages at freq_hz: the three BLE advertising channels for "ble"
+    (shifted by freq_hz - fitted_hz, the model's own frequency, when a model fitted at fitted_hz is evaluated
+    elsewhere: the channels keep their spacing about the frequency asked), else freq_hz alone."""
+    if band != "ble":
+        return (float(freq_hz),)
+    shift = 0.0 if fitted_hz is None else float(freq_hz) - float(fitted_hz)
+    return tuple(f + shift for f in BLE_CHANNELS_HZ)
+
+
+def band_of(links: "RoomLinks", band: str, freq_hz: float, fitted_hz: float | None = None) -> "RoomLinks | BandLinks":
+    """Traced links as `band` (BANDS; "auto" is taken as "coherent") sums their paths at freq_hz [Hz]: the same
+    paths and diffuse terms evaluated at band_frequencies (a BandLinks of the three BLE channels; RoomLinks with
+    incoherent set for "incoherent"); nothing is traced again."""
+    if band == "ble":
+        return BandLinks([links.at_frequency(f) for f in band_frequencies(band, freq_hz, fitted_hz)])
+    out = links.at_frequency(float(freq_hz))
+    out.incoherent = band == "incoherent"
+    return out
 
 
 def extents_key(geom: FrozenGeometry, labels: torch.Tensor | None, settings: RoomSettings) -> str:
@@ -268,6 +290,13 @@ class RoomLinks:
         return RoomLinks(self.paths.select_links(rows), None if self.diffuse is None else self.diffuse.select_links(rows),
                          self.material_of_patch, self.num_materials, self.incoherent)
 
+    def at_frequency(self, freq_hz) -> "RoomLinks":
+        """The same traced links evaluated at freq_hz (a number [Hz] for every link, or [M] one per link):
+        RoomPaths.at_frequency and DiffuseTerms.at_frequency, nothing traced again."""
+        return RoomLinks(self.paths.at_frequency(freq_hz),
+                         None if self.diffuse is None else self.diffuse.at_frequency(freq_hz),
+                         self.material_of_patch, self.num_materials, self.incoherent)
+
     def material_split(self, i: int) -> tuple[torch.Tensor, "RoomLinks", "RoomLinks"]:
         """(rows [M_i] int64, without, with): the links whose field or diffuse power depends on material i, and
         those links' specular paths and diffuse terms that do not involve it (without) and that do (with: a path
@@ -331,8 +360,9 @@ class RoomLinks:
 
 
 class BandLinks:
-    """M links traced at each of C channel frequencies (C RoomLinks with the same paths: the tracer's geometry
-    does not depend on the frequency); the power is the mean over the channels of each channel's coherent power,
+    """M links evaluated at each of C channel frequencies (C RoomLinks of one trace, RoomLinks.at_frequency: the
+    traced geometry does not depend on the frequency); the power is the mean over the channels of each channel's
+    coherent power,
     what an RSSI averaged over the channels measures. Has the interface the fit uses (power, num_links, paths,
     select_links, select_paths); no material_part, so the |Gamma| ranges evaluate every link."""
 
@@ -446,8 +476,9 @@ class MaterialPart:
 class RoomPredictor:
     """A fitted physical room model (rf artifact written by rf_fit.room_stage), ready to predict.
 
-    Used by predict rssi, edit and diagnose (predict.rssi_model_io.load_predictor): geom, provider, freq_hz,
-    path_gain_db, memory_estimate_bytes."""
+    Used by predict rssi, edit and diagnose (predict.rssi_model_io.load_predictor): geom, provider, freq_hz (the
+    frequency it was fitted at), path_gain_db, predict_db (at any frequency inside frequency_range_hz: the traced
+    paths hold no wavelength), memory_estimate_bytes."""
 
     BYTES_PER_LINK = 40_000   # paths x interaction slots x (basis vectors + coefficients), measured on rooms
 
@@ -464,6 +495,8 @@ class RoomPredictor:
         stored = rf.free.get("model", {})
         self.device_gains = {k: np.asarray(v) for k, v in stored.items() if k.startswith("device_")}
         self.device_ends_matched = 0    # link ends of the last path_gain_db call that got a fitted device gain
+        # each material's tabulated key where the fit took a tabulated one ("": as fitted; frequency_range_hz)
+        self.tabulated = [str(k) for k in np.atleast_1d(attrs.get("material_tabulated", []))]
         kw = {}
         for f in dc_fields(RoomSettings):
             if f"room.{f.name}" in attrs:
@@ -500,24 +533,64 @@ class RoomPredictor:
     def memory_estimate_bytes(self, num_links: int, chunk_links: int) -> int:
         return int(min(num_links, chunk_links) * self.BYTES_PER_LINK + num_links * 200)
 
+    def frequency_range_hz(self) -> tuple[float, float, str]:
+        """(lowest, highest [Hz], why): the frequencies the model's material laws hold at. A fitted material follows
+        the ITU-R P.2040 form (eps_r constant, sigma = sigma_1GHz (f / 1 GHz)^d), stated for FITTED_LAW_RANGE_GHZ;
+        a material taken as a tabulated one (rf_fit.room.tabulated_materials) holds over that law's own range."""
+        from rfir_core.physics.materials import ITU_MATERIALS
+
+        lo, hi = FITTED_LAW_RANGE_GHZ
+        why = f"the fitted ITU-R P.2040 law's {lo:g}-{hi:g} GHz"
+        for key in sorted({str(k) for k in self.tabulated if str(k)}):
+            f_lo, f_hi = ITU_MATERIALS[key][4:6] if key in ITU_MATERIALS else (lo, hi)
+            if f_lo > lo or f_hi < hi:
+                lo, hi = max(lo, f_lo), min(hi, f_hi)
+                why = f"{key}'s ITU-R P.2040 law: {f_lo:g}-{f_hi:g} GHz"
+        return lo * 1e9, hi * 1e9, why
+
+    def check_frequencies(self, freqs_hz) -> np.ndarray:
+        """freqs_hz as [F] float64 Hz; a ConfigError (one line) for one outside frequency_range_hz."""
+        from rfir_core.errors import ConfigError
+
+        f = np.atleast_1d(np.asarray(freqs_hz, dtype=np.float64))
+        lo, hi, why = self.frequency_range_hz()
+        bad = f[~(np.isfinite(f) & (f >= lo) & (f <= hi))]
+        if f.size == 0 or bad.size:
+            shown = "none" if f.size == 0 else f"{bad[0] / 1e9:g} GHz"
+            raise ConfigError(f"frequency {shown} is outside {lo / 1e9:g}-{hi / 1e9:g} GHz, where this model's "
+                              f"material laws hold ({why})")
+        return f
+
     def path_gain_db(self, tx_m: np.ndarray, rx_m: np.ndarray, chunk_links: int = 512, progress=None) -> np.ndarray:
-        """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m (floored at -250 dB), the paths summed as the
-        model's band (RoomSettings.band), with the fitted gain of each device the fit saw at that position
-        (device_gains.gains_at)."""
+        """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m at the frequency the model was fitted at
+        (predict_db at freq_hz)."""
+        return self.predict_db(tx_m, rx_m, [self.freq_hz], chunk_links, progress)[:, 0]
+
+    def predict_db(self, tx_m: np.ndarray, rx_m: np.ndarray, freqs_hz=None, chunk_links: int = 512,
+                   progress=None) -> np.ndarray:
+        """Predicted path gain [N, F] dB for links tx_m / rx_m [N, 3] m at freqs_hz [F] Hz (None: the frequency the
+        model was fitted at, freq_hz; each inside frequency_range_hz, else a ConfigError), floored at -250 dB: the
+        paths summed as the model's band (RoomSettings.band; "ble" averages the three advertising channels, moved
+        with the frequency asked, band_frequencies), with the fitted gain of each device the fit saw at that
+        position (device_gains.gains_at). Each block of chunk_links links is traced once, every frequency evaluated
+        on that trace."""
         from .device_gains import gains_at
         from .predict import FLOOR_DB
 
+        freqs = np.asarray([self.freq_hz]) if freqs_hz is None else self.check_frequencies(freqs_hz)
         tx_m, rx_m = np.asarray(tx_m, np.float64), np.asarray(rx_m, np.float64)
         device_db, self.device_ends_matched = gains_at(self.device_gains, tx_m, rx_m)
-        out = np.empty(len(tx_m))
+        out = np.empty((len(tx_m), len(freqs)))
         with torch.no_grad():
             for lo in range(0, len(tx_m), chunk_links):
                 hi = min(len(tx_m), lo + chunk_links)
-                # the sum the model was fitted with (room.band), so predict, edit and diagnose agree with the fit
-                links = self.room.band_links(tx_m[lo:hi], rx_m[lo:hi], self.freq_hz, self.room.settings.band)
-                with single_thread_torch():   # ten times faster than two threads on a busy CPU
-                    p = links.power(self.mats, self.gain_db)[:, 0].numpy()
-                out[lo:hi] = np.maximum(10 * np.log10(np.maximum(p, 1e-300)) + device_db[lo:hi], FLOOR_DB)
+                traced = self.room.links(tx_m[lo:hi], rx_m[lo:hi], np.full(hi - lo, self.freq_hz))
+                for j, f in enumerate(freqs):
+                    # the sum the model was fitted with (room.band), so predict, edit and diagnose agree with the fit
+                    links = band_of(traced, self.room.settings.band, float(f), self.freq_hz)
+                    with single_thread_torch():   # ten times faster than two threads on a busy CPU
+                        p = links.power(self.mats, self.gain_db)[:, 0].numpy()
+                    out[lo:hi, j] = np.maximum(10 * np.log10(np.maximum(p, 1e-300)) + device_db[lo:hi], FLOOR_DB)
                 if progress is not None:
                     progress.advance(hi - lo)
         return out

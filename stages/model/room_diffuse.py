@@ -12,10 +12,12 @@ its power transmission |T|^2 at the crossing angle, so a metal wall passes no di
 glass one most of it. |Gamma|^2 and |T|^2 are the means of the TE and TM values (the diffuse part
 has no definite polarisation).
 
-Everything but the materials is summed once: cells that both antennas see with nothing in between
-into per-(link, material, angle node) weights (a fit step costs M x materials x nodes), the others
+Everything but the materials and the wavelength is summed once: cells that both antennas see with nothing in
+between into per-(link, material, angle node) weights (a fit step costs M x materials x nodes), the others
 into weights per (link, material and angle node of the cell, surfaces crossed with their angles)
-(ObstructedCells), the crossing angles taken at the nearest of CROSSING_NODES.
+(ObstructedCells), the crossing angles taken at the nearest of CROSSING_NODES. The weights leave lambda^2
+out (m^-2): the frequency enters at evaluation (DiffuseTerms.freq_hz; at_frequency gives the same terms at
+another), with the materials' coefficients.
 """
 from __future__ import annotations
 
@@ -95,8 +97,8 @@ class ObstructedCells:
     """The diffuse terms whose legs cross surfaces, summed per (link, the cell's material and angle node,
     the surfaces crossed).
 
-    link [K] int64; weight [K] the summed Lambertian factors without materials (each cell's share of its
-    two angle nodes); refl [K] int64 flat index material * NODES + node of the cells' |Gamma|^2 S^2;
+    link [K] int64; weight [K] m^-2 the summed Lambertian factors without materials and lambda^2 (each cell's
+    share of its two angle nodes); refl [K] int64 flat index material * NODES + node of the cells' |Gamma|^2 S^2;
     combo [K] int64 row of crossings [U, W] int64: flat indices material * CROSSING_NODES + node of each
     crossing's |T|^2, the extra material row num_materials (|T|^2 = 1) in unused slots."""
 
@@ -114,8 +116,9 @@ class ObstructedCells:
 
 @dataclass
 class DiffuseTerms:
-    """weight [M, N, NODES]: sum over the unobstructed cells of material n of the geometric factor, spread on
-    the nodes; obstructed: the other cells' terms; freq_hz [M]."""
+    """weight [M, N, NODES] m^-2: sum over the unobstructed cells of material n of the geometric factor without
+    lambda^2, spread on the nodes; obstructed: the other cells' terms; freq_hz [M] Hz: the frequency each link is
+    evaluated at (at_frequency: the same terms at another)."""
 
     weight: torch.Tensor
     freq_hz: torch.Tensor
@@ -124,6 +127,18 @@ class DiffuseTerms:
     @property
     def num_links(self) -> int:
         return int(self.weight.shape[0])
+
+    def lambda2(self) -> torch.Tensor:
+        """[M] m^2: each link's wavelength squared, the factor the weights leave out."""
+        return (C0 / self.freq_hz) ** 2
+
+    def at_frequency(self, freq_hz) -> "DiffuseTerms":
+        """The same terms evaluated at freq_hz (a number [Hz] for every link, or [M] one per link)."""
+        f = torch.as_tensor(np.asarray(freq_hz, dtype=np.float64))
+        f = f.expand(self.num_links).clone() if f.ndim == 0 else f
+        if f.shape != (self.num_links,):
+            raise ValueError(f"freq_hz: expected one frequency or {self.num_links}, got shape {tuple(f.shape)}")
+        return DiffuseTerms(self.weight, f, self.obstructed)
 
     def select_links(self, rows) -> "DiffuseTerms":
         r = torch.as_tensor(np.asarray(rows), dtype=torch.int64)
@@ -156,6 +171,7 @@ class DiffuseTerms:
         t2 = diffuse_transmittance(eta_of_material, thickness_m, self.freq_hz)
         t2 = torch.cat([t2, torch.ones_like(t2[:1])]).reshape(-1)          # the row of "no crossing"
         ob = self.obstructed
+        lam2 = self.lambda2()
         x = ob.crossings                                                     # [U, W] flat crossing indices
         mine_r, mine_x = ob.refl // NODES == i, x // CROSSING_NODES == i
         # material i's factors look up [its NODES values, 1] and [its CROSSING_NODES values, 1]; the crossings
@@ -163,9 +179,10 @@ class DiffuseTerms:
         r_at = torch.where(mine_r, ob.refl % NODES, NODES)
         x_at = torch.where(mine_x, x % CROSSING_NODES, CROSSING_NODES)
         others = torch.where(mine_x, 1.0, t2[x]).prod(1)
-        fixed = ob.weight * torch.where(mine_r, 1.0, g2[ob.refl]) * others[ob.combo]
+        fixed = ob.weight * lam2[ob.link] * torch.where(mine_r, 1.0, g2[ob.refl]) * others[ob.combo]
+        weight = self.weight[:, i] * lam2[:, None]
         if len(ob.link) == 0:
-            return MaterialDiffuse(i, self.weight[:, i], self.freq_hz, ob.link, fixed, r_at, x_at, ob.combo)
+            return MaterialDiffuse(i, weight, self.freq_hz, ob.link, fixed, r_at, x_at, ob.combo)
         # terms alike in material i (the same link, node and crossings of it) are one term of summed factors
         x_at, row = torch.unique(x_at, dim=0, return_inverse=True)
         key = (ob.link * (NODES + 1) + r_at) * len(x_at) + row[ob.combo]
@@ -173,14 +190,16 @@ class DiffuseTerms:
         fixed = torch.zeros(len(key), dtype=torch.float64).index_add(0, term, fixed)
         combo, r_at = key % len(x_at), key // len(x_at) % (NODES + 1)
         link = key // len(x_at) // (NODES + 1)
-        return MaterialDiffuse(i, self.weight[:, i], self.freq_hz, link, fixed, r_at, x_at, combo)
+        return MaterialDiffuse(i, weight, self.freq_hz, link, fixed, r_at, x_at, combo)
 
     def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
               scattering: torch.Tensor) -> torch.Tensor:
         """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (one frequency) or [N, M], thickness [N], S [N]."""
         g2 = diffuse_reflectance(eta_of_material, thickness_m, scattering, self.freq_hz)
         one_freq = eta_of_material.shape[1] == 1
+        lam2 = self.lambda2()
         p = (self.weight * g2[None]).sum((1, 2)) if one_freq else (self.weight * g2.permute(1, 0, 2)).sum((1, 2))
+        p = p * lam2
         ob = self.obstructed
         if len(ob.link) == 0:
             return p
@@ -195,13 +214,14 @@ class DiffuseTerms:
             x = ob.crossings[ob.combo]
             t_at = ((x // CROSSING_NODES) * m + ob.link[:, None]) * CROSSING_NODES + x % CROSSING_NODES
             term = ob.weight * g2.reshape(-1)[r_at] * t2.reshape(-1)[t_at].prod(1)
-        return p.index_add(0, ob.link, term)
+        return p.index_add(0, ob.link, term * lam2[ob.link])
 
 
 @dataclass
 class MaterialDiffuse:
-    """Diffuse terms as a function of one material (DiffuseTerms.material_form): weight [M, NODES] of its
-    unobstructed cells; per obstructed term k: link [K], fixed [K] (the factors of the other materials), r_at
+    """Diffuse terms as a function of one material (DiffuseTerms.material_form), at the frequency it was formed at:
+    weight [M, NODES] of its unobstructed cells (lambda^2 included); per obstructed term k: link [K], fixed [K] (the
+    factors of the other materials and lambda^2), r_at
     [K] its node of material i's |Gamma|^2 S^2 (NODES: none), combo [K] its row of x_at [U, W]: the crossings'
     nodes of material i's |T|^2 (CROSSING_NODES: none)."""
 
@@ -363,11 +383,11 @@ def _angle_node(cos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return node, np.clip(theta - node, 0.0, 1.0)
 
 
-def _cell_factors(tx: np.ndarray, rx: np.ndarray, lam2: np.ndarray, cells: DiffuseCells):
-    """Per (link, cell) of links tx, rx [B, 3] m at wavelengths^2 lam2 [B] m^2: (g [B, C] the Lambertian factor
-    A cos(theta_i) cos(theta_o) lambda^2 / (16 pi^3 d_i^2 d_o^2) of section 8.8 without V, 0 where the ends lie
-    on opposite sides of the cell; node [B, C] int64 and frac [B, C]: theta_i between angle nodes node and
-    node + 1)."""
+def _cell_factors(tx: np.ndarray, rx: np.ndarray, cells: DiffuseCells):
+    """Per (link, cell) of links tx, rx [B, 3] m: (g [B, C] m^-2 the Lambertian factor
+    A cos(theta_i) cos(theta_o) / (16 pi^3 d_i^2 d_o^2) of section 8.8 without V and lambda^2 (applied at
+    evaluation), 0 where the ends lie on opposite sides of the cell; node [B, C] int64 and frac [B, C]: theta_i
+    between angle nodes node and node + 1)."""
     wi = tx[:, None, :] - cells.centre[None]                        # [B, C, 3]
     wo = rx[:, None, :] - cells.centre[None]
     n = cells.normal[None]
@@ -377,7 +397,7 @@ def _cell_factors(tx: np.ndarray, rx: np.ndarray, lam2: np.ndarray, cells: Diffu
     co = _dot(wo, n) / do
     lit = ci * co > 0                                                  # both ends on one side
     ci, co = np.abs(ci), np.abs(co)
-    g = (cells.area[None] * ci * co * lam2[:, None] / (16 * math.pi ** 3 * di ** 2 * do ** 2)) * lit
+    g = (cells.area[None] * ci * co / (16 * math.pi ** 3 * di ** 2 * do ** 2)) * lit
     node, frac = _angle_node(ci)
     return g, node, frac
 
@@ -398,8 +418,9 @@ def _crossing_slots(points: np.ndarray, rows: np.ndarray, cells: np.ndarray, dc:
 def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells,
                   material_of_patch: np.ndarray, num_materials: int, crossings: CellCrossings, link_chunk: int = 256,
                   progress_task=None) -> DiffuseTerms:
-    """The DiffuseTerms of links tx_m, rx_m [M, 3] at freq_hz [M] (isotropic antennas); crossings: a
-    CellCrossings of these cells (its kept rows are reused, new ones kept)."""
+    """The DiffuseTerms of links tx_m, rx_m [M, 3], evaluated at freq_hz [M] Hz (the terms themselves do not
+    depend on it: DiffuseTerms.at_frequency), isotropic antennas; crossings: a CellCrossings of these cells (its
+    kept rows are reused, new ones kept)."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
     m = len(tx)
@@ -412,13 +433,12 @@ def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells
     need = (h_tx * h_rx > 0) | (np.abs(h_tx) < 1e-9) | (np.abs(h_rx) < 1e-9)
     x_tx, i_tx = crossings(tx, need)
     x_rx, i_rx = crossings(rx, need)
-    lam2 = (C0 / np.asarray(freq_hz, dtype=np.float64)) ** 2
     weight = np.zeros((m, num_materials, NODES))
     size = num_materials * NODES
     links, shares, refls, crosses = [], [], [], []
     for lo in range(0, m, link_chunk):
         hi = min(m, lo + link_chunk)
-        g, node, frac = _cell_factors(tx[lo:hi], rx[lo:hi], lam2[lo:hi], cells)
+        g, node, frac = _cell_factors(tx[lo:hi], rx[lo:hi], cells)
         first_t, first_r = x_tx[i_tx[lo:hi], :, 0], x_rx[i_rx[lo:hi], :, 0]
         clear = (first_t == NO_CROSSING) & (first_r == NO_CROSSING)
         # BLOCKED (and UNTRACED, never lit) legs carry nothing

@@ -8,9 +8,13 @@ path is checked for the surfaces it crosses: the Gaussian tracer finds candidate
 leg, and the exact crossing point must lie on the patch. A surface is crossed once, however many
 Gaussians tile it, and applies its slab transmission coefficient (materials.slab_transmission).
 
-Everything here depends on geometry only and is computed once per link set (`trace_room_paths`);
-`RoomPaths.field` then evaluates the received complex amplitude for any material values, with the
-polarisation carried as a field vector through every interaction:
+Everything traced depends on geometry only and is computed once per link set (`trace_room_paths`): path
+lengths, antenna gains and polarisation vectors, each interaction's kind, patch, incidence angle and TE/TM
+directions; no wavelength. The frequency enters at evaluation: `RoomPaths.freq_hz` is the frequency each
+link is evaluated at, and `RoomPaths.at_frequency` gives the same paths at another (a band's channels, or a
+prediction at a frequency the model was not fitted at) without tracing again. `RoomPaths.field` then
+evaluates the received complex amplitude for any material values, with the polarisation carried as a field
+vector through every interaction:
 
     E <- C_TE (E . s) s + C_TM (E . p_in) p_out
 
@@ -305,7 +309,8 @@ class RoomPaths:
     link [Q] int64; length_m [Q]; gain [Q] sqrt(G_T G_R); order [Q] (0 direct, 1, 2 reflections);
     e_tx, e_rx [Q, 3] polarisation vectors at departure and arrival; kind [Q, I] (0 none,
     1 reflection, 2 transmission); patch [Q, I]; cos [Q, I] |cos| of the local incidence angle;
-    s, p_in, p_out [Q, I, 3] the interaction's TE and TM reference directions; freq_hz [M]."""
+    s, p_in, p_out [Q, I, 3] the interaction's TE and TM reference directions: all of it frequency-free.
+    freq_hz [M] Hz: the frequency each link is evaluated at (at_frequency: the same paths at another)."""
 
     num_links: int
     link: torch.Tensor
@@ -361,13 +366,33 @@ class RoomPaths:
             start = c(torch.stack([dot(self.e_tx[:n0], self.s[:n0, 0]), dot(self.e_tx[:n0], self.p_in[:n0, 0])], 1)) \
                 if n0 else torch.zeros((0, 2), dtype=torch.complex128)
             direct = c(dot(self.e_tx[n0:], self.e_rx[n0:]))
+            self.__dict__["_jones_cache"] = {"use": use, "step": step, "end": end, "start": start,
+                                             "direct": direct}
+        return self.__dict__["_jones_cache"]
+
+    def _free_space(self) -> torch.Tensor:
+        """[Q] complex: each path's free-space factor sqrt(G_T G_R) lambda / (4 pi L) exp(-j k L) at its link's
+        frequency (cached; the one factor of the chain that depends on the frequency besides the coefficients)."""
+        if "_free_space_cache" not in self.__dict__:
             f = self.freq_hz[self.link]
             k0 = 2 * math.pi * f / C0
-            base = (self.gain * C0 / f / (4 * math.pi * self.length_m)).to(torch.complex128) \
-                * torch.exp(-1j * k0 * self.length_m)
-            self.__dict__["_jones_cache"] = {"use": use, "step": step, "end": end, "start": start,
-                                             "direct": direct, "base": base}
-        return self.__dict__["_jones_cache"]
+            self.__dict__["_free_space_cache"] = (self.gain * C0 / f / (4 * math.pi * self.length_m)).to(
+                torch.complex128) * torch.exp(-1j * k0 * self.length_m)
+        return self.__dict__["_free_space_cache"]
+
+    def at_frequency(self, freq_hz) -> "RoomPaths":
+        """The same paths evaluated at freq_hz (a number [Hz] for every link, or [M] one per link): the traced
+        geometry and its frequency-free caches (slot use, the polarisation chain's projections) are shared."""
+        f = torch.as_tensor(np.asarray(freq_hz, dtype=np.float64))
+        f = f.expand(self.num_links).clone() if f.ndim == 0 else f
+        if f.shape != (self.num_links,):
+            raise ValueError(f"freq_hz: expected one frequency or {self.num_links}, got shape {tuple(f.shape)}")
+        out = RoomPaths(self.num_links, self.link, self.length_m, self.gain, self.order, self.e_tx, self.e_rx,
+                        self.kind, self.patch, self.cos, self.s, self.p_in, self.p_out, f)
+        for key in ("_slot_use", "_jones_cache"):
+            if key in self.__dict__:
+                out.__dict__[key] = self.__dict__[key]
+        return out
 
     def select_links(self, rows) -> "RoomPaths":
         """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
@@ -434,7 +459,7 @@ class RoomPaths:
                     v0 = st[:, 0] * w0[:nxt] + st[:, 1] * w1[:nxt]
                     v1 = st[:, 2] * w0[:nxt] + st[:, 3] * w1[:nxt]
         pol = torch.cat(pieces[::-1] + [j["direct"]])
-        a = j["base"] * spec * pol
+        a = self._free_space() * spec * pol
         if incoherent:
             return torch.zeros(self.num_links, dtype=torch.float64).index_add(0, self.link, abs2(a))
         return torch.zeros(self.num_links, dtype=torch.complex128).index_add(0, self.link, a)
@@ -688,7 +713,8 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
                      max_interactions: int = MAX_INTERACTIONS,
                      third_order_small_reflections: int = THIRD_ORDER_SMALL_REFLECTIONS,
                      tx_gain=None, rx_gain=None) -> RoomPaths:
-    """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m at freq_hz [M].
+    """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m, to be evaluated at freq_hz
+    [M] Hz (the tracing does not depend on it: RoomPaths.at_frequency evaluates the paths at any other).
 
     First-order reflections use every patch of at least first_order_min_area_m2, second order the
     patches of at least higher_order_min_area_m2 (walls, floor, ceiling, large furniture), third and

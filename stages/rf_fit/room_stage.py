@@ -25,7 +25,7 @@ from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
                                              material_index, reflection_ranges, training_predictor)
 from rfir_stages.model.physical import PairSettings
-from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings
+from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings, band_of
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
@@ -315,7 +315,7 @@ def _choose_band(links, room, tx, rx, freq_hz: float, target_db: np.ndarray, fit
     train = np.flatnonzero(~held)
     params = fits.params(links, train, f"band: fitting coherently on {len(train)} of {len(tx)} links to validate the sums")
     candidates = {"coherent": links,
-                  "ble": room.band_links(tx, rx, freq_hz, "ble"),
+                  "ble": band_of(links, "ble", freq_hz),
                   "incoherent": RoomLinks(links.paths, links.diffuse, links.material_of_patch, links.num_materials,
                                           incoherent=True)}
     scores = {}
