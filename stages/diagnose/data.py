@@ -1,6 +1,7 @@
 """Rows for diagnose from a model and a measurement file.
 
-MODEL is an `rf` artifact (predicted here with `predict rcs` / `predict rssi` on the measured links),
+MODEL is an `rf` artifact (its radio model, rfir_stages.model.radio_model, predicts the measured links at the
+measured frequencies it predicts by default, with the effects diagnose recorded in it, as `rfir predict` does),
 or a `predictions` artifact (any method's prediction of the same links), or a `measurements`
 artifact used as a prediction (a plain ray tracer's output, e.g. Sionna without the effect).
 Train/test: the rf fit's split as predict scores it; otherwise the measurement file's split column
@@ -14,7 +15,10 @@ import numpy as np
 
 from rfir_core.artifacts import read_artifact
 from rfir_core.errors import InputFileError, StageError
+from rfir_stages.model.links import check_overlap
+from rfir_stages.model.radio_model import load_model
 
+from .apply import apply_recorded_effects
 from .crossings import crossings_from_artifact
 from .rows import Rows
 
@@ -55,18 +59,7 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     info = {"model": str(model_path), "model_kind": kind, "measurements": str(measurements_path), "task": task}
     split = None
     if kind == "rf":
-        pred_path = work_dir / "model_predictions.h5"
-        if task == "rssi":
-            from rfir_stages.predict.rssi import run_rssi
-
-            run_rssi(model_path, pred_path, {}, measurements_path=measurements_path, progress=progress)
-        else:
-            from rfir_stages.predict.rcs import run_rcs
-
-            run_rcs(model_path, pred_path, {}, measurements_path=measurements_path, progress=progress)
-        pred = read_artifact(pred_path, "predictions")
-        split = np.asarray(pred["split"]) if pred.get("split") is not None else None   # rf: same row order
-        info["predictions"] = str(pred_path)
+        pred, split = _predict_measured(model, meas, task, progress)   # rf: the measured rows, in their order
         if geometry_path is None:
             geometry_path = model_path
     else:
@@ -123,6 +116,21 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
         raise StageError(f"too few rows to diagnose ({int(rows.train.sum())} train, {int(rows.test.sum())} test)",
                          path=measurements_path)
     return rows, info
+
+
+def _predict_measured(rf, meas, task: str, progress) -> tuple[dict, np.ndarray | None]:
+    """({tx_pos, rx_pos, freq_hz, path_gain_db [L, F] dB}, the fit's split [L] or None) of the measured links,
+    predicted by the radio model of `rf` (refused, one line, when it predicts another task's quantity)."""
+    radio = load_model(rf, quantity=task)
+    tx, rx = np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)
+    check_overlap(radio.geometry, meas, str(meas.path))
+    freqs = radio.default_freqs(np.asarray(meas["freq_hz"], np.float64))
+    if freqs.size == 0:
+        raise StageError("the model predicts none of the measured frequencies", path=rf.path)
+    aspect, rng = meas.get("aspect_rad"), meas.get("range_m")
+    pg = radio.predict(tx, rx, freqs, progress=progress)
+    pg = apply_recorded_effects(rf, pg, tx, rx, freqs, aspect_rad=aspect, range_m=rng)
+    return {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg}, radio.training_split(meas)
 
 
 def measured_phases(channel: np.ndarray | None, where: str) -> tuple[np.ndarray | None, str]:

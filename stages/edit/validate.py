@@ -26,26 +26,35 @@ from scipy.stats import rankdata
 
 from rfir_core.artifacts import read_artifact
 from rfir_core.figures import pyplot, save_figure
+from rfir_core.physics.closed_forms import rcs_from_path_gain
+from rfir_stages.diagnose.apply import apply_recorded_effects
+from rfir_stages.model.antenna_patterns import antenna_from_attrs
+from rfir_stages.model.radio_model import load_model
+
+from .script import edits_from_options
+from .stage import run as run_edit
 
 
-def _predict_rcs(rf_path: Path, meas_path: Path, out: Path):
-    """(predicted [L], measured [L], test mask [L]): RCS in dBsm at the first fitted frequency."""
-    from rfir_stages.predict.rcs import run_rcs
-
-    run_rcs(rf_path, out, {}, measurements_path=meas_path)
-    p = read_artifact(out, "predictions")
-    return (np.asarray(p["rcs_dbsm"], np.float64)[:, 0], np.asarray(p["measured_db"], np.float64)[:, 0],
-            np.asarray(p["split"]) == 1)
-
-
-def _predict_rssi(rf_path: Path, meas_path: Path, out: Path):
-    """(predicted [L], measured [L], test mask [L]): path gain in dB."""
-    from rfir_stages.predict.rssi import run_rssi
-
-    run_rssi(rf_path, out, {}, measurements_path=meas_path)
-    p = read_artifact(out, "predictions")
-    return (np.asarray(p["path_gain_db"], np.float64)[:, 0], np.asarray(p["measured_db"], np.float64)[:, 0],
-            np.asarray(p["split"]) == 1)
+def predict_measured(rf_path: Path, meas_path: Path):
+    """(predicted [L], measured [L], test mask [L]) of every measured link at the first frequency the model
+    predicts there, as `rfir predict` scores them (the fit's test rows; the effects diagnose recorded): RCS in
+    dBsm for a model fitted on RCS, path gain in dB for one fitted on RSSI."""
+    model = load_model(rf_path)
+    meas = read_artifact(meas_path, "measurements")
+    f_meas = np.asarray(meas["freq_hz"], np.float64)
+    freqs = model.default_freqs(f_meas)[:1]
+    col = int(np.argmin(np.abs(f_meas - freqs[0])))
+    tx, rx = np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)
+    aspect, range_m = meas.get("aspect_rad"), meas.get("range_m")
+    pg = apply_recorded_effects(model.artifact, model.predict(tx, rx, freqs), tx, rx, freqs, aspect_rad=aspect,
+                                range_m=range_m)[:, 0]
+    split = model.training_split(meas)
+    test = np.zeros(len(tx), bool) if split is None else split == 1
+    if model.task == "rssi":
+        return pg, np.asarray(meas["path_gain_db"], np.float64)[:, col], test
+    g0 = antenna_from_attrs(model.artifact.free.get("model@attrs", {})).boresight_gain   # RCS: in dBsm
+    rcs = 10 * np.log10(rcs_from_path_gain(10 ** (pg / 10), np.asarray(range_m, np.float64), freqs[0], g0, g0))
+    return rcs, np.asarray(meas["rcs_dbsm"], np.float64)[:, col], test
 
 
 def change_metrics(pred_before, pred_after, meas_before, meas_after, test) -> dict:
@@ -96,9 +105,6 @@ def _plot(path: Path, name: str, d_pred: np.ndarray, d_meas: np.ndarray, m: dict
 def validate(rf_path, before_path, after_path, selects: list[str], ops: list[str], name: str, work_dir,
              results_path=None, plots_dir=None) -> dict:
     """Run the validation; return the metrics dict (also written to results_path as JSON)."""
-    from rfir_stages.edit import run as run_edit
-    from rfir_stages.edit.script import edits_from_options
-
     t0 = time.time()
     work = Path(work_dir)
     work.mkdir(parents=True, exist_ok=True)
@@ -112,9 +118,8 @@ def validate(rf_path, before_path, after_path, selects: list[str], ops: list[str
         map_tx = np.unique(tx, axis=0)[0]
     res = run_edit(rf_path, edited, edits_from_options(selects, ops, False), plot_path=plot, map_tx=map_tx)
     _check_same_links(before_path, after_path)
-    predict = _predict_rssi if task == "rssi" else _predict_rcs
-    pb, mb, test = predict(Path(rf_path), Path(before_path), work / f"{name}_pred_before.h5")
-    pa, ma, test_a = predict(edited, Path(after_path), work / f"{name}_pred_after.h5")
+    pb, mb, test = predict_measured(Path(rf_path), Path(before_path))
+    pa, ma, test_a = predict_measured(edited, Path(after_path))
     if not np.array_equal(test, test_a):
         raise ValueError("the test rows of the two predictions differ")
     metrics = change_metrics(pb, pa, mb, ma, test)
