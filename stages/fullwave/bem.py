@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from rfir_stages.po import polarization_vector
+from rfir_core.physics.polarisation import antenna_polarisation
 
 from .mie import C0
 
@@ -37,7 +37,7 @@ def bem_monostatic_rcs(vertices, faces, freq_hz: float, directions, polarization
     vertices (V,3) m and faces (F,3) int: a conforming triangle mesh (shared edges share vertices),
     closed or open; freq_hz scalar; directions (M,3): unit vectors from the object toward the radar
     (the wave travels along -direction); polarization "V" or "H" as in `rfir_stages.po`
-    (`polarization_vector` of the beam direction -direction; transmit = receive).
+    (`antenna_polarisation` of the beam direction -direction; transmit = receive).
     timings, if given, receives "assembly_s", "factor_s", "solve_s" (all aspects) and "dofs".
     """
     bempp = _bempp()
@@ -48,7 +48,7 @@ def bem_monostatic_rcs(vertices, faces, freq_hz: float, directions, polarization
 
     u = np.asarray(directions, float).reshape(-1, 3)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    pol = polarization_vector(-u, polarization)  # (M,3)
+    pol = antenna_polarisation(-u, polarization)  # (M,3)
     k = 2.0 * np.pi * float(freq_hz) / C0
     grid = bempp.Grid(np.ascontiguousarray(np.asarray(vertices, float).T),
                       np.ascontiguousarray(np.asarray(faces).T.astype(np.uint32)))

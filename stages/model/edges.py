@@ -72,7 +72,8 @@ from .occlusion import FrozenGeometry
 from .link_set import LinkSet
 
 from .link_rows import renumber_links
-from rfir_core.physics.materials import C0
+from rfir_core.physics.materials import C0, specular_share
+from rfir_core.physics.polarisation import antenna_polarisation
 
 WEDGE_T_COS = 0.9       # outer edges of two patches with tangents this parallel, on one line: one wedge
 WEDGE_ACROSS_HALF = 1.0  # ... and at most this many surfel half-sides apart across their tangent (see patch_edges)
@@ -453,14 +454,6 @@ class EdgeTerms:
         return EdgeTerms(self.num_links, self.link, self.gauss_a, self.gauss_b, self.coef[:, a:b], self.freq_hz[a:b])
 
 
-def _polarisation(s: torch.Tensor, pol: str) -> torch.Tensor:
-    """Unit polarisation vectors [..., 3] across the rays s [..., 3] (V: the part of +z; H: z x s)."""
-    z = torch.zeros_like(s)
-    z[..., 2] = 1.0
-    p = z - (z * s).sum(-1, keepdim=True) * s if pol == "V" else torch.linalg.cross(z, s, dim=-1)
-    return p / p.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-
-
 def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: AntennaPattern, lit,
                polarisation: str = "V", colocated_tol_m: float = 0.01, link_chunk: int = 64) -> EdgeTerms:
     """Edge items of every co-located link (module docstring). lit(link [Q], gauss [Q]) -> V [Q]: whether
@@ -505,7 +498,7 @@ def edge_terms(edges: Edges, links: LinkSet, tx_ant: AntennaPattern, rx_ant: Ant
                 continue
             f_s, f_h = wedge_fringe(phi[m_i, e_i].clamp(max=2 * math.pi), n_ext[e_i])
             sv = s[m_i, e_i]
-            p = _polarisation(sv, polarisation)
+            p = antenna_polarisation(sv, polarisation)
             t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sin_b[m_i, e_i].clamp(min=1e-12)[:, None]
             w_s = ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
             amp = w_s * f_s + (1.0 - w_s) * f_h                                # [I]
@@ -642,7 +635,7 @@ def _hard_item_radiation(edges: Edges, lk, radar, m_i, e_i, w, s, d, st, sb, k0,
     `wedge_fringe`, divided by k); d_a is the radar's distance to A's midpoint and d_b to the point across from it
     (their sum is the phase path of a wave that leaves or ends at the far side)."""
     sv = s[m_i, e_i]
-    p = _polarisation(sv, polarisation)
+    p = antenna_polarisation(sv, polarisation)
     t_perp = (edges.tangent[e_i] - st[m_i, e_i][:, None] * sv) / sb.clamp(min=1e-12)[:, None]
     w_h = 1.0 - ((p * t_perp).sum(-1) ** 2).clamp(0.0, 1.0)
     g_t = tx_ant.gain(-sv, links.tx_axis[lk][m_i])
@@ -741,7 +734,7 @@ def _fold_terms(edges: Edges, lk, radar, m_i, e_i, phi, n_ext, from_b, s, d, st,
 
 def edge_reflection(mats, freq_hz: torch.Tensor) -> torch.Tensor:
     """rho [N, K] of each material: -R_TE at normal incidence times sqrt(1 - S^2) (1 for a perfect conductor)."""
-    spec = torch.sqrt(1.0 - mats.scattering**2)[:, None]
+    spec = specular_share(mats.scattering)[:, None]
     return -mats.normal_reflection(freq_hz) * spec
 
 

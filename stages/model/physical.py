@@ -39,12 +39,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from rfir_stages.po.geometry import single_thread_torch
+from rfir_core.physics.angle_nodes import AngleNodes
+from rfir_core.physics.materials import C0, abs2, co_polar_reflection, fresnel, law_permittivity, specular_share
+from rfir_core.physics.polarisation import POLARISATIONS, te_share
+from rfir_core.threads import single_thread_torch
+
 from .antenna_patterns import AntennaPattern
 from .occlusion import FrozenGeometry, OcclusionProvider, lit_stop
 from .link_set import LinkSet
-
-from rfir_core.physics.materials import C0, abs2, co_polar_reflection, fresnel, permittivity
 from .link_rows import renumber_links
 from .edges import EdgeTerms, aggregate_edges, edge_field, edge_reflection, edge_terms, patch_edges
 from .second_order import DoubleBounce, Patches, build_double_bounce, planar_patches
@@ -54,7 +56,6 @@ from .surfels import covariance, footprint_cells, footprint_factor, surfel_areas
 EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
 LOG10_SIGMA = (-4.0, 7.0)   # conductivity at 1 GHz in [1e-4, 1e7] S/m (1e7: metal)
 THICKNESS_M = (1e-3, 1.0)   # slab thickness range, m
-POLARISATIONS = {"V": (0.0, 0.0, 1.0), "H": None}   # V: along +z; H: horizontal, across the link
 DENSE_VIS_MAX = 1 << 24     # links x Gaussians up to which the visibility lookup is a dense table (128 MiB)
 
 
@@ -150,24 +151,6 @@ class PairSettings:
     min_patch_area_m2: float = 2e-3
     lit_threshold: float = 0.2
     edge_waves: bool = False
-
-
-def _te_share(w_i: torch.Tensor, n: torch.Tensor, pol: str) -> torch.Tensor:
-    """Squared projection of the wave's polarisation (transverse to w_i) on the TE direction n x w_i."""
-    e_te = torch.linalg.cross(n, w_i, dim=-1)
-    s = e_te.norm(dim=-1)
-    e_te = e_te / s.clamp(min=1e-12)[..., None]
-    if pol == "V":
-        p = torch.tensor(POLARISATIONS["V"], dtype=w_i.dtype).expand_as(w_i)
-    else:  # horizontal: z x w_i
-        z = torch.zeros_like(w_i)
-        z[..., 2] = 1.0
-        p = torch.linalg.cross(z, w_i, dim=-1)
-    p = p - (p * w_i).sum(-1, keepdim=True) * w_i        # transverse part
-    pn = p.norm(dim=-1)
-    te = ((p * e_te).sum(-1) / pn.clamp(min=1e-12)) ** 2
-    # normal incidence (no plane of incidence) or polarisation along the ray: TE and TM agree there
-    return torch.where((s < 1e-9) | (pn < 1e-9), torch.full_like(te, 0.5), te.clamp(0.0, 1.0))
 
 
 def lit_state(transmittance: torch.Tensor, threshold: float) -> torch.Tensor:
@@ -298,7 +281,7 @@ def _pairs_block(geom, links: LinkSet, a: int, b: int, tx_ant, rx_ant, cells, se
     g_t = tx_ant.gain(-wi, links.tx_axis[a:b][m_idx])
     g_r = rx_ant.gain(-wo, links.rx_axis[a:b][m_idx])
     return {"link": m_idx + a, "gauss": g_idx, "d_i": d_i[m_idx, g_idx], "d_o": d_o[m_idx, g_idx],
-            "cos_i": cos_i[m_idx, g_idx], "cos_o": cos_o[m_idx, g_idx], "te": _te_share(wi, nn_, settings.polarisation),
+            "cos_i": cos_i[m_idx, g_idx], "cos_o": cos_o[m_idx, g_idx], "te": te_share(wi, nn_, settings.polarisation),
             "gain": torch.sqrt(g_t * g_r), "q_cell": q_cell}
 
 
@@ -324,9 +307,8 @@ class MaterialValues:
 
     def eta(self, freq_hz: torch.Tensor) -> torch.Tensor:
         """Complex relative permittivity [N, K]: eps_r - j sigma(f) / (eps_0 omega), sigma = sigma_1GHz f^d."""
-        f = freq_hz.double()[None]
-        sigma = self.sigma_1ghz[:, None] * (f / 1e9) ** self.sigma_exponent
-        return permittivity(self.eps_r[:, None], sigma, f)
+        return law_permittivity(self.eps_r[:, None], 0.0, self.sigma_1ghz[:, None], self.sigma_exponent,
+                                freq_hz.double()[None])
 
     def normal_reflection(self, freq_hz: torch.Tensor) -> torch.Tensor:
         """R_TE at normal incidence [N, K] (|Gamma| as a radio engineer reads it)."""
@@ -410,7 +392,7 @@ def specular_terms(pairs: PairGeometry, material_of_gaussian: torch.Tensor, mats
     gamma = co_polar_reflection(r_te, r_tm, pairs.te_share[:, None])   # [P, K]
     s = mats.scattering[mat]
     base = pairs.gain * pairs.vis * pairs.area / (4 * math.pi * pairs.d_i * pairs.d_o)   # [P]
-    spec_amp = base * 0.5 * (pairs.cos_i + pairs.cos_o) * torch.sqrt(1.0 - s**2)
+    spec_amp = base * 0.5 * (pairs.cos_i + pairs.cos_o) * specular_share(s)
     foot = footprint_factor(pairs.q_cell, k0)
     phase = torch.exp(-1j * (pairs.d_i + pairs.d_o)[:, None] * k0[None])
     return 1j * (spec_amp[:, None] * foot) * gamma * phase, gamma
@@ -471,7 +453,7 @@ def _bounce_field(num_links: int, link: torch.Tensor, gauss: tuple, cos: tuple, 
         mat = material_of_gaussian[g]
         th = None if mats.thickness_m is None else mats.thickness_m[mat][:, None]
         r_te, r_tm = fresnel(eta[mat], c[:, None], k0[None], th)
-        spec = torch.sqrt(1.0 - mats.scattering[mat] ** 2)[:, None]
+        spec = specular_share(mats.scattering[mat])[:, None]
         refl.append((r_te * spec, r_tm * spec))
     out = torch.zeros((num_links, freq_hz.numel()), dtype=torch.complex128)
     return out.index_add(0, link, coef * bounce_product(pol[:, :, None], refl))
@@ -497,7 +479,7 @@ DOUBLE_CULL_REL = 0.01  # per link, the weakest double-bounce cells carrying 1 %
 
 
 def _aggregate_bounces(link: torch.Tensor, gauss: tuple, cos: tuple, pol: torch.Tensor, coef: torch.Tensor,
-                       material_of_gaussian: torch.Tensor, n: int, j: int, step: float, cull_rel: float) -> dict:
+                       material_of_gaussian: torch.Tensor, n: int, j: int, cull_rel: float) -> dict:
     """Multiple-bounce items (N planes: gauss, cos N tensors [I]; pol [I, F]; coef [I, K]) summed per cell
     (link, material and angle node of each plane), each item split multilinearly between the 2^N node
     combinations around its incidence angles, with its factors pol (`bounce_product`).
@@ -505,9 +487,8 @@ def _aggregate_bounces(link: torch.Tensor, gauss: tuple, cos: tuple, pol: torch.
     Returns link [C], mat [C, N], node [C, N], pol [C, F, K]."""
     ends = []
     for g, c in zip(gauss, cos):
-        pos = torch.arccos(c.clamp(0.0, 1.0)) / step
-        lo = pos.floor().long().clamp(0, j - 2)
-        ends.append((material_of_gaussian[g], lo, (pos - lo).clamp(0.0, 1.0)))
+        lo, w_hi = AngleNodes(j).position(c)
+        ends.append((material_of_gaussian[g], lo, w_hi))
     keys, weights = [], []
     for corner in itertools.product((0, 1), repeat=len(ends)):
         key, weight = link, None
@@ -583,7 +564,6 @@ class AggregatedPairs:
         a_te = torch.zeros(m * n * j, k, dtype=torch.complex128)
         a_tm = torch.zeros_like(a_te)
         diff = torch.zeros(m * n * j, 3, dtype=torch.float64)
-        step = math.radians(90.0) / (j - 1)
         with torch.no_grad():
             for a in range(0, pairs.num_pairs, chunk):
                 sl = slice(a, min(pairs.num_pairs, a + chunk))
@@ -593,23 +573,20 @@ class AggregatedPairs:
                     * footprint_factor(pairs.q_cell[sl], k0) \
                     * torch.exp(-1j * (pairs.d_i[sl] + pairs.d_o[sl])[:, None] * k0[None])
                 d = base**2 * cos_i * cos_o / (math.pi * pairs.area[sl])
-                pos = torch.arccos(cos_i.clamp(0.0, 1.0)) / step
-                lo = pos.floor().long().clamp(0, j - 2)
-                w_hi = (pos - lo).clamp(0.0, 1.0)
+                lo, w_hi = AngleNodes(j).position(cos_i)
                 te = pairs.te_share[sl]
                 cell = (pairs.link[sl] * n + material_of_gaussian[pairs.gauss[sl]]) * j + lo
                 for node, w in ((cell, 1.0 - w_hi), (cell + 1, w_hi)):
                     a_te.index_add_(0, node, c * (te * w)[:, None])
                     a_tm.index_add_(0, node, c * ((1.0 - te) * w)[:, None])
                     diff.index_add_(0, node, (d * w)[:, None] * torch.stack([te**2, (1 - te) ** 2, te * (1 - te)], 1))
-        step2 = math.radians(90.0) / (DOUBLE_NODES - 1)
         db, tb = pairs.double, pairs.triple
         double = None if db is None or not db.num else \
             _aggregate_bounces(db.link, (db.gauss_a, db.gauss_b), (db.cos_a, db.cos_b), db.pol, db.coef,
-                               material_of_gaussian, n, DOUBLE_NODES, step2, double_cull_rel)
+                               material_of_gaussian, n, DOUBLE_NODES, double_cull_rel)
         triple = None if tb is None or not tb.num else \
             _aggregate_bounces(tb.link, tb.gauss.unbind(1), tb.cos.unbind(1), tb.pol, tb.coef(k0), material_of_gaussian,
-                               n, DOUBLE_NODES, step2, double_cull_rel)
+                               n, DOUBLE_NODES, double_cull_rel)
         edges = aggregate_edges(pairs.edges, material_of_gaussian, n) \
             if edge_waves and pairs.edges is not None and pairs.edges.num else None
         return AggregatedPairs(a_te.reshape(m, n, j, k), a_tm.reshape(m, n, j, k), diff.reshape(m, n, j, 3),
@@ -633,14 +610,14 @@ class AggregatedPairs:
         """Received power [M, K] (P_T = 1 W) for materials `mats` (N of them)."""
         f = self.freq_hz
         k0 = 2 * math.pi * f / C0
-        nodes = torch.cos(torch.linspace(0.0, math.pi / 2, ANGLE_NODES, dtype=torch.float64))   # [J]
+        nodes = AngleNodes(ANGLE_NODES).cosines()   # [J]
         th = None if mats.thickness_m is None else mats.thickness_m[:, None, None]
         r_te, r_tm = fresnel(mats.eta(f)[:, None, :], nodes[None, :, None], k0[None, None], th)   # [N, J, K]
-        spec = torch.sqrt(1.0 - mats.scattering**2).to(torch.complex128)[:, None, None]
+        spec = specular_share(mats.scattering).to(torch.complex128)[:, None, None]
         field = torch.einsum("mnjk,njk->mk", self.a_te, r_te * spec) - torch.einsum("mnjk,njk->mk", self.a_tm, r_tm * spec)
         if self.double is not None or self.triple is not None:
             # cells (link, material and node of each plane): Gamma on the nodes, with sqrt(1 - S^2)
-            nodes2 = torch.cos(torch.linspace(0.0, math.pi / 2, DOUBLE_NODES, dtype=torch.float64))
+            nodes2 = AngleNodes(DOUBLE_NODES).cosines()
             d_te, d_tm = fresnel(mats.eta(f)[:, None, :], nodes2[None, :, None], k0[None, None], th)   # [N, J2, K]
             kk = f.numel()
             te_flat = (d_te * spec).reshape(-1, kk)                  # [N * J2, K]

@@ -51,6 +51,7 @@ from .link_set import LinkSet
 from .edges import patch_coverage_of
 from .link_rows import renumber_links
 from rfir_core.physics.materials import C0
+from rfir_core.physics.polarisation import antenna_polarisation, reflection_basis
 from .plane_merge import merge_coplanar, offset_scatter_m
 from .surfels import COPLANAR_M, covariance, footprint_factor
 
@@ -335,39 +336,6 @@ def mirror_points(x: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.nd
     return x - 2.0 * side[..., None] * normal
 
 
-def antenna_polarisation(pointing: torch.Tensor, pol: str) -> torch.Tensor:
-    """[I, 3] unit E-field direction of an antenna whose wave leaves along `pointing` [I, 3] (unit):
-    V, the part of +z transverse to it (+x where it is vertical); H = V x pointing. Transmit and
-    receive use the same rule, as a radar does."""
-    z = torch.zeros_like(pointing)
-    z[:, 2] = 1.0
-    v = z - (pointing * z).sum(-1, keepdim=True) * pointing
-    vertical = v.norm(dim=-1) < 1e-9
-    if vertical.any():
-        x = torch.zeros_like(pointing[vertical])
-        x[:, 0] = 1.0
-        v[vertical] = x - (pointing[vertical] * x).sum(-1, keepdim=True) * pointing[vertical]
-    v = _unit(v)
-    return v if pol == "V" else torch.linalg.cross(v, pointing, dim=-1)
-
-
-def _reflection_basis(i: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(e_TE, e_TM incident, e_TM reflected) [I, 3] for a wave along i reflected by a plane of normal
-    n (facing it): e_TE = i x n / |i x n|, e_TM = k x e_TE for k = i and its mirror image. At normal
-    incidence any tangent serves (R_TM = -R_TE there, the reflection is the same)."""
-    e_te = torch.linalg.cross(i, n, dim=-1)
-    normal = e_te.norm(dim=-1) < 1e-9
-    if normal.any():
-        ref = torch.zeros_like(n[normal])
-        use_x = n[normal][:, 0].abs() < 0.9
-        ref[use_x, 0] = 1.0
-        ref[~use_x, 1] = 1.0
-        e_te[normal] = torch.linalg.cross(n[normal], ref, dim=-1)
-    e_te = _unit(e_te)
-    r = i - 2.0 * (i * n).sum(-1, keepdim=True) * n
-    return e_te, torch.linalg.cross(i, e_te, dim=-1), torch.linalg.cross(r, e_te, dim=-1)
-
-
 def polarisation_chain(i_a: torch.Tensor, n_a: torch.Tensor, i_b: torch.Tensor, n_b: torch.Tensor,
                        to_rx: torch.Tensor, pol: str) -> torch.Tensor:
     """[I, 4] factors c_XY with p_r . T_B T_A p_t = sum_XY c_XY R_X(A) R_Y(B), XY = (TE, TE), (TE, TM),
@@ -387,13 +355,13 @@ def reflection_chain(dirs: list, normals: list, to_rx: torch.Tensor, pol: str) -
 
     dirs: N directions [I, 3] (unit) of the wave arriving at reflection 1..N, each the mirror image of
     the one before; normals: N planes' normals [I, 3], each facing its wave; to_rx [I, 3]: the last
-    plane -> Rx. A reflection is T = R_TE e_TE e_TE^T + R_TM e_TM,r e_TM,i^T (`_reflection_basis`; a
+    plane -> Rx. A reflection is T = R_TE e_TE e_TE^T + R_TM e_TM,r e_TM,i^T (`reflection_basis`; a
     perfect conductor has R_TE = -1, R_TM = +1, T = minus the mirror image); p_t, p_r the antennas'
     polarisations (`antenna_polarisation`, the receiver's along -to_rx)."""
     p_t = antenna_polarisation(dirs[0], pol)
     p_r = antenna_polarisation(-to_rx, pol)
     dot = lambda u, v: (u * v).sum(-1)  # noqa: E731
-    ends = [((te, te), (tmi, tmr)) for te, tmi, tmr in (_reflection_basis(i, n) for i, n in zip(dirs, normals))]
+    ends = [((te, te), (tmi, tmr)) for te, tmi, tmr in (reflection_basis(i, n) for i, n in zip(dirs, normals))]
     out = []
     for path in itertools.product(*ends):          # (in, out) of each reflection, the first slowest
         f = dot(p_r, path[-1][1])
@@ -430,7 +398,7 @@ def bounce_factors(dirs: list, normals: list, to_rx: torch.Tensor, pol: str) -> 
     `reflection_chain` (to_rx: the last plane -> Rx, the scattering direction; it need not be the mirror
     image of the last wave).
 
-    The N - 1 reflections are geometric optics (`_reflection_basis`): each part X1..X(N-1) of p_t reaches
+    The N - 1 reflections are geometric optics (`reflection_basis`): each part X1..X(N-1) of p_t reaches
     the last plane as the field e = e_X(N-1),r (e_X(N-1),i . ... e_X1,r (e_X1,i . p_t)). On that plane e
     and its reflection R_TE (e . e_TE) e_TE + R_TM (e . e_TM,i) e_TM,r carry the PO currents, radiated
     toward Rx and projected on p_r (`_po_radiation`, halved to the model's normalisation). Where the last
@@ -442,14 +410,14 @@ def bounce_factors(dirs: list, normals: list, to_rx: torch.Tensor, pol: str) -> 
     p_t = antenna_polarisation(dirs[0], pol)
     p_r = antenna_polarisation(-to_rx, pol)
     i_l, n_l = dirs[-1], normals[-1]
-    te_l, tmi_l, tmr_l = _reflection_basis(i_l, n_l)
+    te_l, tmi_l, tmr_l = reflection_basis(i_l, n_l)
     r_l = i_l - 2.0 * (i_l * n_l).sum(-1, keepdim=True) * n_l
     cross = lambda u, v: torch.linalg.cross(u, v, dim=-1)  # noqa: E731
     dot = lambda u, v: (u * v).sum(-1)  # noqa: E731
     rad_te = 0.5 * _po_radiation(n_l, to_rx, p_r, te_l, cross(r_l, te_l))      # the last plane's TE reflection, per unit
     rad_tm = 0.5 * _po_radiation(n_l, to_rx, p_r, tmr_l, cross(r_l, tmr_l))    # its TM reflection, per unit
     fields = [p_t]
-    for te, tmi, tmr in (_reflection_basis(i, n) for i, n in zip(dirs[:-1], normals[:-1])):
+    for te, tmi, tmr in (reflection_basis(i, n) for i, n in zip(dirs[:-1], normals[:-1])):
         fields = [out * dot(inn, e)[:, None] for e in fields for inn, out in ((te, te), (tmi, tmr))]
     out_xy, out_x0 = [], []
     for e in fields:                                                             # each path's field at the last plane

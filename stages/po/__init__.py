@@ -12,7 +12,7 @@ Public API:
 - meshes with closed forms: `plate_mesh`, `dihedral_mesh`, `trihedral_mesh`, `icosphere`.
 """
 from .currents import po_coefficients
-from .geometry import dihedral_mesh, icosphere, plate_mesh, polarization_vector, triangle_phase_factor, trihedral_mesh
+from .geometry import dihedral_mesh, icosphere, plate_mesh, triangle_phase_factor, trihedral_mesh
 from .facet_materials import (ITU_MATERIALS, face_reflection_from_materials, fresnel, itu_reflection_coefficient,
                         known_materials, relative_permittivity)
 from .scene import antenna_weight, scene_mesh, scene_rcs
@@ -22,5 +22,5 @@ from .visibility import Occluder
 BACKEND_NAME = "po"
 __all__ = ["BACKEND_NAME", "ITU_MATERIALS", "Occluder", "antenna_weight", "channel_from_amplitude", "dihedral_mesh",
            "face_reflection_from_materials", "fresnel", "icosphere", "itu_reflection_coefficient", "known_materials",
-           "plate_mesh", "po_coefficients", "po_rcs", "po_scattered_field", "polarization_vector", "provenance", "rcs_dbsm",
+           "plate_mesh", "po_coefficients", "po_rcs", "po_scattered_field", "provenance", "rcs_dbsm",
            "relative_permittivity", "scene_mesh", "scene_rcs", "triangle_phase_factor", "trihedral_mesh"]

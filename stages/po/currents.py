@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .geometry import normalize
+from rfir_core.physics.polarisation import mirror_direction, reflection_basis
 
 _SQRT_4PI = math.sqrt(4.0 * math.pi)
 
@@ -34,20 +34,9 @@ def po_coefficients(n, i_hat, s_hat, e_inc, p_hat):
     incident wave, s_hat: scattering direction, e_inc: incident E (any real vector, linear),
     p_hat: receive polarisation. Perfect conductor: R_TE = -1, R_TM = +1.
     """
-    r_hat = i_hat - 2.0 * _dot(i_hat, n)[:, None] * n
-    e_te = np.cross(i_hat, n)
-    ln = np.linalg.norm(e_te, axis=1)
-    deg = ln < 1e-12
-    if deg.any():  # normal incidence: any tangent works (R_TM = -R_TE there)
-        t = e_inc[deg] - _dot(e_inc[deg], n[deg])[:, None] * n[deg]
-        bad = np.linalg.norm(t, axis=1) < 1e-12
-        t[bad] = np.cross(n[deg][bad], np.array([0.0, 0.0, 1.0]))
-        bad2 = np.linalg.norm(t, axis=1) < 1e-12
-        t[bad2] = np.cross(n[deg][bad2], np.array([1.0, 0.0, 0.0]))
-        e_te[deg] = t
-    e_te = normalize(e_te)
-    e_tm_i = np.cross(i_hat, e_te)
-    e_tm_r = np.cross(r_hat, e_te)
+    r_hat = mirror_direction(i_hat, n)
+    # at normal incidence the incident field's own direction is taken as TE (any tangent works: R_TM = -R_TE there)
+    e_te, e_tm_i, e_tm_r = reflection_basis(i_hat, n, r_hat, fallback=e_inc)
     a_te = _dot(e_inc, e_te)
     a_tm = _dot(e_inc, e_tm_i)
     c0 = _radiate(n, s_hat, p_hat, e_inc, np.cross(i_hat, e_inc))
@@ -59,17 +48,9 @@ def po_coefficients(n, i_hat, s_hat, e_inc, p_hat):
 def reflect_field_basis(n, i_hat, e_inc):
     """Reflected-field basis at a facet: (r_hat, [a_te * e_te, a_tm * e_tm_r]) so that the reflected
     E = R_TE * b0 + R_TM * b1 (perfect conductor: -b0 + b1 = -e + 2 (e.n) n)."""
-    r_hat = i_hat - 2.0 * _dot(i_hat, n)[:, None] * n
-    e_te = np.cross(i_hat, n)
-    deg = np.linalg.norm(e_te, axis=1) < 1e-12
-    if deg.any():
-        t = e_inc[deg] - _dot(e_inc[deg], n[deg])[:, None] * n[deg]
-        bad = np.linalg.norm(t, axis=1) < 1e-12
-        t[bad] = np.cross(n[deg][bad], np.array([0.0, 0.0, 1.0]))
-        e_te[deg] = t
-    e_te = normalize(e_te)
-    e_tm_i = np.cross(i_hat, e_te)
-    e_tm_r = np.cross(r_hat, e_te)
+    r_hat = mirror_direction(i_hat, n)
+    # at normal incidence the incident field's own direction is taken as TE (any tangent works: R_TM = -R_TE there)
+    e_te, e_tm_i, e_tm_r = reflection_basis(i_hat, n, r_hat, fallback=e_inc)
     return r_hat, (_dot(e_inc, e_te)[:, None] * e_te, _dot(e_inc, e_tm_i)[:, None] * e_tm_r)
 
 

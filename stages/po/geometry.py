@@ -1,5 +1,4 @@
-"""Geometry kernels of the PO solver: the closed-form triangle phase integral, polarisation bases,
-facet tables, and a few meshes with known RCS (plate, dihedral, sphere) for tests and benchmarks.
+"""Geometry kernels of the PO solver: the closed-form triangle phase integral, facet tables, and a few meshes with known RCS (plate, dihedral, sphere) for tests and benchmarks.
 
 Everything here is numpy float64; shapes in the docstrings, SI units.
 """
@@ -15,30 +14,6 @@ import numpy as np
 _SERIES_SPREAD = 0.1
 _SERIES_TERMS = 10
 _INV_FACT = np.array([1.0 / math.factorial(n + 2) for n in range(_SERIES_TERMS)])
-
-
-class single_thread_torch:
-    """Context manager: torch intra-op threads = 1 inside (restored after).
-
-    The PO kernels call torch on blocks of ~1e5 elements; with 2 threads on a shared, busy CPU the
-    thread hand-offs cost more than the work."""
-
-    def __enter__(self):
-        try:
-            import torch
-        except ImportError:  # pragma: no cover
-            self._n = None
-            return self
-        self._n = torch.get_num_threads()
-        if self._n != 1:
-            torch.set_num_threads(1)
-        return self
-
-    def __exit__(self, *exc):
-        if self._n not in (None, 1):
-            import torch
-            torch.set_num_threads(self._n)
-        return False
 
 
 def _sincos(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,29 +118,6 @@ def facet_table(vertices: np.ndarray, faces: np.ndarray) -> dict:
 
 def normalize(x: np.ndarray, eps: float = 1e-300) -> np.ndarray:
     return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), eps)
-
-
-def polarization_vector(pointing: np.ndarray, kind: str) -> np.ndarray:
-    """Unit E-field direction of an antenna whose beam points along `pointing` (N,3), kind "V" or "H".
-
-    V: the part of +z transverse to the beam (x when the beam is vertical); H = V x pointing
-    (horizontal). A radar uses the same vectors to transmit and receive, so monostatic co-pol
-    responses have a consistent phase across aspects.
-    """
-    d = normalize(np.asarray(pointing, dtype=float))
-    z = np.array([0.0, 0.0, 1.0])
-    v = z[None, :] - (d @ z)[:, None] * d
-    bad = np.linalg.norm(v, axis=1) < 1e-9
-    if bad.any():
-        x = np.array([1.0, 0.0, 0.0])
-        v[bad] = x[None, :] - (d[bad] @ x)[:, None] * d[bad]
-    v = normalize(v)
-    kind = str(kind).upper()
-    if kind == "V":
-        return v
-    if kind == "H":
-        return np.cross(v, d)
-    raise ValueError(f"polarization must be 'V' or 'H', got {kind!r}")
 
 
 # ----------------------------------------------------------------------------------------------

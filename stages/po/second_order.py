@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import normalize, polarization_vector, sinc_u
+from rfir_core.physics.polarisation import antenna_polarisation
+
+from .geometry import normalize, sinc_u
 from .currents import _dot, _sum_into, po_coefficients, reflect_field_basis
 
 REFINE_MAX = 32     # a tube side is cut into at most this many parts where its footprint is long (grazing bounces)
@@ -307,11 +309,11 @@ def _radiate_bounce(out, r, b, ctx):
     wa, wb = _dot(w, a_vec), _dot(w, b_vec)
     # fields: the incident E split into TE / TM parts at each GO bounce, 2^(b-1) real vectors, each
     # labelled by its modes (0 = TE, 1 = TM) and later weighted by the product of those coefficients
-    terms = [((), polarization_vector(d, ctx["pol_t"]))]
+    terms = [((), antenna_polarisation(d, ctx["pol_t"]))]
     for j in range(L):
         terms = [(modes + (i,), part) for modes, e in terms
                  for i, part in enumerate(reflect_field_basis(n[:, j], dirs[:, j], e)[1])]
-    p_hat = polarization_vector(-s_hat, ctx["pol_r"])
+    p_hat = antenna_polarisation(-s_hat, ctx["pol_r"])
     coefs = [(modes, po_coefficients(nL, dL, s_hat, e, p_hat)) for modes, e in terms]   # (P, 3) each
     cos_abs = np.abs(np.einsum("pbi,pbi->pb", dirs, n))     # (P, b) at each hit
 

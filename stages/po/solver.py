@@ -45,7 +45,10 @@ from typing import Callable
 import numpy as np
 
 from .currents import _dot, _sum_into, po_coefficients
-from .geometry import facet_table, polarization_vector, single_thread_torch, subdivide_facets, triangle_phase_factor
+from rfir_core.physics.polarisation import antenna_polarisation
+from rfir_core.threads import single_thread_torch
+
+from .geometry import facet_table, subdivide_facets, triangle_phase_factor
 from .facet_materials import C0, permittivity_array
 from .visibility import Occluder
 
@@ -429,8 +432,8 @@ def _accumulate_first_order(out, mg, ri, nf, w, c, rel, area, tx, rx, ref, R_t, 
         s_hat = r_hat_far[mg]
         phase_len = _dot(s_hat - i_hat, c - ref)
         amp = np.ones(len(mg))
-    e_inc = polarization_vector(i_hat, pol_t)
-    p_hat = polarization_vector(-s_hat, pol_r)
+    e_inc = antenna_polarisation(i_hat, pol_t)
+    p_hat = antenna_polarisation(-s_hat, pol_r)
     coef = po_coefficients(nf, i_hat, s_hat, e_inc, p_hat)
     q = s_hat - i_hat
     alpha = np.einsum("pvi,pi->pv", rel, q)

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from rfir_stages.model.second_order import (_reflection_basis, antenna_polarisation, polarisation_chain,
-                                            second_bounce_factors)
+from rfir_core.physics.polarisation import antenna_polarisation, reflection_basis
+from rfir_stages.model.second_order import polarisation_chain, second_bounce_factors
 from rfir_stages.po.currents import po_coefficients
 
 from .helpers import double_bounce_error_db, plate_mesh
@@ -44,7 +44,7 @@ def test_second_bounce_factors_are_the_po_solver_coefficients(pol):
     ours = second_bounce_factors(t(i_a), t(n_a), t(i_b), t(n_b), t(to_rx), pol).numpy()
     p_t = antenna_polarisation(t(i_a), pol).numpy()
     p_r = antenna_polarisation(t(-to_rx), pol).numpy()
-    te, tmi, tmr = (x.numpy() for x in _reflection_basis(t(i_a), t(n_a)))
+    te, tmi, tmr = (x.numpy() for x in reflection_basis(t(i_a), t(n_a)))
     for col, (e_in, e_out) in enumerate(((te, te), (tmi, tmr))):
         e = e_out * (e_in * p_t).sum(1)[:, None]                     # A's X part reaching B
         c0, c_te, c_tm = po_coefficients(n_b, i_b, to_rx, e, p_r).T

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
-from rfir_stages.po import (dihedral_mesh, plate_mesh, po_scattered_field, polarization_vector, provenance,
-                            relative_permittivity, trihedral_mesh)
+from rfir_core.physics.polarisation import antenna_polarisation
+from rfir_stages.po import (dihedral_mesh, plate_mesh, po_scattered_field, provenance, relative_permittivity,
+                            trihedral_mesh)
 from rfir_stages.po.facet_materials import fresnel
 
 FREQS = np.array([2.4e9, 5.8e9])
@@ -108,7 +109,7 @@ def test_trihedral_of_three_materials_takes_each_plates_fresnel_coefficients(mat
     v, f = trihedral_mesh(A, 1)
     axis_of_face = np.argmax(np.abs(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])), axis=1)
     names = np.asarray(materials)[axis_of_face]           # materials[i]: the plate normal to axis i
-    e = polarization_vector(-AXIS[None], "V")[0]
+    e = antenna_polarisation(-AXIS[None], "V")[0]
     expected = []
     for freq in FREQS:
         total = 0.0
