@@ -24,7 +24,7 @@ import torch
 from rfir_core.threads import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
-from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
+from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission, specular_share
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import CROSSING_NODES, MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms
@@ -331,7 +331,7 @@ class RoomLinks:
         for te, tm, frac in self._slots:
             lo_te, lo_tm = tab[te], tab[tm]
             coefficients.append((lo_te + (tab[te + 1] - lo_te) * frac, lo_tm + (tab[tm + 1] - lo_tm) * frac))
-        spec_m = torch.sqrt((1.0 - mats.scattering ** 2).clamp(min=0.0))
+        spec_m = specular_share(mats.scattering)
         spec = torch.cat([spec_m, torch.ones(1, dtype=torch.float64)])[self._refl_mat].prod(1)
         field = self.paths.chain(coefficients, spec, self.incoherent)
         if self.incoherent:
@@ -461,7 +461,7 @@ class MaterialPart:
         width = own.shape[1]
         c_te = flat[te] + (flat[te + 1] - flat[te]) * frac
         c_tm = flat[te + width] + (flat[te + width + 1] - flat[te + width]) * frac
-        share = torch.where(self.reflects, torch.sqrt((1.0 - mats.scattering[i] ** 2).clamp(min=0.0)), 1.0)
+        share = torch.where(self.reflects, specular_share(mats.scattering[i]), 1.0)
         field = field.index_add(0, self.link_once, (self.unit_te * c_te + self.unit_tm * c_tm) * share)
         diff = self.diff0
         if self.form is not None:

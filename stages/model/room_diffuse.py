@@ -29,7 +29,8 @@ import torch
 
 from .link_rows import renumber_links
 from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
-from .room_paths import PatchSet, _dot, leg_crossings
+from rfir_core.physics.crossings import leg_crossings
+from .room_paths import PatchSet, _dot
 
 NODES = 46   # incidence-angle nodes 0, 2, ..., 90 degrees of a cell's |Gamma|^2, linear between them
 # incidence-angle nodes 0, 1, ..., 90 degrees of a crossing's |T|^2, the nearest taken: the terms of one link
@@ -294,7 +295,7 @@ class CellCrossings:
     per model and every later transmitter reuses them. Only the entries a call needs are traced (a cell with
     the link's ends on opposite sides of its plane scatters nothing between them); the others are traced
     when a later call needs them. Rows are kept up to max_bytes, the oldest dropped first; points are keyed
-    rounded to 1 nm. The crossings are found as for the specular legs (room_paths.leg_crossings)."""
+    rounded to 1 nm. The crossings are found as for the specular legs (rfir_core.physics.crossings.leg_crossings)."""
 
     def __init__(self, cells: DiffuseCells, patches: PatchSet, provider, max_bytes: float = 256e6):
         self.cells, self.patches, self.provider = cells, patches, provider

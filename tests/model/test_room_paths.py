@@ -19,7 +19,8 @@ import pytest
 import torch
 
 from rfir_core.physics.materials import C0, fresnel, itu_law, permittivity, slab_transmission
-from rfir_stages.model.room_paths import build_patch_set, polarisation_vectors, trace_room_paths
+from rfir_core.physics.polarisation import antenna_polarisation
+from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.model.occlusion import make_provider
 
@@ -79,10 +80,10 @@ def test_metal_floor_two_ray_interference_matches_the_image_method(pol):
     k0u = d0 / np.linalg.norm(d0, axis=1, keepdims=True)
     k1u = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
     k_dep = k1u * [1, 1, -1]                                     # the real ray leaves Tx downward
-    e_t = polarisation_vectors(k_dep, pol)
+    e_t = antenna_polarisation(k_dep, pol)
     e_ref = -(e_t - 2 * (e_t @ n)[:, None] * n)
-    direct = _free(np.linalg.norm(d0, axis=1)) * (polarisation_vectors(k0u, pol) * polarisation_vectors(k0u, pol)).sum(1)
-    refl = _free(np.linalg.norm(d1, axis=1)) * (polarisation_vectors(k1u, pol) * e_ref).sum(1)
+    direct = _free(np.linalg.norm(d0, axis=1)) * (antenna_polarisation(k0u, pol) * antenna_polarisation(k0u, pol)).sum(1)
+    refl = _free(np.linalg.norm(d1, axis=1)) * (antenna_polarisation(k1u, pol) * e_ref).sum(1)
     want = direct + refl
     assert np.max(np.abs(20 * np.log10(np.abs(got) / np.abs(want)))) < 1e-6
     assert np.max(np.abs(np.angle(got / want))) < 1e-6

@@ -156,7 +156,7 @@ def test_wall_transmission_is_the_slab_formula_of_the_room_model(tmp_path, mater
     import torch
 
     from rfir_core.physics.materials import slab_transmission
-    from rfir_stages.model.room_paths import polarisation_vectors
+    from rfir_core.physics.polarisation import antenna_polarisation
 
     f = 2.4e9
     scene = load_radio_scene(_wall(material, thickness_m), tmp_path, f)
@@ -174,7 +174,7 @@ def test_wall_transmission_is_the_slab_formula_of_the_room_model(tmp_path, mater
     p = np.cross(k, s)
     t_te, t_tm = (c.numpy() for c in slab_transmission(torch.tensor(_eta(material, f)), torch.tensor(np.abs(k @ n)),
                                                         2 * math.pi * f / C0, thickness_m))
-    e = polarisation_vectors(k, "V")                    # the same vector at both ends: k is unchanged
+    e = antenna_polarisation(k, "V")                    # the same vector at both ends: k is unchanged
     co = t_te * np.sum(e * s, 1) ** 2 + t_tm * np.sum(e * p, 1) ** 2
     want = db((C0 / f / (4 * math.pi * d)) ** 2 * np.abs(co) ** 2)
     assert want.max() - want.min() > 1.0, "the loss must change with the angle of incidence"
