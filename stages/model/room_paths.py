@@ -40,9 +40,7 @@ import torch
 from .occlusion import FrozenGeometry
 
 from .link_rows import renumber_links
-from rfir_core.physics.crossings import leg_crossings
-from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission, specular_share
-from rfir_core.physics.polarisation import antenna_polarisation, mirror_direction, reflection_basis
+from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
 from .second_order import Patches, mirror_points, planar_patches
 from .surfels import footprint_cells
 
@@ -54,6 +52,7 @@ from .surfels import footprint_cells
 MAX_INTERACTIONS = 8
 # (image row, link) pairs of reflection_paths evaluated at once (memory: about 200 bytes each)
 PAIR_CHUNK = 250_000
+LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
 FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
 # "tiles": a surfel covers its rectangle cell (docs/physics.md 8.6: its Gaussian's in-plane axes, sides in the
 # ratio of its spreads, its area share), and gaps between tiles narrower than TILE_CLOSING tile sides are
@@ -287,6 +286,191 @@ def _patch_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(n, u)
 
 
+def polarisation_vectors(k: np.ndarray, pol: str) -> np.ndarray:
+    """Unit field vectors [N, 3] of an antenna radiating toward unit directions k [N, 3].
+
+    "V": theta-hat (in the vertical plane through k, pointing down at the horizon), "H": phi-hat
+    (horizontal). Straight up or down, where theta-hat is undefined, V uses +x."""
+    z = np.array([0.0, 0.0, 1.0])
+    if pol == "V":
+        e = k * (k @ z)[:, None] - z
+    else:
+        e = np.cross(z, k)
+    n = np.linalg.norm(e, axis=1, keepdims=True)
+    fallback = np.cross(k, np.cross(np.array([1.0, 0.0, 0.0]), k)) if pol == "V" else np.cross(k, [1.0, 0.0, 0.0])
+    e = np.where(n > 1e-9, e / np.maximum(n, 1e-300), fallback)
+    return e / np.linalg.norm(e, axis=1, keepdims=True).clip(1e-300)
+
+
+@dataclass
+class RoomPaths:
+    """Geometry of every specular path; Q paths, I interaction slots.
+
+    link [Q] int64; length_m [Q]; gain [Q] sqrt(G_T G_R); order [Q] (0 direct, 1, 2 reflections);
+    e_tx, e_rx [Q, 3] polarisation vectors at departure and arrival; kind [Q, I] (0 none,
+    1 reflection, 2 transmission); patch [Q, I]; cos [Q, I] |cos| of the local incidence angle;
+    s, p_in, p_out [Q, I, 3] the interaction's TE and TM reference directions: all of it frequency-free.
+    freq_hz [M] Hz: the frequency each link is evaluated at (at_frequency: the same paths at another)."""
+
+    num_links: int
+    link: torch.Tensor
+    length_m: torch.Tensor
+    gain: torch.Tensor
+    order: torch.Tensor
+    e_tx: torch.Tensor
+    e_rx: torch.Tensor
+    kind: torch.Tensor
+    patch: torch.Tensor
+    cos: torch.Tensor
+    s: torch.Tensor
+    p_in: torch.Tensor
+    p_out: torch.Tensor
+    freq_hz: torch.Tensor
+
+    @property
+    def num(self) -> int:
+        return int(self.link.numel())
+
+    def slot_use(self) -> list[int]:
+        """Number of paths using each interaction slot; paths are stored most interactions first, so
+        slot i is used by the first slot_use()[i] paths (cached)."""
+        if "_slot_use" not in self.__dict__:
+            counts = (self.kind > 0).sum(1)
+            if counts.numel() > 1 and bool((counts[1:] > counts[:-1]).any()):
+                raise ValueError("room paths must be stored most interactions first")
+            self.__dict__["_slot_use"] = [int(u) for u in (self.kind > 0).sum(0)]
+        return self.__dict__["_slot_use"]
+
+    def _jones(self) -> dict:
+        """Geometry-only factors of the polarisation chain (cached), in each interaction's own basis.
+
+        The field before slot i is (v0, v1) on (s_i, p_in_i); the slot maps it to (c_te v0, c_tm v1) on
+        (s_i, p_out_i); paths that go on project that onto (s_{i+1}, p_in_{i+1}) with `step[i]`
+        [n_{i+1}, 4] (s.s', p_out.s', s.p_in', p_out.p_in'), the others onto e_R with `end[i]` [n_i - n_{i+1}, 2].
+        `start` [n_0, 2]: e_T on (s_0, p_in_0); `direct` [Q - n_0]: e_T . e_R of paths with no interaction."""
+        if "_jones_cache" not in self.__dict__:
+            use = [n for n in self.slot_use() if n > 0]
+            c = lambda x: x.to(torch.complex128).contiguous()  # noqa: E731
+            dot = lambda x, y: (x * y).sum(-1)  # noqa: E731
+            step, end = [], []
+            for i, n in enumerate(use):
+                s, pout = self.s[:n, i], self.p_out[:n, i]
+                nxt = use[i + 1] if i + 1 < len(use) else 0
+                if nxt:
+                    s2, p2 = self.s[:nxt, i + 1], self.p_in[:nxt, i + 1]
+                    step.append(c(torch.stack([dot(s[:nxt], s2), dot(pout[:nxt], s2), dot(s[:nxt], p2),
+                                               dot(pout[:nxt], p2)], 1)))
+                er = self.e_rx[nxt:n]
+                end.append(c(torch.stack([dot(s[nxt:], er), dot(pout[nxt:], er)], 1)))
+            n0 = use[0] if use else 0
+            start = c(torch.stack([dot(self.e_tx[:n0], self.s[:n0, 0]), dot(self.e_tx[:n0], self.p_in[:n0, 0])], 1)) \
+                if n0 else torch.zeros((0, 2), dtype=torch.complex128)
+            direct = c(dot(self.e_tx[n0:], self.e_rx[n0:]))
+            self.__dict__["_jones_cache"] = {"use": use, "step": step, "end": end, "start": start,
+                                             "direct": direct}
+        return self.__dict__["_jones_cache"]
+
+    def _free_space(self) -> torch.Tensor:
+        """[Q] complex: each path's free-space factor sqrt(G_T G_R) lambda / (4 pi L) exp(-j k L) at its link's
+        frequency (cached; the one factor of the chain that depends on the frequency besides the coefficients)."""
+        if "_free_space_cache" not in self.__dict__:
+            f = self.freq_hz[self.link]
+            k0 = 2 * math.pi * f / C0
+            self.__dict__["_free_space_cache"] = (self.gain * C0 / f / (4 * math.pi * self.length_m)).to(
+                torch.complex128) * torch.exp(-1j * k0 * self.length_m)
+        return self.__dict__["_free_space_cache"]
+
+    def at_frequency(self, freq_hz) -> "RoomPaths":
+        """The same paths evaluated at freq_hz (a number [Hz] for every link, or [M] one per link): the traced
+        geometry and its frequency-free caches (slot use, the polarisation chain's projections) are shared."""
+        f = torch.as_tensor(np.asarray(freq_hz, dtype=np.float64))
+        f = f.expand(self.num_links).clone() if f.ndim == 0 else f
+        if f.shape != (self.num_links,):
+            raise ValueError(f"freq_hz: expected one frequency or {self.num_links}, got shape {tuple(f.shape)}")
+        out = RoomPaths(self.num_links, self.link, self.length_m, self.gain, self.order, self.e_tx, self.e_rx,
+                        self.kind, self.patch, self.cos, self.s, self.p_in, self.p_out, f)
+        for key in ("_slot_use", "_jones_cache"):
+            if key in self.__dict__:
+                out.__dict__[key] = self.__dict__[key]
+        return out
+
+    def select_links(self, rows) -> "RoomPaths":
+        """The paths of links `rows` (renumbered 0..len(rows)-1 in that order)."""
+        rows, keep, new_link = renumber_links(self.link, self.num_links, rows)
+        return RoomPaths(int(rows.numel()), new_link, *(t[keep] for t in (
+            self.length_m, self.gain, self.order, self.e_tx, self.e_rx, self.kind, self.patch, self.cos, self.s,
+            self.p_in, self.p_out)), self.freq_hz[rows])
+
+    def select_paths(self, keep: torch.Tensor) -> "RoomPaths":
+        """The paths where keep [Q] bool is true, every link kept (their order, most interactions first, too)."""
+        return RoomPaths(self.num_links, *(t[keep] for t in (
+            self.link, self.length_m, self.gain, self.order, self.e_tx, self.e_rx, self.kind, self.patch, self.cos,
+            self.s, self.p_in, self.p_out)), self.freq_hz)
+
+    def small_third_order(self, area_m2: np.ndarray, third_order_min_area_m2: float) -> torch.Tensor:
+        """[Q] bool: the paths of order 3 and up with a reflection off a patch under third_order_min_area_m2
+        (area_m2 [P] of every patch): those third_order_small_reflections adds."""
+        small = torch.as_tensor(np.asarray(area_m2) < third_order_min_area_m2)[self.patch] & (self.kind == 1)
+        return (self.order >= 3) & small.any(1)
+
+    def field(self, eta_of_patch: torch.Tensor, thickness_of_patch: torch.Tensor | None,
+              scattering_of_patch: torch.Tensor, incoherent: bool = False) -> torch.Tensor:
+        """Received complex amplitude [M] (P_T = 1 W), every coefficient evaluated exactly (incoherent: the sum of
+        the paths' powers [M] W instead, chain).
+
+        eta_of_patch [P, M] complex relative permittivity of each patch's material at each link's
+        frequency (or [P, 1] for one frequency); thickness_of_patch [P] m (None: half-spaces);
+        scattering_of_patch [P] S."""
+        f = self.freq_hz[self.link]
+        k0 = (2 * math.pi * f / C0)[:, None]
+        col = self.link if eta_of_patch.shape[1] > 1 else torch.zeros_like(self.link)
+        eta = eta_of_patch[self.patch, col[:, None]]                                  # [Q, I]
+        th = None if thickness_of_patch is None else thickness_of_patch[self.patch]
+        r_te, r_tm = fresnel(eta, self.cos, k0, th)
+        if th is None:
+            t_te = t_tm = torch.zeros_like(r_te)             # a half-space transmits nothing
+        else:
+            t_te, t_tm = slab_transmission(eta, self.cos, k0, th)
+        refl = self.kind == 1
+        c_te, c_tm = torch.where(refl, r_te, t_te), torch.where(refl, r_tm, t_tm)
+        spec = torch.where(refl, torch.sqrt((1.0 - scattering_of_patch[self.patch] ** 2).clamp(min=0.0)),
+                           torch.ones((), dtype=torch.float64)).prod(1)
+        return self.chain([(c_te[:, i], c_tm[:, i]) for i in range(c_te.shape[1])], spec, incoherent)
+
+    def chain(self, coefficients: list, spec: torch.Tensor, incoherent: bool = False) -> torch.Tensor:
+        """Received complex amplitude [M] from the TE and TM coefficients of each interaction slot i,
+        coefficients[i] = (c_te, c_tm) complex of length >= slot_use()[i] (the paths using slot i come
+        first), and each path's specular share spec [Q] (prod sqrt(1 - S^2)). The field vector of the
+        module docstring is carried as its two components in each interaction's basis (`_jones`).
+        incoherent: the sum of the paths' powers sum_p |a_p|^2 [M] W (P_T = 1 W) instead, no phases (the
+        band's "incoherent" sum, room.BANDS)."""
+        j = self._jones()
+        pieces = []
+        if j["use"]:
+            v0, v1 = j["start"][:, 0], j["start"][:, 1]
+            for i, n in enumerate(j["use"]):
+                c_te, c_tm = coefficients[i]
+                w0, w1 = c_te[:n] * v0, c_tm[:n] * v1
+                nxt = j["step"][i].shape[0] if i < len(j["step"]) else 0
+                e = j["end"][i]
+                pieces.append(e[:, 0] * w0[nxt:] + e[:, 1] * w1[nxt:])
+                if nxt:
+                    st = j["step"][i]
+                    v0 = st[:, 0] * w0[:nxt] + st[:, 1] * w1[:nxt]
+                    v1 = st[:, 2] * w0[:nxt] + st[:, 3] * w1[:nxt]
+        pol = torch.cat(pieces[::-1] + [j["direct"]])
+        a = self._free_space() * spec * pol
+        if incoherent:
+            return torch.zeros(self.num_links, dtype=torch.float64).index_add(0, self.link, abs2(a))
+        return torch.zeros(self.num_links, dtype=torch.complex128).index_add(0, self.link, a)
+
+
+# ---------------------------------------------------------------------------------------------------
+# tracing the paths
+# ---------------------------------------------------------------------------------------------------
+SOURCE_ROWS = 2_000_000   # (transmitter, sequence) rows built at once: a group of transmitters at a time
+
+
 def reflection_paths(tx: np.ndarray, rx: np.ndarray, patches: PatchSet, cand: np.ndarray, order: int,
                      min_m: float = 1e-4, small: np.ndarray | None = None,
                      max_small: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -462,11 +646,65 @@ def _paths_of_rows(rows, rep_all, first_link, source, by_source, side_last, rx, 
     return links, seq[row], np.stack(pts, 1)
 
 
+def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarray, skip_a: np.ndarray,
+                  skip_b: np.ndarray, chunk: int = 500_000):
+    """Surfaces crossed by the legs start -> end [N, 3], not counting patches skip_a / skip_b [N] (-1: none).
+
+    Returns (leg [C], patch [C], fraction along the leg [C]). Candidates come from the Gaussian tracer;
+    a crossing counts when the exact intersection with the patch's plane lies on the patch."""
+    legs, pids, fracs = [], [], []
+    for lo in range(0, len(start), chunk):
+        hi = min(len(start), lo + chunk)
+        a, b = start[lo:hi], end[lo:hi]
+        d = b - a
+        length = np.linalg.norm(d, axis=1).clip(1e-12)
+        # hits this close to either end belong to the surfaces the leg starts or ends on: the rays end there
+        # (t_max), and the first LEG_MARGIN_M is dropped below
+        hits = provider.ray_hits(torch.as_tensor(a).contiguous(), torch.as_tensor(d / length[:, None]).contiguous(),
+                                 t_max=torch.as_tensor(length - LEG_MARGIN_M))
+        q, g, t = hits.query.numpy(), hits.gaussian.numpy(), hits.t_m.numpy()
+        keep = t > LEG_MARGIN_M
+        q, p = q[keep], patches.surfel_patch[g[keep]]
+        keep = (p >= 0) & (p != skip_a[lo:hi][q]) & (p != skip_b[lo:hi][q])
+        # distinct (leg, patch) pairs, by leg then patch: one crossing per surface however many surfels tile it
+        # (a leg's hits come in order along it, so most repeats are neighbours: dropped first, cheaply; then
+        # sorted, np.unique's hashing being many times slower here)
+        pair = _drop_repeats(np.sort(_drop_repeats(q[keep] * patches.num + p[keep])))
+        if len(pair) == 0:
+            continue
+        q, p = pair // patches.num, pair % patches.num
+        n, o = patches.normal[p], patches.point[p]
+        da = _dot(a[q] - o, n)
+        db = _dot(b[q] - o, n)
+        cross = da * db < 0
+        f = da / np.where(cross, da - db, 1.0)
+        x = a[q] + f[:, None] * d[q]
+        cross &= patches.contains(p, x)
+        legs.append(q[cross] + lo)
+        pids.append(p[cross])
+        fracs.append(f[cross])
+    if not legs:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.concatenate(legs), np.concatenate(pids), np.concatenate(fracs)
+
+
+def _drop_repeats(a: np.ndarray) -> np.ndarray:
+    """a [N] without the entries equal to the one before them."""
+    first = np.ones(len(a), dtype=bool)
+    first[1:] = a[1:] != a[:-1]
+    return a[first]
+
+
 def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
-    """(cos, s, p_in, p_out) of interactions with incoming unit directions k and normals n [N, 3]: the TE direction s
-    and the TM ones before and after (rfir_core.physics.polarisation.reflection_basis)."""
-    k_out = np.where(reflect[:, None], mirror_direction(k, n), k)
-    return (np.abs(_dot(k, n)), *reflection_basis(k, n, k_out))
+    """(cos, s, p_in, p_out) of interactions with incoming unit directions k and normals n [N, 3]."""
+    cos = np.abs(_dot(k, n))
+    s = np.cross(k, n)
+    sn = np.linalg.norm(s, axis=1, keepdims=True)
+    # normal incidence: any direction across k is TE (TE and TM agree there up to the reference)
+    alt = np.cross(k, np.where(np.abs(k[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    s = np.where(sn > 1e-9, s / np.maximum(sn, 1e-300), alt / np.linalg.norm(alt, axis=1, keepdims=True))
+    k_out = np.where(reflect[:, None], k - 2.0 * (k * n).sum(1, keepdims=True) * n, k)
+    return cos, s, np.cross(k, s), np.cross(k_out, s)
 
 
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
@@ -560,8 +798,8 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
         gain = gain * np.asarray(tx_gain(k_dep), dtype=np.float64)
     if rx_gain is not None:
         gain = gain * np.asarray(rx_gain(-k_arr), dtype=np.float64)
-    e_tx = antenna_polarisation(k_dep, polarisation)
-    e_rx = antenna_polarisation(k_arr, polarisation)
+    e_tx = polarisation_vectors(k_dep, polarisation)
+    e_rx = polarisation_vectors(k_arr, polarisation)
     # paths sorted by interaction count, most first: slot i is then used by a prefix of the paths
     order_q = np.flatnonzero(keep_path)[np.argsort(-counts[keep_path], kind="stable")]
     t = lambda x: torch.as_tensor(np.ascontiguousarray(x[order_q]))  # noqa: E731
