@@ -40,7 +40,9 @@ import torch
 from .occlusion import FrozenGeometry
 
 from .link_rows import renumber_links
-from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
+from rfir_core.physics.crossings import leg_crossings
+from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission, specular_share
+from rfir_core.physics.polarisation import antenna_polarisation, mirror_direction, reflection_basis
 from .second_order import Patches, mirror_points, planar_patches
 from .surfels import footprint_cells
 
@@ -52,7 +54,6 @@ from .surfels import footprint_cells
 MAX_INTERACTIONS = 8
 # (image row, link) pairs of reflection_paths evaluated at once (memory: about 200 bytes each)
 PAIR_CHUNK = 250_000
-LEG_MARGIN_M = 0.02       # hits this close to a leg's ends belong to the surfaces it starts or ends on
 FOOTPRINT_REACH = 0.75    # "disks": a surfel of area A covers a disk of radius 0.75 sqrt(A) (a square tile's corners)
 # "tiles": a surfel covers its rectangle cell (docs/physics.md 8.6: its Gaussian's in-plane axes, sides in the
 # ratio of its spreads, its area share), and gaps between tiles narrower than TILE_CLOSING tile sides are
@@ -286,22 +287,6 @@ def _patch_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(n, u)
 
 
-def polarisation_vectors(k: np.ndarray, pol: str) -> np.ndarray:
-    """Unit field vectors [N, 3] of an antenna radiating toward unit directions k [N, 3].
-
-    "V": theta-hat (in the vertical plane through k, pointing down at the horizon), "H": phi-hat
-    (horizontal). Straight up or down, where theta-hat is undefined, V uses +x."""
-    z = np.array([0.0, 0.0, 1.0])
-    if pol == "V":
-        e = k * (k @ z)[:, None] - z
-    else:
-        e = np.cross(z, k)
-    n = np.linalg.norm(e, axis=1, keepdims=True)
-    fallback = np.cross(k, np.cross(np.array([1.0, 0.0, 0.0]), k)) if pol == "V" else np.cross(k, [1.0, 0.0, 0.0])
-    e = np.where(n > 1e-9, e / np.maximum(n, 1e-300), fallback)
-    return e / np.linalg.norm(e, axis=1, keepdims=True).clip(1e-300)
-
-
 @dataclass
 class RoomPaths:
     """Geometry of every specular path; Q paths, I interaction slots.
@@ -433,7 +418,7 @@ class RoomPaths:
             t_te, t_tm = slab_transmission(eta, self.cos, k0, th)
         refl = self.kind == 1
         c_te, c_tm = torch.where(refl, r_te, t_te), torch.where(refl, r_tm, t_tm)
-        spec = torch.where(refl, torch.sqrt((1.0 - scattering_of_patch[self.patch] ** 2).clamp(min=0.0)),
+        spec = torch.where(refl, specular_share(scattering_of_patch[self.patch]),
                            torch.ones((), dtype=torch.float64)).prod(1)
         return self.chain([(c_te[:, i], c_tm[:, i]) for i in range(c_te.shape[1])], spec, incoherent)
 
@@ -646,65 +631,11 @@ def _paths_of_rows(rows, rep_all, first_link, source, by_source, side_last, rx, 
     return links, seq[row], np.stack(pts, 1)
 
 
-def leg_crossings(provider, patches: PatchSet, start: np.ndarray, end: np.ndarray, skip_a: np.ndarray,
-                  skip_b: np.ndarray, chunk: int = 500_000):
-    """Surfaces crossed by the legs start -> end [N, 3], not counting patches skip_a / skip_b [N] (-1: none).
-
-    Returns (leg [C], patch [C], fraction along the leg [C]). Candidates come from the Gaussian tracer;
-    a crossing counts when the exact intersection with the patch's plane lies on the patch."""
-    legs, pids, fracs = [], [], []
-    for lo in range(0, len(start), chunk):
-        hi = min(len(start), lo + chunk)
-        a, b = start[lo:hi], end[lo:hi]
-        d = b - a
-        length = np.linalg.norm(d, axis=1).clip(1e-12)
-        # hits this close to either end belong to the surfaces the leg starts or ends on: the rays end there
-        # (t_max), and the first LEG_MARGIN_M is dropped below
-        hits = provider.ray_hits(torch.as_tensor(a).contiguous(), torch.as_tensor(d / length[:, None]).contiguous(),
-                                 t_max=torch.as_tensor(length - LEG_MARGIN_M))
-        q, g, t = hits.query.numpy(), hits.gaussian.numpy(), hits.t_m.numpy()
-        keep = t > LEG_MARGIN_M
-        q, p = q[keep], patches.surfel_patch[g[keep]]
-        keep = (p >= 0) & (p != skip_a[lo:hi][q]) & (p != skip_b[lo:hi][q])
-        # distinct (leg, patch) pairs, by leg then patch: one crossing per surface however many surfels tile it
-        # (a leg's hits come in order along it, so most repeats are neighbours: dropped first, cheaply; then
-        # sorted, np.unique's hashing being many times slower here)
-        pair = _drop_repeats(np.sort(_drop_repeats(q[keep] * patches.num + p[keep])))
-        if len(pair) == 0:
-            continue
-        q, p = pair // patches.num, pair % patches.num
-        n, o = patches.normal[p], patches.point[p]
-        da = _dot(a[q] - o, n)
-        db = _dot(b[q] - o, n)
-        cross = da * db < 0
-        f = da / np.where(cross, da - db, 1.0)
-        x = a[q] + f[:, None] * d[q]
-        cross &= patches.contains(p, x)
-        legs.append(q[cross] + lo)
-        pids.append(p[cross])
-        fracs.append(f[cross])
-    if not legs:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    return np.concatenate(legs), np.concatenate(pids), np.concatenate(fracs)
-
-
-def _drop_repeats(a: np.ndarray) -> np.ndarray:
-    """a [N] without the entries equal to the one before them."""
-    first = np.ones(len(a), dtype=bool)
-    first[1:] = a[1:] != a[:-1]
-    return a[first]
-
-
 def _basis(k: np.ndarray, n: np.ndarray, reflect: np.ndarray):
-    """(cos, s, p_in, p_out) of interactions with incoming unit directions k and normals n [N, 3]."""
-    cos = np.abs(_dot(k, n))
-    s = np.cross(k, n)
-    sn = np.linalg.norm(s, axis=1, keepdims=True)
-    # normal incidence: any direction across k is TE (TE and TM agree there up to the reference)
-    alt = np.cross(k, np.where(np.abs(k[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
-    s = np.where(sn > 1e-9, s / np.maximum(sn, 1e-300), alt / np.linalg.norm(alt, axis=1, keepdims=True))
-    k_out = np.where(reflect[:, None], k - 2.0 * (k * n).sum(1, keepdims=True) * n, k)
-    return cos, s, np.cross(k, s), np.cross(k_out, s)
+    """(cos, s, p_in, p_out) of interactions with incoming unit directions k and normals n [N, 3]: the TE direction s
+    and the TM ones before and after (rfir_core.physics.polarisation.reflection_basis)."""
+    k_out = np.where(reflect[:, None], mirror_direction(k, n), k)
+    return (np.abs(_dot(k, n)), *reflection_basis(k, n, k_out))
 
 
 def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polarisation: str = "V",
@@ -798,8 +729,8 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
         gain = gain * np.asarray(tx_gain(k_dep), dtype=np.float64)
     if rx_gain is not None:
         gain = gain * np.asarray(rx_gain(-k_arr), dtype=np.float64)
-    e_tx = polarisation_vectors(k_dep, polarisation)
-    e_rx = polarisation_vectors(k_arr, polarisation)
+    e_tx = antenna_polarisation(k_dep, polarisation)
+    e_rx = antenna_polarisation(k_arr, polarisation)
     # paths sorted by interaction count, most first: slot i is then used by a prefix of the paths
     order_q = np.flatnonzero(keep_path)[np.argsort(-counts[keep_path], kind="stable")]
     t = lambda x: torch.as_tensor(np.ascontiguousarray(x[order_q]))  # noqa: E731
