@@ -6,8 +6,6 @@ nodes is each evaluator's choice (its accuracy against the exact coefficients is
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 
@@ -19,16 +17,21 @@ class AngleNodes:
         if int(count) < 2:
             raise ValueError(f"an angle table needs at least 2 nodes, got {count}")
         self.count = int(count)
-        self.step_rad = math.radians(90.0) / (self.count - 1)
+        self.step_deg = 90.0 / (self.count - 1)
+
+    def degrees(self) -> torch.Tensor:
+        """[count] float64: theta_j [deg], j * step exactly, so that tables of node counts whose steps divide each
+        other share their common nodes bit for bit."""
+        return torch.arange(self.count, dtype=torch.float64) * self.step_deg
 
     def cosines(self) -> torch.Tensor:
         """[count] float64: cos(theta_j), the incidence cosines at which a table is evaluated."""
-        return torch.cos(torch.linspace(0.0, math.pi / 2, self.count, dtype=torch.float64))
+        return torch.cos(torch.deg2rad(self.degrees()))
 
     def _pos(self, cos_theta):
         if isinstance(cos_theta, torch.Tensor):
-            return torch.arccos(cos_theta.clamp(0.0, 1.0)) / self.step_rad
-        return np.arccos(np.clip(cos_theta, 0.0, 1.0)) / self.step_rad
+            return torch.rad2deg(torch.arccos(cos_theta.clamp(0.0, 1.0))) / self.step_deg
+        return np.degrees(np.arccos(np.clip(cos_theta, 0.0, 1.0))) / self.step_deg
 
     def position(self, cos_theta):
         """(lower node j [...] int64 in [0, count - 2], weight of node j + 1 [...] in [0, 1]) of incidence cosines
