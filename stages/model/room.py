@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from rfir_core.physics.angle_nodes import AngleNodes
 from rfir_core.threads import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
@@ -232,7 +233,7 @@ def coefficient_tables(freqs: torch.Tensor, mats: MaterialValues, only: int | No
     """[4 * N * F * ANGLE_NODES] complex, blocks R_TE, R_TM, T_TE, T_TM of every material, frequency freqs [F] Hz
     and angle node (only: of that material alone, [4 * F * ANGLE_NODES])."""
     pick = slice(None) if only is None else slice(only, only + 1)
-    cos = torch.cos(torch.deg2rad(torch.arange(ANGLE_NODES, dtype=torch.float64)))
+    cos = AngleNodes(ANGLE_NODES).cosines()
     eta = mats.eta(freqs)[pick, :, None]                                            # [N, F, 1]
     k0 = (2 * math.pi * freqs / C0)[None, :, None]
     th = None if mats.thickness_m is None else mats.thickness_m[pick, None, None]
@@ -260,9 +261,8 @@ class RoomLinks:
         self.material_of_patch, self.num_materials = material_of_patch, int(num_materials)
         self.freqs, fid = torch.unique(paths.freq_hz, return_inverse=True)
         mat = material_of_patch[paths.patch]                                           # [Q, I]
-        theta = torch.rad2deg(torch.arccos(paths.cos.clamp(0.0, 1.0)))
-        j = theta.floor().long().clamp(0, ANGLE_NODES - 2)
-        frac = (theta - j).clamp(0.0, 1.0).to(torch.complex128)
+        j, frac = AngleNodes(ANGLE_NODES).position(paths.cos)
+        frac = frac.to(torch.complex128)
         index = (mat * len(self.freqs) + fid[paths.link][:, None]) * ANGLE_NODES + j
         refl = paths.kind == 1
         # per used slot, contiguous: the TE and TM entries of the flat table (_tables: R_TE, R_TM, T_TE,
@@ -438,9 +438,8 @@ class MaterialPart:
         # where each such path reads material i's table [4 * width]: as RoomLinks.__init__ does, for one material
         slot = mine[once].to(torch.int8).argmax(1)
         at = torch.arange(q)
-        theta = torch.rad2deg(torch.arccos(one.cos[at, slot].clamp(0.0, 1.0)))
-        j = theta.floor().long().clamp(0, ANGLE_NODES - 2)
-        self.frac = (theta - j).clamp(0.0, 1.0).to(torch.complex128)
+        j, frac = AngleNodes(ANGLE_NODES).position(one.cos[at, slot])
+        self.frac = frac.to(torch.complex128)
         self.reflects = one.kind[at, slot] == 1
         fid = torch.searchsorted(self.freqs, one.freq_hz[one.link])
         self.te_at = torch.where(self.reflects, 0, 2) * len(self.freqs) * ANGLE_NODES + fid * ANGLE_NODES + j

@@ -29,6 +29,7 @@ import torch
 
 from .link_rows import renumber_links
 from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission
+from rfir_core.physics.angle_nodes import AngleNodes
 from rfir_core.physics.crossings import leg_crossings
 from .room_paths import PatchSet, _dot
 
@@ -248,7 +249,7 @@ class MaterialDiffuse:
 
 def _angle_nodes(num: int = NODES) -> torch.Tensor:
     """cos of num incidence angles evenly spaced over 0..90 degrees."""
-    return torch.cos(torch.deg2rad(torch.linspace(0.0, 90.0, num, dtype=torch.float64)))
+    return AngleNodes(num).cosines()
 
 
 def diffuse_reflectance(eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None, scattering: torch.Tensor,
@@ -379,9 +380,7 @@ def _rows_any(need: np.ndarray, inv: np.ndarray, num: int) -> np.ndarray:
 
 def _angle_node(cos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(node int64, frac): the incidence angle of |cos| between angle nodes node and node + 1."""
-    theta = np.arccos(np.clip(np.abs(cos), 0.0, 1.0)) / math.radians(90.0 / (NODES - 1))
-    node = np.clip(np.floor(theta).astype(np.int64), 0, NODES - 2)
-    return node, np.clip(theta - node, 0.0, 1.0)
+    return AngleNodes(NODES).position(np.abs(cos))
 
 
 def _cell_factors(tx: np.ndarray, rx: np.ndarray, cells: DiffuseCells):
@@ -412,7 +411,7 @@ def _crossing_slots(points: np.ndarray, rows: np.ndarray, cells: np.ndarray, dc:
     used = rows >= 0
     p = np.where(used, rows, 0)
     cos = np.abs(_dot(d[:, None, :], patches.normal[p]))
-    node = np.rint(np.degrees(np.arccos(np.clip(cos, 0.0, 1.0))) * (CROSSING_NODES - 1) / 90.0).astype(np.int64)
+    node = AngleNodes(CROSSING_NODES).nearest(cos)
     return np.where(used, material_of_patch[p] * CROSSING_NODES + node, num_materials * CROSSING_NODES)
 
 
