@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from rfir_core.errors import InputFileError
+from rfir_core.physics.polarisation import POLARISATIONS
 
 KEYS = ("antenna", "antenna_tx", "antenna_rx", "polarisation", "power", "tx_power_dbm")
 POWERS = ("path_gain", "rcs", "rssi")
-POLARISATIONS = ("V", "H")
 
 
 @dataclass

@@ -41,7 +41,7 @@ from torch import nn
 
 from rfir_core.physics.angle_nodes import AngleNodes
 from rfir_core.physics.materials import C0, abs2, co_polar_reflection, fresnel, law_permittivity, specular_share
-from rfir_core.physics.polarisation import POLARISATIONS, te_share
+from rfir_core.physics.polarisation import te_share
 from rfir_core.threads import single_thread_torch
 
 from .antenna_patterns import AntennaPattern
