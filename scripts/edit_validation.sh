@@ -17,7 +17,7 @@ sim() {  # name scene edit [extra args]
 }
 val() {  # name rf before after [--select S --op O]...
   local name=$1 rf=$2 before=$3 after=$4; shift 4
-  OMP_NUM_THREADS=2 $PY -m rfir_stages.edit.validate "$rf" "$before" "$after" "$@" --name "$name" \
+  OMP_NUM_THREADS=2 $PY scripts/edit_validate.py "$rf" "$before" "$after" "$@" --name "$name" \
     --results "results/edit_$name.json" --plots docs/images/edit_validation --work "$E/work"
 }
 

@@ -11,12 +11,11 @@ apply the same edit with `rfir edit` and compare:
   the change the simulator shows (edited scene - scene), in dB, and its rank (Spearman) version,
   which a few single-aspect glints of +-30 dB (Sionna's geometric optics) cannot dominate.
 
-    python -m rfir_stages.edit.validate RF BEFORE.h5 AFTER.h5 --select S --op O [...] --name NAME
+    python scripts/edit_validate.py RF BEFORE.h5 AFTER.h5 --select S --op O [...] --name NAME
         [--results results/NAME.json] [--plots DIR] [--work DIR]
 """
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -145,23 +144,3 @@ def _check_same_links(before_path, after_path) -> None:
     for key in ("tx_pos", "rx_pos"):
         if np.asarray(b[key]).shape != np.asarray(a[key]).shape or not np.allclose(b[key], a[key]):
             raise ValueError(f"{after_path}: its {key} differ from {before_path}; simulate both with the same settings")
-
-
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("rf")
-    ap.add_argument("before")
-    ap.add_argument("after")
-    ap.add_argument("--select", action="append", required=True)
-    ap.add_argument("--op", action="append", required=True)
-    ap.add_argument("--name", required=True)
-    ap.add_argument("--results")
-    ap.add_argument("--plots")
-    ap.add_argument("--work", default="runs/edit_validation")
-    a = ap.parse_args(argv)
-    out = validate(a.rf, a.before, a.after, a.select, a.op, a.name, a.work, a.results, a.plots)
-    print(json.dumps({k: v for k, v in out.items() if not isinstance(v, list)}, indent=2))
-
-
-if __name__ == "__main__":
-    main()

@@ -529,7 +529,7 @@ def target_ablation(r: Plan) -> Table:
 
 def _edit_row(r: Plan, t: Table, name: str, rf: Path, before: Path, after: Path, ops: list[str]) -> None:
     j = r.json_path(f"edit_{name}__rfir")
-    step = r.step(f"edit_{name}__rfir", [r.python, "-m", "rfir_stages.edit.validate", str(rf), str(before), str(after),
+    step = r.step(f"edit_{name}__rfir", [r.python, "scripts/edit_validate.py", str(rf), str(before), str(after),
                                          *ops, "--name", name, "--results", str(j),
                                          "--plots", str(r.out / "plots" / "edit"), "--work", str(r.data / "edit_work")], j)
     res = M.Result(r, j, step)

@@ -239,7 +239,7 @@ def test_code_paths_exist_and_simulators_do_not_follow_the_fitted_model():
         assert covers(CODE[command], "src/rfir_core/physics/materials.py")
         assert not covers(CODE[command], "stages/model/physical.py")
         assert not covers(CODE[command], "stages/model/room.py")
-    for command in ("rf-fit", "predict", "rfir_stages.edit.validate"):
+    for command in ("rf-fit", "predict", "scripts/edit_validate.py"):
         assert covers(CODE[command], "stages/model/physical.py")
 
 
