@@ -56,6 +56,7 @@ def main(argv=None) -> None:
     a = ap.parse_args(argv)
 
     from rfir_core.artifacts import read_artifact
+    from rfir_stages.model.crossings import crossing_counts
     from rfir_stages.predict import rssi_baselines as bl
     from rfir_stages.predict.rssi_model_io import load_predictor
 
@@ -67,7 +68,7 @@ def main(argv=None) -> None:
     tx_id, rx_id = np.asarray(meas["tx_id"]), np.asarray(meas["rx_id"])
     d = np.linalg.norm(rx - tx, axis=1)
     names = rf.attrs.get("label_names")
-    counts, _ = bl.crossing_counts(load_predictor(rf, "auto").provider, rf.get("gaussians/labels"),
+    counts, _ = crossing_counts(load_predictor(rf, "auto").provider, rf.get("gaussians/labels"),
                                    None if names is None else list(names), tx, rx)
     ld = np.stack([np.ones_like(d), -10 * np.log10(d)], 1)
     mw = np.concatenate([ld, -counts[:, counts[train].sum(0) > 0]], 1)

@@ -77,7 +77,7 @@ def mesh_classes(mesh) -> tuple[np.ndarray, list[str], bool]:
 
     Labelled: the class of a face is its label's name through `class_names` (labels without a name
     in labels.json are classes of their own, `label-N`). Without labels: one class, GLOBAL_CLASS."""
-    from rfir_stages.predict.rssi_baselines import class_names
+    from rfir_stages.model.fit_physical import label_class_names as class_names
 
     if mesh.labels is None:
         return np.zeros(len(mesh.faces), np.int64), [GLOBAL_CLASS], False

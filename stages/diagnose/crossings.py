@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rfir_stages.predict.rssi_baselines import crossing_counts
+from rfir_stages.model.crossings import crossing_counts
 from rfir_stages.model.links import geometry_from_artifact
 from rfir_stages.model.occlusion import make_provider
 

@@ -31,6 +31,7 @@ from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
 from rfir_stages.diagnose.apply import apply_recorded_effects
+from rfir_stages.model.crossings import crossing_counts
 from rfir_stages.model.radio_model import load_model
 
 from . import rssi_baselines as bl
@@ -153,7 +154,7 @@ def _baselines(pred, rf, geom_labels, provider, tx, rx, y, train, test) -> dict:
     out["baseline_log_distance_mae_train_db"] = float(np.mean(np.abs(bl.predict_log_distance(ld, d[train]) - y[train])))
     out["baseline_log_distance_params"] = ld
     names = rf.attrs.get("label_names")
-    counts, classes = bl.crossing_counts(provider, geom_labels, None if names is None else list(names), tx, rx)
+    counts, classes = crossing_counts(provider, geom_labels, None if names is None else list(names), tx, rx)
     mw = bl.fit_multiwall(d[train], counts[train], y[train], classes)
     out["baseline_multiwall_mae_db"] = float(np.mean(np.abs(bl.predict_multiwall(mw, d[test], counts[test], classes)
                                                              - y[test])))

@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 import torch
 
+from rfir_stages.model.crossings import crossing_counts, surface_groups
+from rfir_stages.model.fit_physical import label_class_names
 from rfir_stages.predict import rssi_baselines as bl
 from rfir_stages.model.occlusion import BruteForceOcclusion, TracerOcclusion
 
@@ -24,7 +26,7 @@ def test_crossings_follow_the_partition_and_multiwall_recovers_its_loss():
     geom = geometry(fields)
     tx, rx, ti, ri = links(n_tx=(2, 3), n_rx=(7, 5))
     t, r = tx[ti], rx[ri]
-    counts, classes = bl.crossing_counts(TracerOcclusion(geom), fields["gaussians/labels"], names, t, r)
+    counts, classes = crossing_counts(TracerOcclusion(geom), fields["gaussians/labels"], names, t, r)
     part = counts[:, classes.index("partition")]
     expected = crosses_partition(t, r)
     # the surfels' footprints blur the doorway's edges: allow a few disagreements there
@@ -39,7 +41,7 @@ def test_crossings_follow_the_partition_and_multiwall_recovers_its_loss():
 
 
 def test_class_names_strip_the_index():
-    assert bl.class_names(["desk_03", "chair_11", "floor", "wall_back"]) == ["desk", "chair", "floor", "wall_back"]
+    assert label_class_names(["desk_03", "chair_11", "floor", "wall_back"]) == ["desk", "chair", "floor", "wall_back"]
     assert torch.is_tensor(torch.zeros(1))
 
 
@@ -95,7 +97,7 @@ def test_crossings_count_each_wall_once(labelled, provider):
     geom, labels, names = _two_walls(labelled)
     occ = provider(geom)
     tx, rx = WALL_LINKS
-    counts, classes = bl.crossing_counts(occ, labels, names, tx, rx)
+    counts, classes = crossing_counts(occ, labels, names, tx, rx)
     assert classes == (["wall"] if labelled else ["surface"])
     assert counts[:, 0].tolist() == [2, 1, 0, 0]
     # why a per-Gaussian criterion failed: no single surfel reaches a response of 1 on the ray
@@ -111,9 +113,9 @@ def test_the_two_faces_of_a_thin_wall_are_one_surface():
     v, f = box((1.0, -1.0, -1.0), (1.05, 1.0, 1.0))             # a 5 cm thick wall, outward normals
     geom = geometry(gaussians_from_mesh(v, f, 0.3))
     tx, rx = np.array([[0.0, 0.37, 0.13]]), np.array([[3.0, 0.3, 0.1]])
-    assert bl.crossing_counts(TracerOcclusion(geom), None, None, tx, rx)[0].tolist() == [[1.0]]
+    assert crossing_counts(TracerOcclusion(geom), None, None, tx, rx)[0].tolist() == [[1.0]]
     # faces further apart than merge_m are two surfaces
-    assert bl.crossing_counts(TracerOcclusion(geom), None, None, tx, rx, merge_m=0.01)[0].tolist() == [[2.0]]
+    assert crossing_counts(TracerOcclusion(geom), None, None, tx, rx, merge_m=0.01)[0].tolist() == [[2.0]]
 
 
 def test_surface_groups_split_by_ray_depth_and_orientation():
@@ -122,11 +124,11 @@ def test_surface_groups_split_by_ray_depth_and_orientation():
     x, y = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
     n = np.array([x, y, [-1.0, 0, 0], x, x, x, x])
     r = np.full(7, 0.5)
-    s = bl.surface_groups(q, t, n, r)
+    s = surface_groups(q, t, n, r)
     # ray 0: the x-facing hits at ~1 m are one surface (sign ignored), the y-facing one at the
     # same depth another (a corner), the hit at 1.5 m a third; ray 1: 0.3 m apart, two surfaces
     assert s[0] == s[2] == s[4] and len({s[0], s[1], s[3]}) == 3
     assert s[5] != s[6] and len(set(s.tolist())) == 5
     # without normals, depth alone decides
-    s = bl.surface_groups(q, t, None, r)
+    s = surface_groups(q, t, None, r)
     assert s[0] == s[1] == s[2] == s[4] and len(set(s.tolist())) == 4
