@@ -57,7 +57,6 @@ def main(argv=None) -> None:
 
     from rfir_core.artifacts import read_artifact
     from rfir_stages.model.crossings import crossing_counts
-    from rfir_stages.predict import rssi_baselines as bl
     from rfir_stages.predict.rssi_model_io import load_predictor
 
     meas = read_artifact(a.measurements, "measurements")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 
 import numpy as np
-import torch
 
 
 def _lstsq(x: np.ndarray, y: np.ndarray) -> np.ndarray:
