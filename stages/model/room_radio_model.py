@@ -3,13 +3,14 @@
 
 `RoomRadioModel` (a radio_model_base.RadioModel) wraps room.RoomPredictor, which loads the fitted room once
 (patches, diffuse cells, the tracer, the device gains) and sums each link's paths as the model was fitted
-(room.band). It predicts at the frequency the materials were fitted at.
+(room.band). It predicts at any frequency inside its material laws' range (RoomPredictor.predict_db: the paths
+are traced once per block of links, the frequency applied at evaluation); by default at the one it was fitted at.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from rfir_core.errors import ConfigError, StageError
+from rfir_core.errors import StageError
 
 from .radio_model_base import RadioModel
 from .room import RoomPredictor
@@ -64,18 +65,12 @@ class RoomRadioModel(RadioModel):
             "the file's split column (test rows: split == 1)"
 
     def _path_gain_db(self, tx, rx, freqs, progress, advance, chunk_links, physics_only):
-        fitted = self.predictor.freq_hz
-        other = [f for f in freqs if abs(f - fitted) > 1e-6 * fitted]
-        if other:
-            raise ConfigError(f"the room model predicts at the frequency it was fitted at, {fitted / 1e9:g} GHz, "
-                              f"not at {', '.join(f'{f / 1e9:g}' for f in other[:4])} GHz")
         chunk_links = int(chunk_links or 512)
         if advance is not None:
-            pg = self.predictor.path_gain_db(tx, rx, chunk_links, _Advance(advance))
+            out = self.predictor.predict_db(tx, rx, freqs, chunk_links, _Advance(advance))
         else:
             with progress.task("predict (room)", total=len(tx)) as bar:
-                pg = self.predictor.path_gain_db(tx, rx, chunk_links, bar)
-        out = np.repeat(pg[:, None], len(freqs), axis=1)
+                out = self.predictor.predict_db(tx, rx, freqs, chunk_links, bar)
         return out, (out.copy() if physics_only else None)
 
 

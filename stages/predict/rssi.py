@@ -73,6 +73,10 @@ class RssiPredictResult:
     unit: str = "dB"
     map_stats: list = field(default_factory=list)
     map_files: list = field(default_factory=list)
+    # every frequency predicted [Hz] (the artifact's columns; freq_hz, the first, is the one scored and mapped) and
+    # whether they were the model's fitted frequency, taken because none was asked for (freqs_hz None)
+    freqs_hz: list = field(default_factory=list)
+    freq_assumed: bool = False
 
 
 def read_points_csv(path) -> np.ndarray:
@@ -128,16 +132,15 @@ def _refuse_large(model: RadioModel, num_points: int, cfg: dict) -> None:
                          f"above predict.rssi.max_memory_gb = {cfg['max_memory_gb']:g}; use a coarser --grid STEP or fewer --rx")
 
 
-def _path_gain_blocks(model: RadioModel, txs: np.ndarray, rx: np.ndarray, freq_hz: float, chunk_links: int,
+def _path_gain_blocks(model: RadioModel, txs: np.ndarray, rx: np.ndarray, freqs: np.ndarray, chunk_links: int,
                       bar) -> np.ndarray:
-    """Predicted path gain [N] dB of links txs / rx [N, 3] m at freq_hz, POINTS_PER_BLOCK links at a time, with
-    the effects `rfir diagnose` recorded."""
-    out = np.empty(len(rx))
-    freqs = np.asarray([freq_hz])
+    """Predicted path gain [N, F] dB of links txs / rx [N, 3] m at freqs [F] Hz, POINTS_PER_BLOCK links at a time,
+    with the effects `rfir diagnose` recorded."""
+    out = np.empty((len(rx), len(freqs)))
     for lo in range(0, len(rx), POINTS_PER_BLOCK):
         hi = min(len(rx), lo + POINTS_PER_BLOCK)
         pg = model.predict(txs[lo:hi], rx[lo:hi], freqs, chunk_links=chunk_links, advance=bar.advance)
-        out[lo:hi] = apply_recorded_effects(model.artifact, pg, txs[lo:hi], rx[lo:hi], freqs)[:, 0]
+        out[lo:hi] = apply_recorded_effects(model.artifact, pg, txs[lo:hi], rx[lo:hi], freqs)
     return out
 
 
@@ -193,8 +196,8 @@ def output_files(out_path, *, plots_dir=None, results_path=None, formats=(), num
 
 def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=None, measurements_path=None,
              plots_dir=None, results_path=None, name: str | None = None, seed: int = 0, config_toml: str = "",
-             progress=None, tx_power_dbm: float | None = None, formats=(), threshold_dbm: float | None = None
-             ) -> RssiPredictResult:
+             progress=None, tx_power_dbm: float | None = None, formats=(), threshold_dbm: float | None = None,
+             freqs_hz=None) -> RssiPredictResult:
     """Predict RSSI; see the module docstring. config: the [predict] table (its `rssi` sub-table).
 
     tx: one transmitter position [3] m or several [T, 3] (one map each, plus the best server and, with
@@ -202,7 +205,9 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     [dBm] (the artifact keeps path gain [dB]); formats: map files beside the artifact ("csv", "npz",
     "tif"; rssi_maps); threshold_dbm: coverage threshold [dBm] (needs tx_power_dbm). Receivers closer than
     predict.rssi.min_tx_distance_m to a transmitter are left out of its map (NaN in the map files; not in
-    the artifact) and counted in a warning."""
+    the artifact) and counted in a warning. freqs_hz [F] Hz: the frequencies predicted (the artifact holds a column
+    each, and measured_db only with one; the first is scored, mapped and plotted); None: the one the model was
+    fitted at."""
     progress = progress or NullProgress()
     t_start = time.time()
     cfg = {**rssi_defaults(), **(config.get("rssi", {}) or {})}
@@ -235,7 +240,8 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         check_output(f, None, inputs=inputs)
     rf = read_artifact(rf_path, "rf")
     model = load_model(rf, quantity="rssi", occlusion=str(config.get("occlusion", "auto")))
-    freq_hz = float(model.default_freqs()[0])
+    freqs = model.default_freqs()[:1] if freqs_hz is None else np.atleast_1d(np.asarray(freqs_hz, np.float64))
+    freq_hz = float(freqs[0])
     meas = read_artifact(measurements_path, "measurements") if measurements_path is not None else None
     if meas is not None and str(meas.attrs.get("task", "")) != "rssi":
         raise StageError("`predict rssi` needs task 'rssi' measurements", path=measurements_path)
@@ -243,6 +249,9 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
 
     measured = split = grid_info = None
     warnings: list[str] = []
+    if meas is not None and abs(float(np.asarray(meas["freq_hz"])[0]) - freq_hz) > 1e-6 * freq_hz:
+        warnings.append(f"the measurements are at {float(np.asarray(meas['freq_hz'])[0]) / 1e9:g} GHz, scored against "
+                        f"the prediction at {freq_hz / 1e9:g} GHz (--freqs sets the frequencies predicted)")
     if txs_map is not None:
         if rx_file is not None:
             rx = read_points_csv(rx_file)
@@ -284,7 +293,8 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
 
     t0 = time.time()
     with progress.task("predict rssi", total=len(rx_links)) as bar:
-        pg = _path_gain_blocks(model, txs, rx_links, freq_hz, int(cfg["chunk_links"]), bar)
+        pg_all = _path_gain_blocks(model, txs, rx_links, freqs, int(cfg["chunk_links"]), bar)
+    pg = pg_all[:, 0]
     predict_s = time.time() - t0
 
     metrics, test = {}, None
@@ -320,8 +330,8 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         if tx_power_dbm is not None:
             metrics["tx_power_dbm"] = float(tx_power_dbm)
 
-    data = {"tx_pos": txs, "rx_pos": rx_links, "freq_hz": np.asarray([freq_hz]), "path_gain_db": pg[:, None]}
-    if measured is not None:
+    data = {"tx_pos": txs, "rx_pos": rx_links, "freq_hz": np.asarray(freqs, np.float64), "path_gain_db": pg_all}
+    if measured is not None and len(freqs) == 1:   # one frequency measured: a column of several would repeat it
         data["measured_db"] = measured[:, None]
     if split is not None:
         data["split"] = split
@@ -340,7 +350,7 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
     write_artifact(out_path, "predictions", data, attrs=attrs, provenance=prov,
                    free={"metrics": {"@attrs": flat}} if flat else None)
     result = RssiPredictResult(out_path, len(rx_links), freq_hz, time.time() - t_start, predict_s, metrics,
-                               warnings)
+                               warnings, freqs_hz=[float(f) for f in freqs], freq_assumed=freqs_hz is None)
     if maps is not None:
         result.num_tx, result.unit = len(txs_map), "dBm" if tx_power_dbm is not None else "dB"
         result.tx_m, result.map_points = txs_map, len(rx)

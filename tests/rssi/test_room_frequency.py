@@ -5,6 +5,7 @@ room_diffuse.DiffuseTerms.at_frequency, room.RoomLinks.at_frequency, RoomPredict
   diffuse power, the one-material form the |Gamma| ranges use);
 - over a metal floor, paths traced at one frequency give the two-ray closed form at another;
 - a model predicts only inside its material laws' range, with a one-line error naming the limiting law;
+- `predict rssi --freqs` writes a column per frequency from one fit, the first the fitted frequency's prediction;
 - slow (-m slow): a classroom simulated at 2.4 GHz and fitted there predicts the classroom simulated at 5.8 GHz
   within 1 dB of the model fitted at 5.8 GHz itself (the Sionna simulator, ITU materials at each frequency).
 """
@@ -17,6 +18,7 @@ import torch
 from typer.testing import CliRunner
 
 from rfir_cli.main import app
+from rfir_core.artifacts import read_artifact
 from rfir_core.errors import ConfigError
 from rfir_core.physics.materials import C0, abs2
 from rfir_stages.model.physical import MaterialParams
@@ -26,7 +28,7 @@ from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.model.occlusion import FrozenGeometry, make_provider
 
 from .helpers import links as grid_links
-from .helpers import room_geometry
+from .helpers import room_geometry, write_measurements, write_scene
 
 
 @pytest.fixture(scope="module")
@@ -117,6 +119,36 @@ def test_prediction_frequencies_inside_the_material_laws_range_only():
         with pytest.raises(ConfigError) as err:
             pred.check_frequencies([2.4e9, bad])
         assert "\n" not in str(err.value) and "1-40 GHz" in str(err.value)
+
+
+def test_predict_rssi_at_several_frequencies_from_one_fit(tmp_path):
+    write_scene(tmp_path / "scene.h5", spacing_m=0.3)
+    write_measurements(tmp_path / "meas.h5")
+    fast = ["--set", "rf_fit.physical.iterations=30", "--set", "rf_fit.physical.start_iterations=10",
+            "--set", "rf_fit.room.starts_kept=1", "--set", "rf_fit.room.reflection_ranges=false"]
+    run = lambda *a: CliRunner().invoke(app, [str(x) for x in a])  # noqa: E731
+    r = run(*fast, "rf-fit", tmp_path / "scene.h5", tmp_path / "meas.h5", "-o", tmp_path / "rf.h5")
+    assert r.exit_code == 0, r.output
+    r = run("predict", "rssi", tmp_path / "rf.h5", "--measurements", tmp_path / "meas.h5", "-o", tmp_path / "p.h5")
+    assert r.exit_code == 0, r.output
+    assert "at 2.4 GHz (the frequency the model was fitted at; --freqs predicts at others)" in " ".join(r.output.split())
+    r = run("predict", "rssi", tmp_path / "rf.h5", "--measurements", tmp_path / "meas.h5", "--freqs", "2.4e9,5.8e9",
+            "-o", tmp_path / "p2.h5")
+    assert r.exit_code == 0, r.output
+    one, two = read_artifact(tmp_path / "p.h5", "predictions"), read_artifact(tmp_path / "p2.h5", "predictions")
+    np.testing.assert_array_equal(np.asarray(two["freq_hz"]), [2.4e9, 5.8e9])
+    got = np.asarray(two["path_gain_db"])
+    np.testing.assert_allclose(got[:, 0], np.asarray(one["path_gain_db"])[:, 0], atol=1e-9)
+    # the 5.8 GHz column is the model's prediction there (the same materials, the paths evaluated at 5.8 GHz)
+    model = RoomPredictor(read_artifact(tmp_path / "rf.h5", "rf"))
+    meas = read_artifact(tmp_path / "meas.h5", "measurements")
+    want = model.predict_db(np.asarray(meas["tx_pos"]), np.asarray(meas["rx_pos"]), [5.8e9])[:, 0]
+    np.testing.assert_allclose(got[:, 1], want, atol=1e-9)
+    assert np.median(got[:, 0] - got[:, 1]) > 3.0          # most of 20 log10(5.8 / 2.4) = 7.7 dB of free space
+    r = run("predict", "rssi", tmp_path / "rf.h5", "--measurements", tmp_path / "meas.h5", "--freqs", "200e9",
+            "-o", tmp_path / "p3.h5")
+    assert r.exit_code != 0 and "200 GHz is outside 1-100 GHz" in " ".join(r.output.split())
+    assert not (tmp_path / "p3.h5").exists()
 
 
 @pytest.mark.slow

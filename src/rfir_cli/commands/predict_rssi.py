@@ -40,6 +40,10 @@ def predict_rssi(
     threshold_dbm: Annotated[Optional[float], typer.Option(
         "--threshold-dbm", metavar="DBM", help="Coverage: share of the points where the best transmitter gives at "
                                                "least this [dBm] (needs --tx-power-dbm).")] = None,
+    freqs: Annotated[Optional[str], typer.Option(
+        "--freqs", metavar="HZ", help="Frequencies [Hz] to predict at, '5.8e9' or '2.4e9,5.8e9', inside the range of "
+                                      "the model's material laws (default: the one it was fitted at); the artifact "
+                                      "holds a column each, the first is scored, mapped and plotted.")] = None,
 ) -> None:
     """Received power at points or on a grid for any transmitter; MAE beside baselines when measured."""
     opts = options(ctx)
@@ -52,17 +56,21 @@ def predict_rssi(
         if results_path is None and measurements is not None and not tx:
             results_path = out_path.with_suffix(".json")
         txs = [comma_numbers(t, "--tx", 3) for t in tx] if tx else None
+        freqs_hz = None if freqs is None else comma_numbers(freqs, "--freqs", len(freqs.split(",")))
         with RichReporter(opts.verbosity) as reporter:
             return run_rssi(rf, out_path, dict(opts.config().get("predict", {})), tx=txs,
                             rx_file=rx, grid=comma_numbers(grid, "--grid", 2), measurements_path=measurements,
                             plots_dir=plots, results_path=results_path, seed=opts.seed,
                             config_toml=opts.config_toml(), progress=reporter, tx_power_dbm=tx_power_dbm,
-                            formats=formats or (), threshold_dbm=threshold_dbm)
+                            formats=formats or (), threshold_dbm=threshold_dbm, freqs_hz=freqs_hz)
 
     r = run_guarded(ctx, work)
     for w in r.warnings:
         err_console.print(f"[yellow]warning:[/yellow] {w}", highlight=False, soft_wrap=True)
-    console.print(f"[green]wrote[/green] {r.path}: {plural(r.num_links, 'link')} at {r.freq_hz / 1e9:g} GHz "
+    at = ", ".join(f"{f / 1e9:g}" for f in (r.freqs_hz or [r.freq_hz]))
+    why = (" (the frequency the model was fitted at; --freqs predicts at others)" if r.freq_assumed else
+           " (scored and mapped at the first)" if len(r.freqs_hz) > 1 else "")
+    console.print(f"[green]wrote[/green] {r.path}: {plural(r.num_links, 'link')} at {at} GHz{why} "
                   f"({r.predict_time_s:.2f} s predicting, {r.wall_time_s:.2f} s in all)", highlight=False)
     m = r.metrics
     if "mae_db" in m:
