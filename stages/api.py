@@ -72,7 +72,7 @@ def fit(scene, measurements, out_path, *, settings: list[str] | tuple = (), conf
 def predict(model: RadioModel, tx_m, rx_m, freqs_hz=None, *, aspect_rad=None, range_m=None,
             progress=None) -> np.ndarray:
     """Path gain [N, F] dB of the links tx_m -> rx_m ([N, 3] m, or one position [3] for all) at freqs_hz [F] Hz
-    (default: the model's own; the room model predicts at the frequency it was fitted at), with the corrections
+    (default: the model's own), with the corrections
     `rfir diagnose` recorded in the model; aspect_rad, range_m [N]: turntable coordinates of monostatic links, which
     some of those corrections use."""
     tx, rx = link_positions(tx_m, rx_m)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from rfir_core.artifacts import read_artifact, write_artifact
-from rfir_core.errors import InputFileError, SchemaError
+from rfir_core.errors import ConfigError, InputFileError, SchemaError
 from rfir_core.physics.closed_forms import plate_rcs_broadside_m2
 from rfir_stages import api
 from rfir_stages.geom import gaussians_from_mesh
@@ -105,8 +105,11 @@ def test_room_model_whose_materials_are_air_predicts_free_space(air_room):
     friis = 20 * np.log10(C0 / 2.4e9 / (4 * np.pi * np.linalg.norm(rx - tx, axis=1)))
     assert pg.shape == (12, 1)
     np.testing.assert_allclose(pg[:, 0], friis, atol=1e-3)
-    with pytest.raises(Exception, match="fitted at, 2.4 GHz"):
-        model.predict(tx, rx, [5.8e9])
+    # at other frequencies from the same traced paths: Friis scales with the wavelength
+    pg2 = model.predict(tx, rx, [2.4e9, 5.8e9])
+    np.testing.assert_allclose(pg2[:, 1] - pg2[:, 0], 20 * np.log10(2.4 / 5.8), atol=1e-3)
+    with pytest.raises(ConfigError, match="outside .* GHz, where this model's material laws hold"):
+        model.predict(tx, rx, [500e9])
 
 
 def test_materials_name_each_fitted_value_and_save_writes_a_model_that_predicts_the_same(plate, tmp_path):
