@@ -9,7 +9,7 @@
 Gaussians) with one gain per transmitter and per receiver added, under the room model's prior: ridge
 least squares with weight s / prior_db on the gains (s the RMS training residual, iterated), which is
 the MAP estimate for Gaussian dB errors. A device no training link sees gets 0 dB.
-With --truth (the truth.json of `python -m rfir_stages.simulate.measured_like`): the figures the
+With --truth (the truth.json of `python scripts/measured_like.py`): the figures the
 simulator itself scores, plus one fitted constant, without and with the true device gains (the floor
 that fading and antenna patterns leave). A baseline, not a stage: it writes only its JSON.
 """

@@ -1,6 +1,6 @@
 """Measured-like RSSI from a simulated one: what real measurements have and a simulation lacks.
 
-    python -m rfir_stages.simulate.measured_like SIM_DIR OUT_DIR [--seed N] [--set simulate.measured_like.KEY=VALUE]
+    python scripts/measured_like.py SIM_DIR OUT_DIR [--seed N] [--set simulate.measured_like.KEY=VALUE]
 
 SIM_DIR is the output of `rfir simulate SCENE SIM_DIR` for a room scene whose SceneSpec.info names a
 floor plan (the `flat`); settings in `[simulate.measured_like]` (configs/simulate.toml). Each effect
@@ -35,16 +35,14 @@ so rf-fit assumes isotropic antennas and says so).
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
-from rfir_core.errors import ConfigError, InputFileError, RfirError
+from rfir_core.errors import ConfigError, InputFileError
 
 from .rssi import clear_of_objects
 from .scenes import SceneSpec, build_scene, write_ply
@@ -290,30 +288,3 @@ def run(sim_dir, out_dir, table: dict, seed: int = 0, config_toml: str = "", log
     (out / "truth.json").write_text(json.dumps(truth))
     written["truth"] = out / "truth.json"
     return written
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m rfir_stages.simulate.measured_like", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("sim_dir", type=Path, help="output folder of `rfir simulate SCENE` (rssi)")
-    ap.add_argument("out_dir", type=Path, help="folder to write (measurement files, floorplan/, truth.json)")
-    ap.add_argument("--seed", type=int, default=0, help="seed of every draw (default 0)")
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="simulate.measured_like.<key>=value over configs/simulate.toml")
-    a = ap.parse_args(argv)
-    try:
-        from rfir_core.config import resolve_config, to_toml
-
-        config = resolve_config(overrides=a.overrides)
-        written = run(a.sim_dir, a.out_dir, config.get("simulate", {}).get("measured_like", {}), a.seed,
-                      to_toml(config))
-    except RfirError as exc:
-        print(f"error: measured_like: {exc}", file=sys.stderr)
-        return getattr(exc, "exit_code", 1)
-    for key, path in written.items():
-        print(f"wrote {path} ({key})")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
