@@ -74,31 +74,42 @@ def find_planes(x: np.ndarray, normals: np.ndarray, *, distance_m: float, normal
 
     o3d.utility.random.seed(int(seed))
     cos_max = np.cos(np.radians(normal_deg))
-    remaining = np.arange(len(x))
+    up = np.abs(normals[:, 2])
+    # RANSAC counts points, not normals: among all of them a horizontal slice through the walls' Gaussians can
+    # outnumber a ceiling seen in a few photos. Sampled within one family of normals at a time (level, upright,
+    # the rest), a plane is one that family's points make; its members come from every remaining point.
+    families = [up >= cos_max, up <= np.sin(np.radians(normal_deg))]
+    families.append(~families[0] & ~families[1])
+    taken = np.zeros(len(x), bool)
     planes: list[Plane] = []
-    failures = 0
-    while len(planes) < max_planes and len(remaining) >= max(min_points, 3) and failures < RANSAC_TRIES:
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(x[remaining])))
-        model, _ = cloud.segment_plane(distance_threshold=distance_m, ransac_n=3, num_iterations=RANSAC_ITERATIONS)
-        normal = np.asarray(model[:3], float)
-        normal, offset = normal / np.linalg.norm(normal), -float(model[3]) / np.linalg.norm(normal)
-        members = _members(x, normals, remaining, normal, offset, distance_m, cos_max)
-        if len(members) >= 3:      # refit on the members (RANSAC's plane goes through three of them) and take again
-            normal, offset, _ = fit_plane(x[members])
-            members = _members(x, normals, remaining, normal, offset, distance_m, cos_max)
-        if len(members) < min_points:
-            failures += 1
-            continue
+    for family in families:
         failures = 0
-        piece = connected_pieces(x[members], piece_eps_m, min_points)
-        for p in np.unique(piece[piece >= 0]):
-            idx = members[piece == p]
-            n_p, o_p, rms = fit_plane(x[idx])
-            planes.append(Plane(n_p, o_p, idx, rms))
-        # every member leaves the pool, the small pieces too: left in, they would be found as this plane again
-        remaining = np.setdiff1d(remaining, members, assume_unique=True)
-        if progress is not None:
-            progress.advance()
+        while len(planes) < max_planes and failures < RANSAC_TRIES:
+            pool = np.flatnonzero(family & ~taken)
+            if len(pool) < max(min_points, 3):
+                break
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(x[pool])))
+            model, _ = cloud.segment_plane(distance_threshold=distance_m, ransac_n=3, num_iterations=RANSAC_ITERATIONS)
+            normal = np.asarray(model[:3], float)
+            normal, offset = normal / np.linalg.norm(normal), -float(model[3]) / np.linalg.norm(normal)
+            remaining = np.flatnonzero(~taken)
+            members = _members(x, normals, remaining, normal, offset, distance_m, cos_max)
+            if len(members) >= 3:      # refit on the members (RANSAC's plane goes through three of them), take again
+                normal, offset, _ = fit_plane(x[members])
+                members = _members(x, normals, remaining, normal, offset, distance_m, cos_max)
+            if len(members) < min_points:
+                failures += 1
+                continue
+            failures = 0
+            piece = connected_pieces(x[members], piece_eps_m, min_points)
+            for p in np.unique(piece[piece >= 0]):
+                idx = members[piece == p]
+                n_p, o_p, rms = fit_plane(x[idx])
+                planes.append(Plane(n_p, o_p, idx, rms))
+            # every member leaves the pool, the small pieces too: left in, they would be found as this plane again
+            taken[members] = True
+            if progress is not None:
+                progress.advance()
     return planes
 
 

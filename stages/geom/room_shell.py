@@ -129,7 +129,7 @@ def build_shell(x: np.ndarray, planes: list[Plane], settings: ShellSettings) -> 
     floor_plane = max(floors, key=lambda f: len(f[0].members))
     floor = _snapped(x, "floor", floor_plane[0].members, floor_plane[1], settings)
     wall_surfaces = [_snapped(x, f"wall_{k:02d}", w[0].members, w[1], settings) for k, w in enumerate(walls)]
-    top = float(np.median([np.percentile(x[w.members, 2], 99) for w in wall_surfaces]))
+    top = float(np.percentile(x[np.concatenate([w.members for w in wall_surfaces]), 2], 99.9))
     # ceiling candidates: horizontal boundaries with the Gaussians below, at or above the walls' top
     near_top = [c for c in ceilings if -c[2] >= top - 3 * settings.distance_m - 0.3]
     if near_top:

@@ -35,6 +35,7 @@ class StructureSettings(ShellSettings):
     object_eps_m: float = 0.15
     object_min_points: int = 20
     spacing_m: float = 0.8
+    tile_shell: bool = True
 
 
 @dataclass
@@ -126,7 +127,10 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     shell_planes = {id(p) for p in planes if _used_by_shell(p, on_shell)}
     object_planes = [p for p in planes if id(p) not in shell_planes and in_object[p.members].mean() > 0.5]
 
-    fields_out, names = _shell_fields(surfaces, settings.spacing_m, art.data.get("gaussians/colors"))
+    if settings.tile_shell:
+        fields_out, names = _shell_fields(surfaces, settings.spacing_m, art.data.get("gaussians/colors"))
+    else:
+        fields_out, names = _shell_projected(art.data, x, on_shell, surfaces)
     objects = _object_fields(art.data, piece, in_object, object_planes, first_label=len(names))
     uniq = np.unique(piece[in_object])
     names += [f"object_{k:02d}" for k in range(len(uniq))]
@@ -213,6 +217,25 @@ def _shell_fields(surfaces: list[Surface], spacing_m: float, colors) -> tuple[di
     return out, [s.name for s in surfaces]
 
 
+def _shell_projected(data: dict, x: np.ndarray, on_shell: np.ndarray, surfaces: list[Surface]) -> tuple[dict, list[str]]:
+    """The shell's own Gaussians (on_shell [N] bool) projected onto their surface (the nearest plane; an inset's
+    where its cells are), labelled with the surface's index into the returned names: the shell without tiling
+    (tile_shell = false; an inferred ceiling then has no Gaussians)."""
+    idx = np.flatnonzero(on_shell)
+    dist = np.stack([np.abs(x[idx] @ s.normal - s.offset) for s in surfaces], 1)
+    for k, s in enumerate(surfaces):
+        if s.kind == "inset":       # an inset's cells are its own, its wall's are not
+            rel = x[idx] - s.origin
+            i = np.clip(np.floor(rel @ s.u / s.cell_m).astype(int), 0, s.occupied.shape[0] - 1)
+            j = np.clip(np.floor(rel @ s.v / s.cell_m).astype(int), 0, s.occupied.shape[1] - 1)
+            dist[:, k] = np.where(s.occupied[i, j], -1.0, np.inf)
+    which = np.argmin(dist, axis=1)
+    planes = [Plane(s.normal, s.offset, idx[which == k], 0.0) for k, s in enumerate(surfaces)]
+    labels = np.full(len(x), -1)
+    labels[idx] = which
+    return _projected(data, on_shell, labels, planes), [s.name for s in surfaces]
+
+
 def _subset(data: dict, keep: np.ndarray, label) -> dict:
     """The scene fields of the Gaussians keep [N] bool, labelled `label` (an int or an [N] array)."""
     out = {k: np.asarray(v)[keep] for k, v in data.items() if k.startswith("gaussians/") and k != "gaussians/labels"}
@@ -224,24 +247,30 @@ def _object_fields(data: dict, piece: np.ndarray, in_object: np.ndarray, planes:
     """The object segments' Gaussians (labels first_label + segment), those on one of `planes` projected onto it:
     mean moved onto the plane, normal the plane's, covariance flattened into it (thickness 5 % of the smaller
     in-plane spread, as mesh surfels)."""
+    uniq, seg = np.unique(piece[in_object], return_inverse=True)
+    labels = np.full(len(piece), -1)
+    labels[in_object] = first_label + seg
+    return _projected(data, in_object, labels, [Plane(p.normal, p.offset, p.members[in_object[p.members]], p.rms_m)
+                                                 for p in planes])
+
+
+def _projected(data: dict, keep: np.ndarray, labels: np.ndarray, planes: list[Plane]) -> dict:
+    """The fields of the Gaussians keep [N] bool with labels [N], each plane's members projected onto it."""
     x = np.asarray(data["gaussians/means"], float).copy()
     normals = np.asarray(data["gaussians/normals"], float).copy()
     log_scales = np.asarray(data["gaussians/log_scales"], float).copy()
     rotations = np.asarray(data["gaussians/rotations"], float).copy()
     for p in planes:
-        idx = p.members[in_object[p.members]]
+        idx = p.members
         if len(idx) == 0:
             continue
         x[idx] -= np.outer(x[idx] @ p.normal - p.offset, p.normal)
         sign = np.where(normals[idx] @ p.normal < 0, -1.0, 1.0)
         normals[idx] = sign[:, None] * p.normal
         log_scales[idx], rotations[idx] = _flattened(log_scales[idx], rotations[idx], normals[idx])
-    uniq, seg = np.unique(piece[in_object], return_inverse=True)
-    labels = np.full(len(x), -1)
-    labels[in_object] = first_label + seg
     data = {**data, "gaussians/means": x, "gaussians/normals": normals, "gaussians/log_scales": log_scales,
             "gaussians/rotations": rotations}
-    return _subset(data, in_object, labels)
+    return _subset(data, keep, labels)
 
 
 def _flattened(log_scales: np.ndarray, rotations: np.ndarray, normals: np.ndarray):

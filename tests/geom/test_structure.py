@@ -182,6 +182,27 @@ def test_board_is_an_inset_of_its_wall(room_result):
     assert x[:, 1].min() > BOARD[0] - 0.1 and x[:, 1].max() < BOARD[1] + 0.1
 
 
+def test_shell_gaussians_projected_without_tiling(tmp_path):
+    from rfir_core.artifacts import read_artifact
+    from rfir_stages.geom.structure import run
+
+    fields, _ = sampled_room(np.random.default_rng(4), density=100.0)
+    result = run(_write(tmp_path / "room.h5", fields), tmp_path / "planes.h5", {"tile_shell": False})
+    art = read_artifact(tmp_path / "planes.h5", "scene")
+    names = [str(n) for n in art.attrs["label_names"]]
+    labels = art.data["gaussians/labels"]
+    assert len(labels) == len(fields["gaussians/means"])            # the input's Gaussians, none added
+    assert ((labels >= 0) & (labels < names.index("object_00"))).sum() == result.num_on_shell
+    x, n = art.data["gaussians/means"], art.data["gaussians/normals"]
+    far_wall = next(s for s in result.surfaces if s.kind == "wall" and s.normal[0] < -0.99)
+    floor = next(s for s in result.surfaces if s.name == "floor")
+    for surface, value in ((floor, 0.0), (far_wall, -ROOM[0])):     # offsets along the inward normals
+        on = labels == names.index(surface.name)
+        offsets = x[on] @ surface.normal
+        assert on.sum() > 100 and np.allclose(offsets, value, atol=0.02) and np.ptp(offsets) < 1e-9
+        assert np.allclose(np.abs(n[on] @ surface.normal), 1.0, atol=1e-12)
+
+
 def test_tilted_frame_is_reported(tmp_path):
     from rfir_stages.geom.structure import run
 

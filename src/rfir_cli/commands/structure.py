@@ -48,7 +48,8 @@ def structure(
     for s in r.surfaces:
         tilt = "inferred (walls' top)" if s.inferred else f"{s.tilt_deg:.2f}"
         w, h = s.size_m
-        table.add_row(s.name, tilt, f"{s.offset:.3f}", f"{w:.2f} x {h:.2f}", f"{s.openings_m2:.2f}", str(len(s.members)))
+        table.add_row(s.name, tilt, f"{s.offset:.3f}", f"{w:.2f} x {h:.2f}", "-" if s.kind == "inset" else f"{s.openings_m2:.2f}",
+                      str(len(s.members)))
     if opts.verbosity >= 0:
         console.print(table)
     if r.scale is not None:
