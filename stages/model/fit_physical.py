@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from rfir_core.physics.materials import METAL_SIGMA_S_PER_M
 from rfir_core.progress import NullProgress
 from rfir_core.text import plural
 from rfir_core.threads import single_thread_torch
@@ -31,8 +32,11 @@ from rfir_core.threads import single_thread_torch
 from .device_gains import DeviceGains
 from .physical import AggregatedPairs, MaterialParams
 
-# (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one
-STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, 1e6, 0.1, 0.01),
+# (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one. The metal
+# start is a decade below the metal's conductivity, where the fitted range (physical.LOG10_SIGMA) ends: there the
+# sigmoid of the parametrisation still passes a gradient, and its |Gamma| is a metal's to 0.01 dB.
+METAL_START_SIGMA_1GHZ = METAL_SIGMA_S_PER_M / 10.0
+STARTS = (("thin dielectric", 3.0, 0.01, 0.1, 0.01), ("metal", 1.5, METAL_START_SIGMA_1GHZ, 0.1, 0.01),
           ("thick dielectric", 6.0, 0.05, 0.1, 0.2))
 # the start of a fit that continues from given materials (fit_materials' initial)
 CONTINUED = ("continued", 3.0, 0.01, 0.1, 0.01)

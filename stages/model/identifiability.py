@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from rfir_core.physics.materials import METAL_SIGMA_S_PER_M
 from rfir_core.progress import NullProgress
 from rfir_core.threads import single_thread_torch
 
@@ -32,7 +33,7 @@ from .physical import THICKNESS_M, MaterialParams
 LocalPredictor = Callable[[MaterialParams, int], tuple[torch.Tensor, Callable[[MaterialParams], torch.Tensor]]]
 
 EPS_R_GRID = (1.5, 2.0, 3.0, 4.5, 7.0, 10.0, 15.0, 25.0)                 # up to EPS_R_MAX
-SIGMA_1GHZ_GRID = (1e-3, 0.05, 1e6)                                # S/m: a low-loss, a lossy dielectric, a metal
+SIGMA_1GHZ_GRID = (1e-3, 0.05, METAL_SIGMA_S_PER_M)               # S/m: a low-loss, a lossy dielectric, a metal
 THICKNESS_GRID_M = (0.003, 0.006, 0.01, 0.02, 0.05, 0.1, 0.2)     # m, within THICKNESS_M
 NUM_BLOCKS = 20   # batch means of the standard error: contiguous blocks of training rows
 # A range of |Gamma(0)| wider than this is "not determined by the links". The ITU-R P.2040 building materials

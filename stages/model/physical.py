@@ -40,7 +40,8 @@ import torch
 from torch import nn
 
 from rfir_core.physics.angle_nodes import AngleNodes
-from rfir_core.physics.materials import C0, abs2, co_polar_reflection, fresnel, law_permittivity, specular_share
+from rfir_core.physics.materials import (C0, METAL_SIGMA_S_PER_M, abs2, co_polar_reflection, fresnel, law_permittivity,
+                                         specular_share)
 from rfir_core.physics.polarisation import te_share
 from rfir_core.threads import single_thread_torch
 
@@ -54,7 +55,7 @@ from .third_order import TripleBounce, build_triple_bounce
 from .surfels import covariance, footprint_cells, footprint_factor, surfel_areas
 
 EPS_R_MAX = 25.0            # relative permittivity in [1, EPS_R_MAX]
-LOG10_SIGMA = (-4.0, 7.0)   # conductivity at 1 GHz in [1e-4, 1e7] S/m (1e7: metal)
+LOG10_SIGMA = (-4.0, math.log10(METAL_SIGMA_S_PER_M))   # conductivity at 1 GHz in [1e-4 S/m, a metal's]
 THICKNESS_M = (1e-3, 1.0)   # slab thickness range, m
 DENSE_VIS_MAX = 1 << 24     # links x Gaussians up to which the visibility lookup is a dense table (128 MiB)
 

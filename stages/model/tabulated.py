@@ -35,7 +35,7 @@ import torch
 from rfir_core.threads import single_thread_torch
 
 from .identifiability import block_standard_error
-from rfir_core.physics.materials import ITU_MATERIALS
+from rfir_core.physics.materials import ITU_MATERIALS, METAL_SIGMA_S_PER_M
 from .physical import MaterialParams
 
 # typical slab thickness [m] of each tabulated material (a name's starting value and a candidate's thickness)
@@ -43,7 +43,6 @@ TYPICAL_THICKNESS_M = {"glass": 0.01, "metal": 0.002, "concrete": 0.2, "brick": 
                        "plasterboard": 0.0125, "ceiling_board": 0.015, "chipboard": 0.02, "plywood": 0.015,
                        "marble": 0.03, "floorboard": 0.02}
 DEFAULT_THICKNESS_M = 0.05
-METAL_SIGMA_1GHZ = 1e6      # S/m: a conductor to every reflection and crossing (the fit's metal start)
 SHORTLIST = 2               # candidates per material scored again in each round (the best against the fit)
 
 
@@ -72,7 +71,7 @@ def tabulated_values(key: str, freq_hz: float, sigma_exponent: float) -> tuple[f
     """(eps_r, sigma at 1 GHz [S/m]) of tabulated material `key` in MaterialParams' law sigma_1GHz (f / 1 GHz)^
     sigma_exponent, equal to the table's law at freq_hz [Hz]."""
     if key == "metal":
-        return 1.0, METAL_SIGMA_1GHZ
+        return 1.0, METAL_SIGMA_S_PER_M
     a, b, c, d, _, _ = ITU_MATERIALS[key]
     f_ghz = float(freq_hz) / 1e9
     return a * f_ghz ** b, c * f_ghz ** d / f_ghz ** sigma_exponent
