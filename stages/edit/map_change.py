@@ -17,13 +17,13 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
     """Predict the map of Tx tx_m [3] m at receivers on a grid (height_m, step_m over the input's floor
     plan) with both artifacts; write the PNG; return {"mean_abs_change_db", "max_abs_change_db", "points"}."""
     from rfir_stages.predict.rssi_checks import floor_grid
-    from rfir_stages.predict.rssi_model_io import load_predictor
+    from rfir_stages.model.radio_model import load_model
 
-    before, after = load_predictor(rf_before), load_predictor(rf_after)
-    bounds = before.geom.means.min(0).values.numpy(), before.geom.means.max(0).values.numpy()
+    before, after = load_model(rf_before, quantity="rssi"), load_model(rf_after, quantity="rssi")
+    bounds = before.geometry.means.min(0).values.numpy(), before.geometry.means.max(0).values.numpy()
     rx = floor_grid(bounds, height_m, step_m)
     tx = np.broadcast_to(np.asarray(tx_m, np.float64).reshape(1, 3), rx.shape)
-    pg0, pg1 = before.path_gain_db(tx, rx), after.path_gain_db(tx, rx)
+    pg0, pg1 = before.predict(tx, rx)[:, 0], after.predict(tx, rx)[:, 0]   # at the model's frequency
     change = pg1 - pg0
     plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
@@ -35,7 +35,7 @@ def rssi_map_change(path: Path, rf_before, rf_after, tx_m, height_m: float = 1.0
         sc = ax.scatter(rx[:, 0], rx[:, 1], c=val, s=60, marker="s", cmap=cmap, vmin=vmin, vmax=vmax, lw=0)
         ax.plot([tx_m[0]], [tx_m[1]], marker="*", ms=15, color="red", mec="k")
         for art, colour in ((before, "0.6"), (after, "k")):
-            m = art.geom.means.numpy()
+            m = art.geometry.means.numpy()
             ax.scatter(m[:, 0], m[:, 1], s=0.5, c=colour, alpha=0.3, lw=0)
         ax.set_aspect("equal")
         ax.set_title(name, fontsize=10)

@@ -17,7 +17,8 @@ from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
 
-from rfir_stages.predict.rssi_model_io import ROOM_KIND, require_room_model
+from rfir_stages.model.radio_model import quantity_of
+from rfir_stages.predict.rssi_model_io import require_room_model
 
 from .operations import EditScene, apply
 from .script import Edit
@@ -149,7 +150,7 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
 
 
 def _is_room_model(art) -> bool:
-    return str(art.free.get("model@attrs", {}).get("model_kind", "")) == ROOM_KIND
+    return quantity_of(art) == "rssi"   # a model of links in a room: its radio change is a map
 
 
 def _radio_change(plot_path: Path, art, edited_path: Path, map_tx):

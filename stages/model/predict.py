@@ -75,7 +75,7 @@ class ObjectRcsModel(RadioModel):
         return np.where(test, 1, np.where(train, 0, -1))
 
     def _path_gain_db(self, tx, rx, freqs, progress, advance, chunk_links, physics_only):
-        model, rf = self.physical, self.artifact
+        model = self.physical
         chunk_links = int(chunk_links or 64)
         outside = freqs[(freqs / 1e9 < VALID_GHZ[0]) | (freqs / 1e9 > VALID_GHZ[1])]
         if outside.size:
@@ -150,7 +150,8 @@ def band_default_freqs(rf, measured_hz=None) -> np.ndarray:
 
 def predict_physical_db(rf, tx, rx, freqs, task: str = "rcs", *, occlusion: str = "auto", chunk_links: int = 64,
                         progress=None, with_physics_only: bool = False):
-    """Path gain [L, K] dB for links tx/rx [L, 3] m at freqs [K] Hz of the object model in `rf`; with_physics_only: (that, the physical model's alone, without the residual).
+    """Path gain [L, K] dB for links tx/rx [L, 3] m at freqs [K] Hz of the object model in `rf`; with_physics_only:
+    (that, the physical model's alone, without the residual).
     One call; a caller that predicts more than once keeps an ObjectRcsModel. task: the links' antenna aiming
     (boresight at the scene centre for "rcs"/"wideband")."""
     model = ObjectRcsModel(rf, occlusion)

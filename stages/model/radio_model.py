@@ -69,6 +69,12 @@ def kind_of(rf) -> str:
     return ""
 
 
+def quantity_of(rf) -> str | None:
+    """What the model of an `rf` artifact predicts ("rcs" or "rssi"), or None for a kind rfir does not register."""
+    known = _KINDS.get(kind_of(rf))
+    return None if known is None else known.quantity
+
+
 def _refuse(rf, kind: str, quantity: str | None) -> None:
     """SchemaError (one line naming the file and what it holds) unless `rf` holds a registered kind that predicts
     `quantity` (any, for None)."""
