@@ -26,7 +26,7 @@ import torch
 from .data import View, camera_rays, z_from_distance
 from .losses import psnr, ssim
 from .model import GaussianModel
-from .render import make_scene, render_view
+from .gaussian_views import make_scene, render_view
 
 
 @dataclass

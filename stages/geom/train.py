@@ -27,7 +27,7 @@ from .densify import DensifyStats, densify_and_prune
 from .losses import (depth_normal_loss, depth_uncertainty_loss, normal_smoothness_loss, pseudo_normals, ssim,
                      surface_mask)
 from .model import GaussianModel
-from .render import make_scene, render_view
+from .gaussian_views import make_scene, render_view
 
 
 @dataclass

@@ -9,7 +9,7 @@ import torch
 from rfir_stages.geom.losses import (SSIM_C1, SSIM_C2, depth_uncertainty_loss, gaussian_window, normal_smoothness_loss,
                                      pseudo_normals, ssim, surface_mask)
 from rfir_stages.geom.model import GaussianModel, logit
-from rfir_stages.geom.render import make_scene, render_view
+from rfir_stages.geom.gaussian_views import make_scene, render_view
 
 
 def test_ssim_matches_a_hand_computed_window():
