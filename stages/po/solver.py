@@ -325,7 +325,7 @@ def _po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_
             progress(done, M)
 
     if second_order:
-        from .second_order import multi_bounce
+        from .multi_bounce import multi_bounce
 
         out += multi_bounce(verts, fcs, tab0, refl, occ, tx, rx, ref, ks, pol_t, pol_r, max_bounces=max_bounces,
                             near_field=near_field, two_sided=two_sided, spacing_m=sbr_spacing_m,

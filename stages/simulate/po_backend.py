@@ -33,7 +33,7 @@ def simulate_monostatic_po(spec, grid: RadarGrid, freqs_hz, hpbw_deg: float, po:
     kwargs = dict(po.solver_kwargs(), ref_point=tuple(float(x) for x in centre))
     if kwargs.get("second_order"):   # say how many bounces, and what an "auto" tube side resolved to
         if kwargs.get("sbr_spacing_m") is None:
-            from rfir_stages.po.second_order import auto_tube_spacing
+            from rfir_stages.po.multi_bounce import auto_tube_spacing
             side = auto_tube_spacing(v, 2 * np.pi * freqs / 299792458.0)
             tubes = (f"{side * 1e3:.1f} mm (simulate.po.sbr_spacing_m = auto: lambda_min / 20, wider for large "
                      "objects; tubes split at grazing bounces)")

@@ -1,8 +1,8 @@
-"""The PO solver's double-bounce ray tubes at grazing first bounces (stages/po/second_order.py)."""
+"""The PO solver's double-bounce ray tubes at grazing first bounces (stages/po/multi_bounce.py)."""
 import numpy as np
 import pytest
 
-import rfir_stages.po.second_order as second_order
+import rfir_stages.po.multi_bounce as second_order
 from rfir_stages.po import po_scattered_field
 
 

@@ -1,4 +1,4 @@
-"""Triple bounces of the PO solver (stages/po/second_order.py, max_bounces = 3) against closed forms.
+"""Triple bounces of the PO solver (stages/po/multi_bounce.py, max_bounces = 3) against closed forms.
 
 A square trihedral (three a x a perfectly conducting plates in x = 0, y = 0, z = 0) retro-reflects
 every ray that meets all three plates: three mirror images are a point inversion, so the ray leaves
