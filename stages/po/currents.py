@@ -1,5 +1,5 @@
 """The physical-optics currents of a lit facet and the sum of facet contributions, shared by the first-order solver
-(solver.py) and the multi-bounce tubes (second_order.py), which both import them from here.
+(solver.py) and the multi-bounce tubes (multi_bounce.py), which both import them from here.
 
 `po_coefficients` gives the far-field factor of the PO currents split over the reflection coefficients
 (c0 + R_TE c_TE + R_TM c_TM); `reflect_field_basis` the reflected field in the same split; `_sum_into` adds the

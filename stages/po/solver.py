@@ -186,7 +186,7 @@ def po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_h
     scalar in m makes them slabs as in Sionna). tx_pos, rx_pos (M,3) m: one radar geometry per
     row (monostatic when equal). freqs_hz (K,). polarization "V", "H", "VH" (tx V, rx H) or a
     (tx, rx) pair. second_order adds the paths over 2 to max_bounces facets (ray tubes, GO then PO,
-    see `second_order.py`): max_bounces = 2 the double bounce (a dihedral's flash), 3 also the triple
+    see `multi_bounce.py`): max_bounces = 2 the double bounce (a dihedral's flash), 3 also the triple
     bounce (a trihedral's flash); ignored when second_order is False.
     shadow_samples 1 (centroid) or 4 (centroid + 3 inner points) ray casts per facet and end.
     chunk_facets bounds the (facet, aspect) pairs processed at once and chunk_elements the
