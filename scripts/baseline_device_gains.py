@@ -57,7 +57,7 @@ def main(argv=None) -> None:
 
     from rfir_core.artifacts import read_artifact
     from rfir_stages.model.crossings import crossing_counts
-    from rfir_stages.predict.rssi_model_io import load_predictor
+    from rfir_stages.model.radio_model import load_model
 
     meas = read_artifact(a.measurements, "measurements")
     rf = read_artifact(a.rf, "rf")
@@ -67,7 +67,7 @@ def main(argv=None) -> None:
     tx_id, rx_id = np.asarray(meas["tx_id"]), np.asarray(meas["rx_id"])
     d = np.linalg.norm(rx - tx, axis=1)
     names = rf.attrs.get("label_names")
-    counts, _ = crossing_counts(load_predictor(rf, "auto").provider, rf.get("gaussians/labels"),
+    counts, _ = crossing_counts(load_model(rf, quantity="rssi").provider, rf.get("gaussians/labels"),
                                    None if names is None else list(names), tx, rx)
     ld = np.stack([np.ones_like(d), -10 * np.log10(d)], 1)
     mw = np.concatenate([ld, -counts[:, counts[train].sum(0) > 0]], 1)
