@@ -7,11 +7,7 @@ stage's map picture). Prediction itself goes through `load_model(rf, quantity="r
 """
 from __future__ import annotations
 
-from rfir_stages.model.radio_model import RETIRED_KINDS, load_model, require_kind
-from rfir_stages.model.room_radio_model import RoomRadioModel
-
-ROOM_KIND = RoomRadioModel.kind
-OLD_KINDS = RETIRED_KINDS
+from rfir_stages.model.radio_model import load_model, require_kind
 
 
 def require_room_model(rf) -> None:
