@@ -15,7 +15,8 @@ import numpy as np
 
 from rfir_core.artifacts import read_artifact
 from rfir_core.errors import InputFileError, StageError
-from rfir_stages.model.links import check_overlap
+from rfir_stages.model.links import check_overlap, geometry_from_artifact
+from rfir_stages.model.occlusion import make_provider
 from rfir_stages.model.radio_model import load_model
 
 from .apply import apply_recorded_effects
@@ -158,8 +159,6 @@ def incidence_deg(art, radar_m: np.ndarray, min_response: float = 0.3) -> np.nda
     Gaussians, angle between its normal and the ray back to the radar; nan where the ray hits nothing."""
     import torch
 
-    from rfir_stages.model.links import geometry_from_artifact
-    from rfir_stages.model.occlusion import make_provider
 
     geom = geometry_from_artifact(art)
     centre = geom.means.mean(0)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from rfir_core.errors import InputFileError
+from rfir_core.physics.antennas import horn_boresight_gain
 from rfir_core.physics.polarisation import POLARISATIONS
 
 KEYS = ("antenna", "antenna_tx", "antenna_rx", "polarisation", "power", "tx_power_dbm")
@@ -192,7 +193,6 @@ def boresight_gain(attrs: dict, side: str) -> float:
     if kind == "dipole":
         return 1.5
     if kind == "horn":
-        from rfir_core.physics.antennas import horn_boresight_gain
         return float(horn_boresight_gain(float(arg)))
     if kind == "table":
         return float(10 ** (np.asarray(attrs[f"{side}_table_gain_dbi"], float)[0] / 10))

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from rfir_core.errors import ConfigError, InputFileError
+from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
 
 KINDS = ("isotropic", "dipole", "horn", "table")
 
@@ -44,7 +45,6 @@ class AntennaPattern:
     def boresight_gain(self) -> float:
         """Linear gain on boresight (G0 in the radar equation)."""
         if self.kind == "horn":
-            from rfir_core.physics.antennas import horn_boresight_gain
             return float(horn_boresight_gain(self.hpbw_deg))
         if self.kind == "dipole":
             return 1.5
@@ -65,7 +65,6 @@ class AntennaPattern:
         if self.kind == "dipole":
             return 1.5 * (1.0 - cos_t**2)
         if self.kind == "horn":
-            from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
             q = horn_exponent(self.hpbw_deg)
             return torch.where(cos_t > 0, horn_boresight_gain(self.hpbw_deg) * cos_t.clamp(min=0.0) ** q,
                                torch.zeros_like(cos_t))

@@ -30,7 +30,9 @@ from rfir_core.text import plural
 from rfir_core.threads import single_thread_torch
 
 from .device_gains import DeviceGains
+from .identifiability import normal_reflection_ranges
 from .physical import AggregatedPairs, MaterialParams
+from .residual import SE_MARGIN
 
 # (name, eps_r, sigma at 1 GHz [S/m], S, thickness [m]): a thin dielectric, a metal, a thick dense one. The metal
 # start is a decade below the metal's conductivity, where the fitted range (physical.LOG10_SIGMA) ends: there the
@@ -203,8 +205,6 @@ def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: n
     """[N, 2] range of |Gamma| at normal incidence at freq_hz [Hz] (the first fitted frequency) of each
     fitted material that the training links (target_db [M, K] dB) cannot tell apart from the fitted one
     (rfir_stages.model.identifiability; one standard error, the residual's SE_MARGIN)."""
-    from .identifiability import normal_reflection_ranges
-    from .residual import SE_MARGIN
     # incoherent room links have no local form (RoomLinks.material_part): every link is evaluated at each point
     local = (_material_predictor(agg, target_db, devices)
              if hasattr(agg, "material_split") and not getattr(agg, "incoherent", False) else None)

@@ -47,6 +47,7 @@ from rfir_core.threads import single_thread_torch
 
 from rfir_core.physics.materials import abs2
 from .physical import MaterialValues, PairGeometry, scattered_field, specular_terms
+from .validation_folds import aspect_index, distinct_aspects, validation_folds
 
 FORMS = ("auto", "smooth", "blend", "gaussian", "off")
 INTERPOLATION = ("half-spacing", "validated")   # the residual between training aspects (ResidualConfig.interpolation)
@@ -122,7 +123,6 @@ def training_spacing_deg(aspect_deg: np.ndarray) -> float | None:
     """The training aspects' spacing, degrees: the median over the distinct training aspects of the angle
     to the nearest other one (other ranges and frequencies of an aspect do not count; for a monostatic
     radar the kernel's angle between two links is their aspect difference). None for fewer than two."""
-    from .validation_folds import distinct_aspects
     u = distinct_aspects(aspect_deg)[0]
     if len(u) < 2:
         return None
@@ -198,7 +198,6 @@ def residual_folds(protocol: str, aspect_deg: np.ndarray | None, range_m: np.nda
     (validation_folds.validation_folds); for the interpolation protocols (data, every-N) whole training
     aspects (every range of them), every KFOLDS-th aspect in turn, so that no fold is predicted from its own
     aspect at another range."""
-    from .validation_folds import aspect_index, validation_folds
     name, _, arg = protocol.partition(":")
     if name == "sector" and aspect_deg is not None:
         return sector_blocks(aspect_deg, *(float(x) for x in arg.split(":")))

@@ -21,11 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from rfir_core.errors import ConfigError
 from rfir_core.physics.angle_nodes import AngleNodes
 from rfir_core.threads import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
-from rfir_core.physics.materials import C0, abs2, fresnel, slab_transmission, specular_share
+from rfir_core.physics.materials import C0, ITU_MATERIALS, abs2, fresnel, slab_transmission, specular_share
+from .artifact import load_physical
+from .device_gains import gains_at
+from .links import geometry_from_artifact
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
 from .room_diffuse import CROSSING_NODES, MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms
@@ -484,9 +488,7 @@ class RoomPredictor:
     def __init__(self, rf, occlusion: str = "auto"):
         from dataclasses import fields as dc_fields
 
-        from .links import geometry_from_artifact
 
-        from .artifact import load_physical
 
         attrs = rf.free.get("model@attrs", {})
         model = load_physical(rf)
@@ -536,7 +538,6 @@ class RoomPredictor:
         """(lowest, highest [Hz], why): the frequencies the model's material laws hold at. A fitted material follows
         the ITU-R P.2040 form (eps_r constant, sigma = sigma_1GHz (f / 1 GHz)^d), stated for FITTED_LAW_RANGE_GHZ;
         a material taken as a tabulated one (rf_fit.room.tabulated_materials) holds over that law's own range."""
-        from rfir_core.physics.materials import ITU_MATERIALS
 
         lo, hi = FITTED_LAW_RANGE_GHZ
         why = f"the fitted ITU-R P.2040 law's {lo:g}-{hi:g} GHz"
@@ -549,7 +550,6 @@ class RoomPredictor:
 
     def check_frequencies(self, freqs_hz) -> np.ndarray:
         """freqs_hz as [F] float64 Hz; a ConfigError (one line) for one outside frequency_range_hz."""
-        from rfir_core.errors import ConfigError
 
         f = np.atleast_1d(np.asarray(freqs_hz, dtype=np.float64))
         lo, hi, why = self.frequency_range_hz()
@@ -573,7 +573,6 @@ class RoomPredictor:
         with the frequency asked, band_frequencies), with the fitted gain of each device the fit saw at that
         position (device_gains.gains_at). Each block of chunk_links links is traced once, every frequency evaluated
         on that trace."""
-        from .device_gains import gains_at
         from .predict import FLOOR_DB
 
         freqs = np.asarray([self.freq_hz]) if freqs_hz is None else self.check_frequencies(freqs_hz)

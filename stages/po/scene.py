@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .solver import po_scattered_field
+
 
 def scene_mesh(spec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All objects of a SceneSpec as one mesh: vertices (V,3), faces (F,3), per-face ITU material
@@ -28,7 +30,6 @@ def scene_mesh(spec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 def scene_rcs(spec, tx_pos, rx_pos, freqs_hz, *, use_thickness: bool = True, **kwargs) -> np.ndarray:
     """po_scattered_field on a whole SceneSpec with its per-object ITU materials (and slab
     thicknesses unless use_thickness=False). Returns the complex amplitude s (M, K)."""
-    from .solver import po_scattered_field
 
     v, f, mats, th = scene_mesh(spec)
     return po_scattered_field(v, f, mats, tx_pos, rx_pos, freqs_hz,

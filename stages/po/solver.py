@@ -49,6 +49,7 @@ from rfir_core.physics.polarisation import antenna_polarisation
 from rfir_core.threads import single_thread_torch
 
 from .geometry import facet_table, subdivide_facets, triangle_phase_factor
+from .multi_bounce import multi_bounce
 from .facet_materials import C0, permittivity_array
 from .visibility import Occluder
 
@@ -325,8 +326,6 @@ def _po_scattered_field(vertices, faces, face_reflection, tx_pos, rx_pos, freqs_
             progress(done, M)
 
     if second_order:
-        from .multi_bounce import multi_bounce
-
         out += multi_bounce(verts, fcs, tab0, refl, occ, tx, rx, ref, ks, pol_t, pol_r, max_bounces=max_bounces,
                             near_field=near_field, two_sided=two_sided, spacing_m=sbr_spacing_m,
                             chunk_elements=chunk_elements, amplitude_weight=amplitude_weight)

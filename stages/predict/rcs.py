@@ -23,6 +23,7 @@ from rfir_core.errors import ConfigError, StageError
 from rfir_core.physics.closed_forms import rcs_from_path_gain
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
+from rfir_stages.importers.select import select_rows
 from rfir_stages.diagnose.apply import apply_recorded_effects
 from rfir_stages.model.antenna_patterns import antenna_from_attrs
 from rfir_stages.model.artifact import has_residual
@@ -110,7 +111,6 @@ def run_rcs(rf_path, out_path, config: dict, *, measurements_path=None, aspects_
         if ranges_m is not None:
             rows = rows[np.any(np.abs(rng[rows, None] - np.asarray(ranges_m)[None]) < 1e-6, axis=1)]
         if select:
-            from rfir_stages.importers.select import select_rows
             rows, _ = select_rows(meas, select, str(measurements_path), rows)
         if rows.size == 0:
             raise StageError("no measured row matches --aspects / --ranges", path=measurements_path)

@@ -18,15 +18,20 @@ import torch
 from rfir_core.artifacts import write_artifact
 from rfir_core.text import plural, standard_errors
 from rfir_core.errors import ConfigError
+from rfir_core.physics.materials import ITU_MATERIALS
 from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains
 from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
                                              material_index, reflection_ranges, training_predictor)
+from rfir_stages.model.fit_physical import training_predictor
 from rfir_stages.model.physical import PairSettings
+from rfir_stages.model.residual import SE_MARGIN
 from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings, band_of
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
+from rfir_stages.predict.rssi import rssi_defaults
+from rfir_stages.predict.rssi_checks import floor_grid
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
 from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, choose_device_gains, held_out_rows
@@ -177,7 +182,6 @@ def room_materials(sharing: str, scene, geom) -> tuple[np.ndarray, list[str], st
 def name_priors(names: list[str]) -> dict:
     """{material index: (eps_r, sigma at 1 GHz [S/m], thickness [m])} for materials whose name contains an
     ITU-R P.2040 material ("glass_partition" -> glass), the law's values at 1 GHz and a typical thickness."""
-    from rfir_core.physics.materials import ITU_MATERIALS
 
     out = {}
     for i, name in enumerate(names):
@@ -227,8 +231,6 @@ def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, na
     """tabulated.take_tabulated on the fit `res` (its params replaced in place, its training MAE on the fit links
     `links` / target_db updated), decided on `check` = (links, target_db [M, 1]) of training links the fit did not
     use (None: on the fit links); the key taken written into tabulated [N] per material, and printed."""
-    from rfir_stages.model.fit_physical import training_predictor
-    from rfir_stages.model.residual import SE_MARGIN
 
     pred = training_predictor(links, torch.as_tensor(target_db), devices)
     decide, decide_db = (pred, target_db) if check is None else (
@@ -520,8 +522,6 @@ def map_crossings(room: RoomGeometry, geom) -> dict:
     """{"map_rx_m": [U, 3], "map_cell_crossings": [U, C, K] int32}: each receiver of the default radio map of
     `predict rssi` ([predict.rssi] grid over the Gaussians' floor plan) and the surfaces crossed on its legs
     to the diffuse cells (room_diffuse.CellCrossings), which no transmitter changes (RoomPredictor keeps them)."""
-    from rfir_stages.predict.rssi import rssi_defaults
-    from rfir_stages.predict.rssi_checks import floor_grid
 
     means = geom.means.numpy()
     height, step = rssi_defaults()["grid"]

@@ -25,6 +25,7 @@ from rfir_core.errors import ConfigError, InputFileError
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
 from rfir_core.text import plural
+from rfir_stages.importers.select import select_rows
 from rfir_stages.model.band import aggregate_chunk
 from rfir_stages.model.fit_physical import material_index, reflection_ranges
 from rfir_stages.model.sampling import cell_size_m, coarse_surfels_warning
@@ -108,7 +109,6 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     protocol = str(config.get("split", "data"))
     rows, test_rows = split_rows(meas, protocol, str(measurements_path))
     if select:
-        from rfir_stages.importers.select import select_rows
         rows, _ = select_rows(meas, select, str(measurements_path), rows)
         progress.log(f"rf-fit: {select.describe()} keeps {len(rows)} training rows")
     band_attrs = {}

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from rfir_core.errors import ConfigError, InputFileError
+from rfir_stages.model.split_protocols import describe, protocol_masks
 
 from .rssi import clear_of_objects
 from .scenes import SceneSpec, build_scene, write_ply
@@ -222,7 +223,6 @@ def run(sim_dir, out_dir, table: dict, seed: int = 0, config_toml: str = "", log
     """Read SIM_DIR/measurements.h5, write OUT_DIR (module docstring); returns {key: path written}."""
     from rfir_core.artifacts import read_artifact, write_artifact
     from rfir_core.provenance import Provenance
-    from rfir_stages.model.split_protocols import describe, protocol_masks
 
     started = time.time()
     s = parse_settings(table)

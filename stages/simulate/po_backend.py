@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from rfir_core.physics.antennas import Antenna
+from rfir_stages.po import antenna_weight, channel_from_amplitude, po_scattered_field, provenance, scene_mesh
+from rfir_stages.po.multi_bounce import auto_tube_spacing
 from .rcs import RadarGrid, RcsRaw
 from .settings import PoSettings
 
@@ -22,7 +24,6 @@ from .settings import PoSettings
 def simulate_monostatic_po(spec, grid: RadarGrid, freqs_hz, hpbw_deg: float, po: PoSettings, progress,
                            label: str) -> tuple[RcsRaw, dict]:
     """-> (RcsRaw with channel (L, F) complex and power |channel|^2, PO provenance dict)."""
-    from rfir_stages.po import antenna_weight, channel_from_amplitude, po_scattered_field, provenance, scene_mesh
 
     v, f, mats, th = scene_mesh(spec)
     _, _, pos = grid.links()  # radar positions (midpoint of Tx and Rx), rows range-major
@@ -33,7 +34,6 @@ def simulate_monostatic_po(spec, grid: RadarGrid, freqs_hz, hpbw_deg: float, po:
     kwargs = dict(po.solver_kwargs(), ref_point=tuple(float(x) for x in centre))
     if kwargs.get("second_order"):   # say how many bounces, and what an "auto" tube side resolved to
         if kwargs.get("sbr_spacing_m") is None:
-            from rfir_stages.po.multi_bounce import auto_tube_spacing
             side = auto_tube_spacing(v, 2 * np.pi * freqs / 299792458.0)
             tubes = (f"{side * 1e3:.1f} mm (simulate.po.sbr_spacing_m = auto: lambda_min / 20, wider for large "
                      "objects; tubes split at grazing bounces)")

@@ -17,6 +17,8 @@ import re
 import numpy as np
 import torch
 
+from rfir_core.physics.materials import C0, itu_law, normal_incidence_reflection, permittivity
+
 
 def object_class(name: str) -> str:
     """desk_03 -> desk; names without a numbered suffix are their own class."""
@@ -26,7 +28,6 @@ def object_class(name: str) -> str:
 def true_materials(scene_name: str, names: list[str], freq_hz: float, scene_edits: list[str] = ()) -> dict:
     """{class name: (ITU name, thickness m, eps_r, sigma S/m at freq_hz, |Gamma(0)|)} for the classes in
     `names` of the simulator's scene `scene_name` after `scene_edits` (the first object of each class)."""
-    from rfir_core.physics.materials import C0, itu_law, normal_incidence_reflection, permittivity
     from rfir_stages.simulate import build_scene
     from rfir_stages.simulate.scene_edits import apply_scene_edits
 
