@@ -2,8 +2,9 @@
 
 Modules: `stage` (run: RCS and wideband fits), `physical_stage` (material sharing candidates, their
 fits and the artifact), `wideband_stage` (a band's settings), `rssi_fit` / `room_stage` (the room
-model for RSSI), `links` (artifacts -> links), `render` (LinkSet, tracing settings), `occlusion`
-(the tracer or a brute-force oracle), `antennas`, `splits` (train/test protocols).
+model for RSSI), `result` (RfFitResult). Links, tracing settings, the occlusion providers, antenna patterns and
+split protocols live in the model package (rfir_stages.model: links, link_set, occlusion, antenna_patterns,
+split_protocols), which rf-fit, predict and diagnose all import.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Stage `simulate`: ground-truth data sets (meshes, photos, radio measurements) from Sionna RT.
 
 Public entry points: `run(...)` (see `stage.py`), the scene builder `scenes.build_scene`, and the
-horn/omni antenna patterns in `antennas` (the fitter must use the same patterns).
+horn/omni antenna patterns in rfir_core.physics.antennas (the fitter uses the same patterns).
 """
 from __future__ import annotations
 
