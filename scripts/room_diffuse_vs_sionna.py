@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from rfir_core.artifacts import read_artifact
+from rfir_core.physics.materials import power_law
 from rfir_stages.model.physical import MaterialValues
 from rfir_stages.model.room import RoomPredictor
 from rfir_stages.simulate.radio_scene import MaterialEffects, load_radio_scene
@@ -43,7 +44,7 @@ def true_values(names: list[str], scene: str, edits: list[str], freq_hz: float, 
     """The simulator's materials of each class in `names`, scattering coefficient s, conductivity exponent d."""
     t = true_materials(scene, names, freq_hz, edits)
     col = lambda k: torch.tensor([t[n][k] for n in names], dtype=torch.float64)   # noqa: E731
-    return MaterialValues(col(2), col(3) / (freq_hz / 1e9) ** d, d, torch.full((len(names),), s, dtype=torch.float64),
+    return MaterialValues(col(2), col(3) / power_law(1.0, d, freq_hz), d, torch.full((len(names),), s, dtype=torch.float64),
                           col(1))
 
 

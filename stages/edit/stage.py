@@ -14,6 +14,7 @@ import numpy as np
 
 from rfir_core.artifacts import check_output, read_artifact, write_artifact
 from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_core.physics.materials import itu_law, power_law
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
 
@@ -236,11 +237,10 @@ def new_material_values(data: dict, key: str, was: int, exponent: float = 1.0) -
     S stays because it describes the surface, not its bulk material: in the effective-roughness model
     the specular share sqrt(1 - S^2) is set by the surface's height profile (docs/physics.md section 8.8),
     which an edit of the material does not change."""
-    from rfir_core.physics.materials import itu_law
 
     f = float(np.asarray(data["rf/freq_hz"], np.float64)[0])
     eps, sigma = itu_law(key, f)
-    return {"eps_r": float(eps), "sigma_1ghz_s_per_m": float(sigma) / (f / 1e9) ** exponent,
+    return {"eps_r": float(eps), "sigma_1ghz_s_per_m": float(sigma) / power_law(1.0, exponent, f),
             "scattering": float(data["material/scattering"][was]), "thickness_m": float(data["material/thickness_m"][was])}
 
 
@@ -253,7 +253,7 @@ def describe_new_material(art, scene: EditScene) -> str:
     names = [str(n) for n in np.atleast_1d(model.get("material_names", []))]
     v = new_material_values(art.data, key, was, float(model.get("sigma_exponent", 1.0)))
     f = float(np.asarray(art["rf/freq_hz"], np.float64)[0])
-    sigma = v["sigma_1ghz_s_per_m"] * (f / 1e9) ** float(model.get("sigma_exponent", 1.0))
+    sigma = power_law(v["sigma_1ghz_s_per_m"], float(model.get("sigma_exponent", 1.0)), f)
     replaced = names[was] if was < len(names) else f"material {was}"
     return (f"ITU-R P.2040 {key} at {f / 1e9:.3g} GHz: eps_r {v['eps_r']:.3g}, sigma {sigma:.3g} S/m; "
             f"thickness {v['thickness_m'] * 1e3:.3g} mm and S {v['scattering']:.2f} kept from {replaced}")

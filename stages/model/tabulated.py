@@ -35,7 +35,7 @@ import torch
 from rfir_core.threads import single_thread_torch
 
 from .identifiability import block_standard_error
-from rfir_core.physics.materials import ITU_MATERIALS, METAL_SIGMA_S_PER_M
+from rfir_core.physics.materials import ITU_MATERIALS, METAL_SIGMA_S_PER_M, itu_law, power_law
 from .physical import MaterialParams
 
 # typical slab thickness [m] of each tabulated material (a name's starting value and a candidate's thickness)
@@ -72,9 +72,8 @@ def tabulated_values(key: str, freq_hz: float, sigma_exponent: float) -> tuple[f
     sigma_exponent, equal to the table's law at freq_hz [Hz]."""
     if key == "metal":
         return 1.0, METAL_SIGMA_S_PER_M
-    a, b, c, d, _, _ = ITU_MATERIALS[key]
-    f_ghz = float(freq_hz) / 1e9
-    return a * f_ghz ** b, c * f_ghz ** d / f_ghz ** sigma_exponent
+    eps_r, sigma = itu_law(key, float(freq_hz))
+    return float(eps_r), float(sigma) / power_law(1.0, sigma_exponent, float(freq_hz))
 
 
 def candidates(freq_hz: float, fitted_thickness_m: float, named: str | None = None) -> list[tuple[str, float]]:

@@ -18,6 +18,7 @@ from rfir_core.errors import ConfigError
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.fit_physical import PhysicalFitConfig, PhysicalFitResult, fit_materials, material_index
 from rfir_stages.model.identifiability import range_note
+from rfir_core.physics.materials import power_law
 from rfir_core.physics.polarisation import POLARISATIONS
 from rfir_stages.model.physical import EPS_R_MAX, THICKNESS_M, AggregatedPairs, PairSettings, build_pairs
 from rfir_stages.model.predict import FLOOR_DB
@@ -261,7 +262,7 @@ def material_table(result: PhysicalFitResult, names: list[str], freqs_hz: np.nda
         vals = result.params.values()
     f = torch.as_tensor(np.asarray(freqs_hz, np.float64))
     r = vals.normal_reflection(f).abs().detach().numpy()
-    sigma = (vals.sigma_1ghz[:, None] * (f[None] / 1e9) ** vals.sigma_exponent).detach().numpy()
+    sigma = power_law(vals.sigma_1ghz[:, None], vals.sigma_exponent, f[None]).detach().numpy()
     th = None if vals.thickness_m is None else vals.thickness_m.detach().numpy()
     return [{"material": n, "eps_r": float(vals.eps_r[i]), "sigma_s_per_m": float(sigma[i, 0]),
              "scattering": float(vals.scattering[i]), "thickness_m": 0.0 if th is None else float(th[i]),

@@ -18,7 +18,7 @@ import torch
 from rfir_core.artifacts import write_artifact
 from rfir_core.text import plural, standard_errors
 from rfir_core.errors import ConfigError
-from rfir_core.physics.materials import ITU_MATERIALS
+from rfir_core.physics.materials import ITU_MATERIALS, power_law
 from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
@@ -537,7 +537,7 @@ def material_rows(vals, names: list[str], freq_hz: float) -> list[dict]:
     """One row per material: eps_r, sigma at freq_hz, thickness, S, |Gamma| at normal incidence."""
     f = torch.tensor([float(freq_hz)], dtype=torch.float64)
     r = vals.normal_reflection(f).abs()[:, 0]
-    sigma = vals.sigma_1ghz * (f / 1e9) ** vals.sigma_exponent
+    sigma = power_law(vals.sigma_1ghz, vals.sigma_exponent, f)
     th = vals.thickness_m
     return [{"material": n, "eps_r": float(vals.eps_r[i]), "sigma_s_per_m": float(sigma[i]),
              "thickness_m": 0.0 if th is None else float(th[i]), "scattering": float(vals.scattering[i]),
