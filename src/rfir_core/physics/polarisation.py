@@ -77,7 +77,9 @@ def antenna_polarisation(k, pol: str):
     z = _axis(k, 2)
     theta_hat = k * _dot(k, z) - z                    # |.| = sin(theta)
     vertical = _norm(theta_hat) < _DEGENERATE
-    v = _where(vertical, _across(k, _axis(k, 0)), _unit(theta_hat))
+    v = _unit(theta_hat)
+    if vertical.any():
+        v = _where(vertical, _across(k, _axis(k, 0)), v)
     return v if pol == "V" else _cross(k, v)
 
 
@@ -91,14 +93,16 @@ def reflection_basis(k_in, normal, k_out=None, fallback=None):
         k_out = mirror_direction(k_in, normal)
     e_te = _cross(k_in, normal)
     normal_incidence = _norm(e_te) < _DEGENERATE
-    if fallback is None:
-        near_x = (k_in[..., :1] ** 2) > 0.81
-        fallback = _where(near_x, _axis(k_in, 1), _axis(k_in, 0))
-    # the fallback's part across k_in; where that vanishes too (fallback along k_in), +z's or +x's part
-    alt = fallback - _dot(fallback, k_in) * k_in
-    for axis in (2, 0):
-        alt = _where(_norm(alt) < _DEGENERATE, _axis(k_in, axis) - _dot(_axis(k_in, axis), k_in) * k_in, alt)
-    e_te = _unit(_where(normal_incidence, alt, e_te))
+    if normal_incidence.any():
+        if fallback is None:
+            near_x = (k_in[..., :1] ** 2) > 0.81
+            fallback = _where(near_x, _axis(k_in, 1), _axis(k_in, 0))
+        # the fallback's part across k_in; where that vanishes too (fallback along k_in), +z's or +x's part
+        alt = fallback - _dot(fallback, k_in) * k_in
+        for axis in (2, 0):
+            alt = _where(_norm(alt) < _DEGENERATE, _axis(k_in, axis) - _dot(_axis(k_in, axis), k_in) * k_in, alt)
+        e_te = _where(normal_incidence, alt, e_te)
+    e_te = _unit(e_te)
     return e_te, _cross(k_in, e_te), _cross(k_out, e_te)
 
 
