@@ -32,6 +32,7 @@ from .device_gains import gains_at
 from .links import geometry_from_artifact
 from .physical import MaterialValues
 from .plane_merge import SCATTER_FACTOR
+from .radio_model_base import FLOOR_DB
 from .room_diffuse import CROSSING_NODES, MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms
 from .room_diffuse import NODES as DIFFUSE_NODES
 from .room_diffuse import diffuse_cells, diffuse_terms
@@ -592,7 +593,6 @@ class RoomPredictor:
         with the frequency asked, band_frequencies), with the fitted gain of each device the fit saw at that
         position (device_gains.gains_at). Each block of chunk_links links is traced once, every frequency evaluated
         on that trace."""
-        from .predict import FLOOR_DB
 
         freqs = np.asarray([self.freq_hz]) if freqs_hz is None else self.check_frequencies(freqs_hz)
         tx_m, rx_m = np.asarray(tx_m, np.float64), np.asarray(rx_m, np.float64)
