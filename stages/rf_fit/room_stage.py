@@ -22,7 +22,7 @@ from rfir_core.physics.materials import ITU_MATERIALS, power_law
 from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
-from rfir_stages.model.device_gains import DeviceGains
+from rfir_stages.model.device_gains import DeviceGains, device_index
 from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
                                              material_index, reflection_ranges, training_predictor)
 from rfir_stages.model.fit_physical import training_predictor
@@ -253,6 +253,24 @@ def _take_tabulated(links, res, target_db: np.ndarray, check, freq_hz: float, na
                      "all kept as fitted")
 
 
+# links each device's gain keeps at least where the fit takes rf_fit.room.fit_links of the training links with device
+# gains on (fewer: every training link is fitted): a gain's standard error is then the residuals' spread / sqrt(30),
+# 0.5 dB for the 2.5-3 dB of measured surveys, well inside the gains' 3 dB prior
+MIN_DEVICE_LINKS = 30
+
+
+def devices_kept(which: str, rows: np.ndarray, tx: np.ndarray, rx: np.ndarray, ids: dict) -> bool:
+    """True when every device of the side(s) `which` ("tx", "rx", "both") gets a gain fitted to (device_gains.
+    device_index over the training links tx, rx [M, 3] m, ids {side: [M] or None}) has at least MIN_DEVICE_LINKS links
+    among rows [R]: a gain per fixed anchor keeps hundreds in a subsample, one per surveyed position a few."""
+    for side, pts in (("tx", tx), ("rx", rx)):
+        if which in (side, "both"):
+            _, device, _ = device_index(pts, ids[side])
+            if np.bincount(device[rows], minlength=int(device.max()) + 1).min() < MIN_DEVICE_LINKS:
+                return False
+    return True
+
+
 def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent"):
     """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
     it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
@@ -371,14 +389,19 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     ids = {side: (None if meas.get(f"{side}_id") is None else np.asarray(meas[f"{side}_id"])[rows])
            for side in ("tx", "rx")}
     fit = np.arange(len(tx))
-    if settings.device_gains not in ("off", "validate") and 0 < settings.fit_links < len(tx):
+    sub = np.linspace(0, len(tx) - 1, settings.fit_links).round().astype(np.int64) \
+        if 0 < settings.fit_links < len(tx) else fit
+    if settings.device_gains not in ("off", "validate") and len(sub) < len(tx) and \
+            not devices_kept(settings.device_gains, sub, tx, rx, ids):
         # every device's gain needs its own links: a subsample leaves a few per device
         progress.log(f"device gains on: fitting on all {len(tx)} training links (rf_fit.room.fit_links = "
-                     f"{settings.fit_links} applies without device gains)")
-    elif 0 < settings.fit_links < len(tx):
-        fit = np.linspace(0, len(tx) - 1, settings.fit_links).round().astype(np.int64)
+                     f"{settings.fit_links} would leave a device under {MIN_DEVICE_LINKS} links)")
+    elif len(sub) < len(tx):
+        fit = sub
         progress.log(f"fitting on {len(fit)} of the {len(tx)} training links, evenly spaced "
-                     f"(rf_fit.room.fit_links = {settings.fit_links})")
+                     f"(rf_fit.room.fit_links = {settings.fit_links}"
+                     + (f"; every device keeps at least {MIN_DEVICE_LINKS} links)"
+                        if settings.device_gains not in ("off", "validate") else ")"))
     band, band_reason = settings.band, "rf_fit.room.band"
     if band == "auto" and ideal:
         # rfir simulate's data are coherent sums at one frequency
@@ -404,10 +427,14 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                                      seed)
         settings = replace(settings, device_gains=choice.which)
         progress.log(f"device gains: {choice.which} ({choice.reason})")
-        if choice.which != "off" and len(fit) < len(tx):
+        if choice.which != "off" and len(fit) < len(tx) and not devices_kept(choice.which, fit, tx, rx, ids):
             fit = np.arange(len(tx))
-            progress.log(f"device gains on: fitting on all {len(tx)} training links")
+            progress.log(f"device gains on: fitting on all {len(tx)} training links (the {settings.fit_links} of "
+                         f"rf_fit.room.fit_links would leave a device under {MIN_DEVICE_LINKS} links)")
             links = room.band_links(tx, rx, freq_hz, band)
+        elif choice.which != "off" and len(fit) < len(tx):
+            progress.log(f"device gains on: every device keeps at least {MIN_DEVICE_LINKS} of the {len(fit)} links "
+                         "fitted (rf_fit.room.fit_links)")
     devices = None if settings.device_gains == "off" else DeviceGains(
         settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db,
         *(None if ids[s] is None else ids[s][fit] for s in ("tx", "rx")))
@@ -430,7 +457,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     tabulated = [""] * len(names)
     if settings.tabulated_materials:
         t_tab = time.time()
-        check = _check_links(room, tx, rx, fit, target_db, freq_hz, band)
+        # with device gains, decided on the links they were fitted to (the others have no gain fitted for them)
+        check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
         _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
         progress.log(f"tabulated materials tried in {time.time() - t_tab:.1f} s (rf_fit.room.tabulated_materials)")
     if devices is not None:
