@@ -10,6 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 HEADING = re.compile(r"^#+\s+(.*)$", re.MULTILINE)
+HTML_ANCHOR = re.compile(r"<a\s+(?:id|name)=\"([^\"]+)\"")
 
 
 def _pages() -> list[Path]:
@@ -20,6 +21,11 @@ def _anchor(title: str) -> str:
     """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
     title = re.sub(r"[`*_]", "", title.strip().lower())
     return re.sub(r"\s", "-", re.sub(r"[^\w\s-]", "", title))
+
+
+def _anchors(text: str) -> set[str]:
+    """The anchors a page offers: its headings' and its explicit <a id="..."> ones."""
+    return {_anchor(h) for h in HEADING.findall(text)} | set(HTML_ANCHOR.findall(text))
 
 
 def broken_links(pages: list[Path]) -> list[str]:
@@ -37,8 +43,7 @@ def broken_links(pages: list[Path]) -> list[str]:
             where = f"{page.relative_to(ROOT)}:{line}: {target}"
             if not dest.exists():
                 bad.append(f"{where} (no such file)")
-            elif anchor and dest.suffix == ".md" and anchor not in {
-                    _anchor(h) for h in HEADING.findall(dest.read_text(encoding="utf-8"))}:
+            elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest.read_text(encoding="utf-8")):
                 bad.append(f"{where} (no heading #{anchor})")
     return bad
 
@@ -52,8 +57,8 @@ def test_every_relative_link_in_the_docs_resolves():
 
 def test_the_link_check_catches_a_missing_file_and_heading(tmp_path):
     page = tmp_path / "a.md"
-    (tmp_path / "b.md").write_text("# Title\n## Two words\n")
-    page.write_text("[ok](b.md#two-words) [gone](c.md) [bad](b.md#three) [web](https://x.org/y)\n")
+    (tmp_path / "b.md").write_text("# Title\n## Two words\n<a id=\"tab\"></a>\n")
+    page.write_text("[ok](b.md#two-words) [ok](b.md#tab) [gone](c.md) [bad](b.md#three) [web](https://x.org/y)\n")
     global ROOT
     old, ROOT = ROOT, tmp_path
     try:
