@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from rfir_core.artifacts import check_output, write_artifact
-from rfir_core.errors import ConfigError
+from rfir_core.errors import ConfigError, StageError
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
 
@@ -113,6 +113,14 @@ class RadioModel:
         rows `rfir predict` scores); None where the fit's split cannot be told from the file."""
         split = meas.get("split")
         return None if split is None else np.asarray(split, np.int64)
+
+    def held_out_rows(self, meas) -> tuple[np.ndarray, np.ndarray, str]:
+        """(test rows, training rows, how they were chosen in words) of the measurements `meas` as the fit split
+        them (training_split); StageError (one line naming the file) when the file cannot tell."""
+        split = self.training_split(meas)
+        if split is None:
+            raise StageError("the measurements have no 'split' to score against", path=meas.path)
+        return np.flatnonzero(split == 1), np.flatnonzero(split == 0), "the file's split column (test rows: split == 1)"
 
     def materials(self) -> dict[str, dict]:
         """The fitted materials, name -> {"eps_r": relative permittivity, "sigma_1ghz_s_per_m": conductivity at

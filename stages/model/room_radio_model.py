@@ -50,19 +50,14 @@ class RoomRadioModel(RadioModel):
         return super().training_split(meas)
 
     def held_out_rows(self, meas) -> tuple[np.ndarray, np.ndarray, str]:
-        """(test rows, training rows, the protocol in words) of the measurements `meas`, as the fit split them;
-        StageError (one line naming the file) when the file lacks what the split needs."""
-        protocol = str(self.artifact.free.get("training@attrs", {}).get("split", "file"))
+        """As RadioModel.held_out_rows; a fit that held transmitters out names them."""
+        if str(self.artifact.free.get("training@attrs", {}).get("split", "file")) != "holdout_tx":
+            return super().held_out_rows(meas)
         split = self.training_split(meas)
-        if protocol == "holdout_tx":
-            if split is None:
-                raise StageError("the model held transmitters out, but the measurements have no tx_id", path=meas.path)
-            held = np.asarray(self.artifact.free.get("training", {}).get("holdout_tx_ids", []), np.int64)
-            return np.flatnonzero(split == 1), np.flatnonzero(split == 0), f"transmitters {held.tolist()} held out"
         if split is None:
-            raise StageError("the measurements have no 'split' to score against", path=meas.path)
-        return np.flatnonzero(split == 1), np.flatnonzero(split == 0), \
-            "the file's split column (test rows: split == 1)"
+            raise StageError("the model held transmitters out, but the measurements have no tx_id", path=meas.path)
+        held = np.asarray(self.artifact.free.get("training", {}).get("holdout_tx_ids", []), np.int64)
+        return np.flatnonzero(split == 1), np.flatnonzero(split == 0), f"transmitters {held.tolist()} held out"
 
     def _path_gain_db(self, tx, rx, freqs, progress, advance, chunk_links, physics_only):
         chunk_links = int(chunk_links or 512)
