@@ -5,6 +5,10 @@ number of Gaussians and with the number of links it fits (issue 23's speed targe
     .venv/bin/python bench/bench_room_fit.py                      # the classroom's layout, synthetic levels
     .venv/bin/python bench/bench_room_fit.py --measurements M.h5  # the simulated classroom's links instead
     .venv/bin/python bench/bench_room_fit.py --quick              # two geometries, two link counts
+    .venv/bin/python bench/bench_room_fit.py --survey M.h5 --scene S.h5 [--links 1000,2000,5000] [--repeat 3]
+                                                                  # a survey's fit against its training links
+    .venv/bin/python bench/bench_room_fit.py --survey M.h5 --scene S.h5 --bounded 50000
+                                                                  # and a 50,000-link survey: fit, then predict
 
 Needs no simulator: the classroom's meshes are built by code and tiled as `rfir mesh-gaussians
 classroom_gt.ply --spacing S [--object-cells N --rectangles --drop-contact-faces]` tiles them, at five tilings
@@ -88,6 +92,98 @@ def run_fit(scene: Path, meas: Path, out: Path, fit_links: int) -> dict:
             "train_mae_db": float(attrs["train_mae_db"]), "load_average_1min": os.getloadavg()[0]}
 
 
+def run_cli(args: list[str]) -> dict:
+    """One `rfir ARGS` in its own process: wall and CPU seconds (user + sys) and peak resident memory."""
+    t0 = time.time()
+    with tempfile.TemporaryFile("w+") as log:
+        proc = subprocess.Popen([str(Path(sys.executable).with_name("rfir")), *args], stdout=log,
+                                stderr=subprocess.STDOUT, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.time() - t0
+        log.seek(0)
+        text = log.read()
+    if os.waitstatus_to_exitcode(status) != 0:
+        sys.exit(f"bench_room_fit: rfir {' '.join(args[:3])} ... failed:\n{text[-3000:]}")
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_rss_mb": usage.ru_maxrss / 1024,
+            "load_average_1min": os.getloadavg()[0], "log": text}
+
+
+def survey_fit(scene: Path, meas: Path, out: Path, links: int) -> dict:
+    """`rfir --seed 0 --set rf_fit.max_links=LINKS rf-fit SCENE MEAS` (every setting else at its default: device
+    gains and band chosen by validation on measured data): the training links evenly thinned to `links`."""
+    row = run_cli(["--seed", "0", "--set", f"rf_fit.max_links={links}", "rf-fit", str(scene), str(meas), "-o",
+                   str(out)])
+    attrs = read_artifact(out, "rf").free["training@attrs"]
+    fitted = re.search(r"fitting on (?:all )?(\d+)", row.pop("log"))
+    return {**row, "links": links, "links_fitted": int(fitted.group(1)) if fitted else links,
+            "trace_s": float(attrs["trace_time_s"]), "fit_s": float(attrs["fit_time_s"]),
+            "train_mae_db": float(attrs["train_mae_db"])}
+
+
+def synthetic_survey(meas: Path, out: Path, num_links: int, seed: int = 0) -> None:
+    """A survey of num_links links over the extent of `meas`: the same fixed receivers (its rx positions and ids), a
+    tag at uniform positions at the survey's tag heights, free-space levels plus N(0, 3 dB) and a 3 dB gain per
+    receiver; no simulator recorded (measured data: rf-fit chooses device gains and band by validation)."""
+    m = read_artifact(meas, "measurements")
+    tx, rx = np.asarray(m["tx_pos"], np.float64), np.asarray(m["rx_pos"], np.float64)
+    anchors, rx_id = np.unique(rx, axis=0, return_inverse=True)
+    rng = np.random.default_rng(seed)
+    positions = num_links // len(anchors) + 1
+    tag = rng.uniform(tx.min(0), tx.max(0), (positions, 3))
+    t, a = np.repeat(tag, len(anchors), 0)[:num_links], np.tile(np.arange(len(anchors)), positions)[:num_links]
+    r = anchors[a]
+    gain = rng.normal(0.0, 3.0, len(anchors))
+    level = 10 * np.log10(friis_path_gain(np.linalg.norm(r - t, axis=1), float(np.asarray(m["freq_hz"])[0])))
+    data = {"tx_pos": t, "rx_pos": r, "freq_hz": np.asarray(m["freq_hz"], np.float64)[:1],
+            "path_gain_db": (level + gain[a] + rng.normal(0.0, 3.0, len(t)))[:, None],
+            "split": (rng.random(len(t)) < 0.2).astype(np.int64), "tx_id": np.repeat(np.arange(positions),
+                                                                                       len(anchors))[:num_links],
+            "rx_id": a.astype(np.int64)}
+    write_artifact(out, "measurements", data, attrs={"task": "rssi", "scene": str(m.attrs.get("scene", ""))})
+
+
+def survey_main(args) -> None:
+    """--survey: rf-fit's time and peak memory against the training links of a survey (medians of --repeat runs),
+    their growth exponent, and with --bounded N a synthetic N-link survey fitted and predicted (chunked)."""
+    links = [int(x) for x in args.links.split(",")]
+    fmt = "{:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>5}"
+    print(fmt.format("links", "fitted", "wall s", "CPU s", "trace s", "fit s", "peak MB", "load"), flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        for n in links:
+            runs = [survey_fit(args.scene, args.survey, d / "rf.h5", n) for _ in range(args.repeat)]
+            row = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+            row["runs"] = runs
+            rows.append(row)
+            print(fmt.format(n, int(row["links_fitted"]), f"{row['wall_s']:.1f}", f"{row['cpu_s']:.1f}",
+                             f"{row['trace_s']:.1f}", f"{row['fit_s']:.1f}", f"{row['peak_rss_mb']:.0f}",
+                             f"{row['load_average_1min']:.1f}"), flush=True)
+        bounded = None
+        if args.bounded:
+            meas = d / "bounded.h5"
+            synthetic_survey(args.survey, meas, args.bounded)
+            fit = run_cli(["--seed", "0", "rf-fit", str(args.scene), str(meas), "-o", str(d / "rf_b.h5")])
+            fitted = re.search(r"fitting on (?:all )?(\d+)", fit.pop("log"))
+            pred = run_cli(["predict", "rssi", str(d / "rf_b.h5"), "--measurements", str(meas), "-o",
+                            str(d / "p_b.h5")])
+            pred.pop("log")
+            bounded = {"links": args.bounded, "links_fitted": int(fitted.group(1)) if fitted else None,
+                       "fit": fit, "predict": pred}
+            for what, r in (("rf-fit", fit), ("predict rssi (every link, in blocks)", pred)):
+                print(f"{args.bounded} links, {what}: {r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU, "
+                      f"peak {r['peak_rss_mb']:.0f} MB (load {r['load_average_1min']:.1f})", flush=True)
+    growth = slope(rows, "links") if len(rows) > 1 else None
+    if growth is not None:
+        print(f"growth: CPU seconds ~ links^{growth:.2f} (log-log slope, {links[0]}..{links[-1]} links)")
+    out = {"survey": str(args.survey), "scene": str(args.scene), "repeat": args.repeat, "rows": rows,
+           "cpu_vs_links": growth, "bounded": bounded,
+           "note": "medians of `repeat` runs; cpu_s: user + sys of the rf-fit process; links_fitted: what rf-fit "
+                   "fitted (rf_fit.room.fit_links, all links where a device would keep too few)"}
+    args.out.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
 def slope(rows: list[dict], x: str, y: str = "cpu_s") -> float:
     """Least-squares slope of log y against log x: cost ~ x ** slope over the rows."""
     return float(np.polyfit(np.log([r[x] for r in rows]), np.log([r[y] for r in rows]), 1)[0])
@@ -97,8 +193,21 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--measurements", type=Path, help="a classroom measurements artifact (else synthetic levels)")
     ap.add_argument("--quick", action="store_true", help="two tilings and two link counts")
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("room_fit.json"))
+    ap.add_argument("--out", type=Path, default=None, help="JSON written (default: room_fit.json, room_survey.json)")
+    ap.add_argument("--survey", type=Path, help="a survey's measurements: rf-fit against its training links")
+    ap.add_argument("--scene", type=Path, help="the survey's scene (with --survey)")
+    ap.add_argument("--links", default="1000,2000,5000", help="training links to fit (with --survey)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per link count, medians printed (with --survey)")
+    ap.add_argument("--bounded", type=int, default=0, help="also a synthetic survey of this many links over the "
+                                                           "survey's extent, fitted and predicted (with --survey)")
     args = ap.parse_args()
+    if args.survey is not None:
+        if args.scene is None:
+            ap.error("--survey needs --scene")
+        args.out = args.out or Path(__file__).with_name("room_survey.json")
+        survey_main(args)
+        return
+    args.out = args.out or Path(__file__).with_name("room_fit.json")
     size = "quick" if args.quick else "full"
     fmt = "{:>8} {:>6} {:>7} {:>6} {:>6} {:>8} {:>7} {:>7} {:>7} {:>8} {:>5}"
     print(fmt.format("Gaussians", "tiling", "patches", "paths", "links", "wall s", "CPU s", "trace s", "fit s",
