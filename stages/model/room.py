@@ -13,6 +13,7 @@ fit_physical.fit_materials expects, so the fit (starts, start switching, best st
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 from concurrent.futures import ThreadPoolExecutor
@@ -207,7 +208,9 @@ def band_of(links: "RoomLinks", band: str, freq_hz: float, fitted_hz: float | No
     incoherent set for "incoherent"); nothing is traced again."""
     if band == "ble":
         return BandLinks([links.at_frequency(f) for f in band_frequencies(band, freq_hz, fitted_hz)])
-    out = links.at_frequency(float(freq_hz))
+    # links already at freq_hz are taken as they are (a shallow copy: their tables are not built again)
+    same = bool((links.paths.freq_hz == float(freq_hz)).all())
+    out = copy.copy(links) if same else links.at_frequency(float(freq_hz))
     out.incoherent = band == "incoherent"
     return out
 
