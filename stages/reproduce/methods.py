@@ -3,8 +3,10 @@
 rfir: `rfir rf-fit` then `rfir predict rcs|rssi` (whose JSON also scores the simple baselines on
 the same split: nearest aspect, linear interpolation, log-distance, multi-wall, nearest links).
 NeRF2-style and WRF-GS-style fields: scripts/baseline_nerf2.py and scripts/baseline_wrfgs.py.
-Ray tracing: scripts/baseline_raytrace.py (Sionna RT on a mesh with one guessed ITU material) and
-rfir_stages.baselines.sionna_calibrated (materials per object class calibrated through Sionna's gradients).
+Ray tracing: scripts/baseline_raytrace.py (Sionna RT on a mesh with one guessed ITU material; on a labelled
+mesh, ITU materials per label plus a fitted system gain, and a grid of wall materials and thicknesses chosen on
+the training links) and rfir_stages.baselines.sionna_calibrated (materials per object class calibrated through
+Sionna's gradients).
 """
 from __future__ import annotations
 
@@ -146,3 +148,23 @@ def raytrace_calibrated(r: Plan, label: str, mesh: Path, meas: Path, split: str,
                   [r.python, "-m", "rfir_stages.baselines.sionna_calibrated", str(mesh), str(meas), "--split", split,
                    "--iterations", str(iterations), "--links", str(links), "--results", str(j)], j)
     return Result(r, j, step).cell()
+
+
+def raytrace_sweep(r: Plan, label: str, mesh: Path, meas: Path) -> tuple[Path, str]:
+    """Sionna RT on a labelled mesh once per candidate material set (the labels' ITU materials, then each wall
+    material x thickness of the script's grid) for every link of `meas`: (the sweep's npz, its step). Files
+    with the same links and other splits share it."""
+    sweep = r.data / "fits" / f"{label}_raytrace_sweep.npz"
+    step = r.step(f"{label}__raytrace_sweep", [r.python, str(SCRIPTS / "baseline_raytrace.py"), "sweep", str(mesh),
+                                               str(meas), "--out", str(sweep)], sweep)
+    return sweep, step
+
+
+def raytrace_gain(r: Plan, label: str, sweep: Path, sweep_step: str, meas: Path) -> Result:
+    """A sweep scored on the split of `meas`: its JSON's metrics.mae_db (the labels' ITU materials plus one
+    system gain fitted on the training links) and metrics.calibrated_mae_db (the grid's set of lowest training
+    MAE); the time of each cell includes the whole sweep."""
+    j = r.json_path(f"{label}__raytrace_gain")
+    step = r.step(f"{label}__raytrace_gain", [r.python, str(SCRIPTS / "baseline_raytrace.py"), "score", str(sweep),
+                                              str(meas), "--results", str(j)], j)
+    return Result(r, j, sweep_step, step)
