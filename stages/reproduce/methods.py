@@ -150,13 +150,16 @@ def raytrace_calibrated(r: Plan, label: str, mesh: Path, meas: Path, split: str,
     return Result(r, j, step).cell()
 
 
-def raytrace_sweep(r: Plan, label: str, mesh: Path, meas: Path) -> tuple[Path, str]:
+def raytrace_sweep(r: Plan, label: str, mesh: Path, meas: Path, wall_materials: str | None = None,
+                   wall_thickness: str | None = None) -> tuple[Path, str]:
     """Sionna RT on a labelled mesh once per candidate material set (the labels' ITU materials, then each wall
-    material x thickness of the script's grid) for every link of `meas`: (the sweep's npz, its step). Files
-    with the same links and other splits share it."""
+    material x thickness of the grid: comma lists, None = the script's default grid) for every link of `meas`:
+    (the sweep's npz, its step). Files with the same links and other splits share it."""
     sweep = r.data / "fits" / f"{label}_raytrace_sweep.npz"
+    grid = ((["--wall-materials", wall_materials] if wall_materials else [])
+            + (["--wall-thickness", wall_thickness] if wall_thickness else []))
     step = r.step(f"{label}__raytrace_sweep", [r.python, str(SCRIPTS / "baseline_raytrace.py"), "sweep", str(mesh),
-                                               str(meas), "--out", str(sweep)], sweep)
+                                               str(meas), "--out", str(sweep), *grid], sweep)
     return sweep, step
 
 

@@ -376,6 +376,8 @@ MEASURED_PROTOCOLS = (("random", None, "random 20 % of beacon positions"),
                       ("anchors", "holdout-rx:2", "unseen anchors"))
 MEASURED_METHODS = ["rfir", "log-distance", "multi-wall", "nearest links", "ray tracing (ITU materials)",
                     "ray tracing (calibrated)"]
+# quick variant's ray-tracing grid (wall materials, wall thicknesses); the full one is the script's default
+MEASURED_QUICK_GRID = ("concrete,brick,metal", "plan")
 # no radio-map cache in the fitted models (the table draws no maps; it takes rf-fit about 40 s)
 MEASURED_FIT = {"rf_fit.room.map_visibility": "false"}
 
@@ -447,8 +449,9 @@ def target_measured(r: Plan) -> Table:
     it does not (a held-out area, unseen anchors)."""
     t = Table("RSSI: measured BLE survey (TETAM lab, 2.44 GHz)", MEASURED_METHODS)
     surveys, scene = _measured_data(r)
-    # every protocol file holds the same links: one Sionna sweep, scored on each split
-    sweep, sweep_step = M.raytrace_sweep(r, "measured", r.data / "measured" / "room.ply", surveys["random"])
+    # every protocol file holds the same links: one Sionna sweep, scored on each split (quick: a 3-set grid)
+    sweep, sweep_step = M.raytrace_sweep(r, "measured", r.data / "measured" / "room.ply", surveys["random"],
+                                         *(MEASURED_QUICK_GRID if r.quick else ()))
     sionna = {}
     for name, _, text in MEASURED_PROTOCOLS:
         ours = M.rfir_rssi(r, f"measured_{name}", scene, surveys[name], "random", _measured_fit_sets(r))
@@ -498,11 +501,11 @@ def _raytrace_note(results: dict) -> Callable[[], str]:
             d = res.data()
             chosen.append(f"{name}: {d['calibrated']['chosen']} (gain {d['calibrated']['system_gain_db']:+.1f} dB; "
                           f"ITU {d['itu']['system_gain_db']:+.1f} dB)")
-        grid = results[next(iter(results))].data()["calibrated"]["grid"]
+        grid = [g["name"] for g in results[next(iter(results))].data()["calibrated"]["grid"]]
         return ("ray tracing (calibrated): the same with the walls' ITU material and one wall thickness chosen by the "
-                f"training links' MAE (after each set's own system gain) from a grid of {len(grid)} sets (walls "
-                "concrete, brick, plasterboard, wood, glass or metal; the plan's thicknesses, 0.1 m or 0.3 m); "
-                "chosen: " + "; ".join(chosen))
+                f"training links' MAE (after each set's own system gain) from {len(grid)} sets ("
+                + ", ".join(grid) + "; plan: each wall's thickness in the floor plan; metal once, opaque at any "
+                "thickness); chosen: " + "; ".join(chosen))
     return note
 
 

@@ -112,3 +112,7 @@ def test_the_measured_target_scores_one_sweep_on_each_protocol():
         assert score.argv[2] == "score"
         assert sweep.outputs[0] in score.inputs
         assert any(i.endswith(f"measured/survey_{name}.h5") for i in score.inputs)
+    quick, _ = declare(["measured"], True)
+    assert "--wall-materials" not in sweep.argv
+    assert quick.steps["measured__raytrace_sweep"].argv[-4:] == ["--wall-materials", "concrete,brick,metal",
+                                                                 "--wall-thickness", "plan"]
