@@ -9,12 +9,12 @@ of it (their measured tilts are kept for the frame check). A wall's ends move to
 neighbouring wall when that is within `corner_m` of them; its height runs from the floor to the ceiling.
 Without a ceiling plane (photos barely see it) the ceiling is placed at the walls' top.
 
-Extents are occupancy grids of `cell_m` cells in each surface's plane: a wall's cells hold its Gaussians,
-without the cells of stray Gaussians (fewer than two occupied
-neighbours), closed over gaps up to 2 `close_m` wide (the Gaussians' own gaps), empty pieces smaller than (2 `close_m`)^2
-filled (gaps along the edges), and what stays empty is an opening (a door,
-a window the photos see through). Floor and ceiling cover the polygon the walls' ends enclose: what
-furniture hides there is floor all the same.
+Extents are occupancy grids of `cell_m` cells in each surface's plane. A wall's cells are those holding its
+Gaussians, less the cells of stray ones (fewer than two occupied neighbours), closed over gaps up to 2
+`close_m` wide (the Gaussians' own gaps), empty pieces smaller than (2 `close_m`)^2 filled (gaps along the
+edges). What stays empty is an opening where a square of `min_opening_m` fits in it (a door, a window the
+photos see through); a strip along the floor hidden by furniture is wall. Floor and ceiling cover the polygon
+the walls' ends enclose: what furniture hides there is floor all the same.
 """
 from __future__ import annotations
 
@@ -39,6 +39,7 @@ class ShellSettings:
     corner_m: float = 1.0
     cell_m: float = 0.1
     close_m: float = 0.3
+    min_opening_m: float = 0.5
     inset_color: float = 0.12
     inset_min_m2: float = 0.5
 
@@ -180,6 +181,8 @@ def _snapped(x, name: str, members: np.ndarray, normal: np.ndarray, settings: Sh
 
 def _wall_extents(x, walls: list[Surface], floor: Surface, ceiling: Surface, settings: ShellSettings) -> None:
     """Each wall's extent (ends met with the neighbouring walls, floor to ceiling) and occupancy grid."""
+    from scipy import ndimage
+
     z0 = _height_at(floor)
     z1 = _height_at(ceiling)
     for wall in walls:
@@ -207,7 +210,11 @@ def _wall_extents(x, walls: list[Surface], floor: Surface, ceiling: Surface, set
         wall.cell_m = settings.cell_m
         shape = (max(1, int(round((ends[1] - ends[0]) / settings.cell_m))), max(1, int(round((z1 - z0) / settings.cell_m))))
         near = np.abs(x @ wall.normal - wall.offset) <= settings.distance_m     # every Gaussian on the wall counts
-        wall.occupied = _closed(_cells(x[near], wall, shape), int(round(settings.close_m / settings.cell_m)))
+        closed = _closed(_cells(x[near], wall, shape), int(round(settings.close_m / settings.cell_m)))
+        # an opening is one a min_opening_m square fits in (a door, a window); narrower gaps, such as the strips
+        # along the floor behind the furniture and under the ceiling that photos do not see, are wall
+        k = max(1, int(round(settings.min_opening_m / settings.cell_m)))
+        wall.occupied = ~ndimage.binary_opening(~closed, np.ones((k, k), bool))
 
 
 def _height_at(flat: Surface) -> float:

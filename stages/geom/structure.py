@@ -3,13 +3,14 @@ as a `scene` artifact that rf-fit reads as it reads any other.
 
 The shell (floor, ceiling, walls) is tiled anew with flat square surfels over each surface's extent, openings
 left out (from_mesh.gaussians_from_mesh on the extent's rectangles, at `spacing_m` as `mesh-gaussians --preset
-room` tiles a mesh), so that the room model's patches are its planes with their edges. The Gaussians off the
-shell inside it are joined into object segments (DBSCAN); those on one of the object planes are projected onto
-it, with the plane's normal and their footprint flattened into it. Parts of a wall of another colour (a door, window
-panes, a board) become its insets (room_shell.wall_insets). Gaussians in no segment, and those behind the shell,
-stay as they were, unlabelled (-1): the free Gaussians. Labels are named by class (floor, ceiling, wall_NN,
-wall_NN_inset_NN, object_NN), so rf-fit's class sharing gives one material to the walls, one to each wall's
-insets, one to the objects.
+room` tiles a mesh), so that the room model's patches are its planes with their edges (`tile_shell = false`:
+the shell's own Gaussians projected onto their surfaces instead). The Gaussians off the shell inside it are
+joined into object segments (DBSCAN); those on one of the object planes (levelled or plumbed within snap_deg,
+as the shell's) are projected onto it, with the plane's normal and their footprint flattened into it. Parts of
+a wall of another colour (a door, window panes, a board) can become its insets (room_shell.wall_insets;
+`inset_color` > 0). Gaussians in no segment, and those behind the shell, stay as they were, unlabelled (-1):
+the free Gaussians. Labels are named by class (floor, ceiling, wall_NN, wall_NN_inset_NN, object_NN), so
+rf-fit's class sharing gives one material to the walls, one to each wall's insets, one to the objects.
 """
 from __future__ import annotations
 
@@ -125,7 +126,8 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     piece[inside] = connected_pieces(x[inside], settings.object_eps_m, settings.object_min_points)
     in_object = piece >= 0
     shell_planes = {id(p) for p in planes if _used_by_shell(p, on_shell)}
-    object_planes = [p for p in planes if id(p) not in shell_planes and in_object[p.members].mean() > 0.5]
+    object_planes = [_levelled(p, x, settings.snap_deg) for p in planes
+                     if id(p) not in shell_planes and in_object[p.members].mean() > 0.5]
 
     if settings.tile_shell:
         fields_out, names = _shell_fields(surfaces, settings.spacing_m, art.data.get("gaussians/colors"))
@@ -174,6 +176,21 @@ def surface_distance(surfaces: list[Surface], a: str, b: str) -> float:
     w, h = sa.size_m
     centre = sa.origin + 0.5 * w * sa.u + 0.5 * h * sa.v
     return float(abs(centre @ sb.normal - sb.offset))
+
+
+def _levelled(plane: Plane, x: np.ndarray, snap_deg: float) -> Plane:
+    """The plane made exactly level or plumb when within snap_deg of it (a desk top, a cupboard's side: in a frame
+    with z up, as the shell's planes), its offset the members' median; else the plane as fitted."""
+    up = abs(plane.normal[2])
+    if up >= np.cos(np.radians(snap_deg)):
+        normal = np.array([0.0, 0.0, 1.0])
+    elif up <= np.sin(np.radians(snap_deg)):
+        normal = plane.normal * np.array([1.0, 1.0, 0.0])
+        normal /= np.linalg.norm(normal)
+    else:
+        return plane
+    offset = float(np.median(x[plane.members] @ normal))
+    return Plane(normal, offset, plane.members, float(np.sqrt(np.mean((x[plane.members] @ normal - offset) ** 2))))
 
 
 def _used_by_shell(plane: Plane, on_shell: np.ndarray) -> bool:

@@ -9,6 +9,7 @@ from rfir_core.errors import InputFileError, StageError
 
 ROOM = (6.0, 4.0, 2.8)                 # x, y, z size [m]
 DOOR = (1.0, 1.9, 0.0, 2.0)            # in the y = 4 wall: x from, x to, z from, z to [m]
+HIDDEN = (0.5, 3.5, 0.0, 0.3)          # the x = 6 wall unseen along the floor (behind furniture): y, z ranges [m]
 TABLE = ((2.5, 1.5, 0.0), (3.7, 2.3, 0.75))
 BOARD = (1.0, 3.0, 1.0, 2.0)           # on the x = 0 wall: y from, y to, z from, z to [m] ...
 PLASTER, BOARD_RGB = (0.85, 0.83, 0.78), (0.93, 0.94, 0.95)   # ... whiteboard against plaster, as the classroom's
@@ -31,7 +32,7 @@ def _patch(rng, corner, side_u, side_v, normal, density, hole=None):
 
 
 def sampled_room(rng, density=150.0, tilt_deg=0.0):
-    """Gaussian fields of a box room (ROOM) with a door opening, a table, a ceiling seen only near the walls, photo
+    """Gaussian fields of a box room (ROOM) with a door opening, a strip of wall unseen along the floor, a table, a ceiling seen only near the walls, photo
     a whiteboard on the x = 0 wall (another colour), noise and 2 % outliers; the whole room turned by tilt_deg about x. Returns (fields, true rotation [3, 3])."""
     lx, ly, lz = ROOM
     parts = [
@@ -39,7 +40,7 @@ def sampled_room(rng, density=150.0, tilt_deg=0.0):
         _patch(rng, (0, 0, lz), (lx, 0, 0), (0, ly, 0), (0, 0, -1), density * 0.3,           # ceiling: a patch unseen
                hole=(1.0, 5.0, 0.8, 3.2)),
         _patch(rng, (0, 0, 0), (0, ly, 0), (0, 0, lz), (1, 0, 0), density),                 # wall x = 0
-        _patch(rng, (lx, 0, 0), (0, ly, 0), (0, 0, lz), (-1, 0, 0), density),               # wall x = 6
+        _patch(rng, (lx, 0, 0), (0, ly, 0), (0, 0, lz), (-1, 0, 0), density, hole=HIDDEN),  # wall x = 6
         _patch(rng, (0, 0, 0), (lx, 0, 0), (0, 0, lz), (0, 1, 0), density),                 # wall y = 0
         _patch(rng, (0, ly, 0), (lx, 0, 0), (0, 0, lz), (0, -1, 0), density, hole=DOOR),    # wall y = 4, a door
     ]
