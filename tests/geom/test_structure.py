@@ -32,8 +32,9 @@ def _patch(rng, corner, side_u, side_v, normal, density, hole=None):
 
 
 def sampled_room(rng, density=150.0, tilt_deg=0.0):
-    """Gaussian fields of a box room (ROOM) with a door opening, a strip of wall unseen along the floor, a table, a ceiling seen only near the walls, photo
-    a whiteboard on the x = 0 wall (another colour), noise and 2 % outliers; the whole room turned by tilt_deg about x. Returns (fields, true rotation [3, 3])."""
+    """Gaussian fields of a box room (ROOM) with a door opening, a strip of wall unseen along the floor, a table,
+    a ceiling seen only near the walls, a whiteboard on the x = 0 wall (another colour), photo noise and 2 %
+    outliers; the whole room turned by tilt_deg about x. Returns (fields, true rotation [3, 3])."""
     lx, ly, lz = ROOM
     parts = [
         _patch(rng, (0, 0, 0), (lx, 0, 0), (0, ly, 0), (0, 0, 1), density),                 # floor
