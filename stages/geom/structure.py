@@ -37,6 +37,8 @@ class StructureSettings(ShellSettings):
     object_min_points: int = 20
     spacing_m: float = 0.8
     tile_shell: bool = True
+    keep_free: bool = True
+    object_planes_only: bool = False
 
 
 @dataclass
@@ -136,7 +138,12 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     objects = _object_fields(art.data, piece, in_object, object_planes, first_label=len(names))
     uniq = np.unique(piece[in_object])
     names += [f"object_{k:02d}" for k in range(len(uniq))]
-    free = _subset(art.data, ~on_shell & ~in_object, label=-1)
+    if settings.object_planes_only:     # the objects as their planar parts alone
+        on_plane = np.zeros(len(x), bool)
+        for p in object_planes:
+            on_plane[p.members] = True
+        objects = {k: v[on_plane[in_object]] for k, v in objects.items()}
+    free = _subset(art.data, (~on_shell & ~in_object) if settings.keep_free else np.zeros(len(x), bool), label=-1)
     out = {k: np.concatenate([fields_out[k], objects[k], free[k]]) for k in fields_out}
 
     warnings = [f"{s.name} is {s.tilt_deg:.2f} deg from {'vertical' if s.kind == 'wall' else 'horizontal'} "

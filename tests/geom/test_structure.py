@@ -205,6 +205,24 @@ def test_shell_gaussians_projected_without_tiling(tmp_path):
         assert np.allclose(np.abs(n[on] @ surface.normal), 1.0, atol=1e-12)
 
 
+def test_free_left_out_and_objects_as_planes(tmp_path):
+    from rfir_core.artifacts import read_artifact
+    from rfir_stages.geom.structure import run
+
+    fields, _ = sampled_room(np.random.default_rng(6), density=100.0)
+    result = run(_write(tmp_path / "room.h5", fields), tmp_path / "planes.h5",
+                 {"keep_free": False, "object_planes_only": True})
+    art = read_artifact(tmp_path / "planes.h5", "scene")
+    names = [str(n) for n in art.attrs["label_names"]]
+    labels, n = art.data["gaussians/labels"], art.data["gaussians/normals"]
+    assert result.num_free > 0 and (labels >= 0).all()
+    obj = labels >= names.index("object_00")
+    # the table's Gaussians left are those on its planes: its top and sides, levelled and plumbed
+    assert obj.sum() > 0.8 * (result.num_in_objects * 0.5)
+    up = np.abs(n[obj, 2])
+    assert ((np.abs(up - 1.0) < 1e-12) | (up < 1e-12)).all()
+
+
 def test_tilted_frame_is_reported(tmp_path):
     from rfir_stages.geom.structure import run
 
