@@ -40,7 +40,7 @@ class ShellSettings:
     cell_m: float = 0.1
     close_m: float = 0.3
     min_opening_m: float = 0.5
-    inset_color: float = 0.12
+    inset_color: float = 0.0
     inset_min_m2: float = 0.5
 
 

@@ -95,7 +95,7 @@ def room_result(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("structure")
     fields, _ = sampled_room(np.random.default_rng(3))
     scene = _write(tmp / "room.h5", fields)
-    result = run(scene, tmp / "planes.h5", {}, known_distance="floor:ceiling=2.8")
+    result = run(scene, tmp / "planes.h5", {"inset_color": 0.12}, known_distance="floor:ceiling=2.8")
     return result, read_artifact(tmp / "planes.h5", "scene"), fields
 
 
