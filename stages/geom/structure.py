@@ -8,9 +8,10 @@ the shell's own Gaussians projected onto their surfaces instead). The Gaussians 
 joined into object segments (DBSCAN); those on one of the object planes (levelled or plumbed within snap_deg,
 as the shell's) are projected onto it, with the plane's normal and their footprint flattened into it. Parts of
 a wall of another colour (a door, window panes, a board) can become its insets (room_shell.wall_insets;
-`inset_color` > 0). Gaussians in no segment, and those behind the shell, stay as they were, unlabelled (-1; `keep_free = false`: left out):
-the free Gaussians. Labels are named by class (floor, ceiling, wall_NN, wall_NN_inset_NN, object_NN), so
-rf-fit's class sharing gives one material to the walls, one to each wall's insets, one to the objects.
+`inset_color` > 0). Gaussians in no segment, and those behind the shell, stay as they were, unlabelled (-1;
+`keep_free = false`: left out): the free Gaussians. Labels are named by class (floor, ceiling, wall_NN,
+wall_NN_inset_NN, object_NN), so rf-fit's class sharing gives one material to the walls, one to each wall's
+insets, one to the objects.
 """
 from __future__ import annotations
 
