@@ -505,7 +505,8 @@ def _raytrace_note(results: dict) -> Callable[[], str]:
         return ("ray tracing (calibrated): the same with the walls' ITU material and one wall thickness chosen by the "
                 f"training links' MAE (after each set's own system gain) from {len(grid)} sets ("
                 + ", ".join(grid) + "; plan: each wall's thickness in the floor plan; metal once, opaque at any "
-                "thickness); chosen: " + "; ".join(chosen))
+                "thickness); chosen: " + "; ".join(chosen) + ". Both columns' wall time is the whole sweep (every set "
+                "solved once, shared by the rows) plus the scoring")
     return note
 
 
