@@ -26,6 +26,7 @@ from rfir_stages.model.device_gains import DeviceGains, device_index
 from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
                                              material_index, reflection_ranges, training_predictor)
 from rfir_stages.model.fit_physical import training_predictor
+from rfir_stages.model.material_checks import check_materials
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.residual import SE_MARGIN
 from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings, band_of
@@ -284,6 +285,29 @@ def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: 
     return room.band_links(tx[rest], rx[rest], freq_hz, band), target_db[rest, None]
 
 
+def _check_materials(links, res, target_db: np.ndarray, fit: np.ndarray, room, tx, rx, freq_hz: float, band: str,
+                     names: list[str], devices):
+    """(material_checks.check_materials flags of the fit `res`, the links they were scored on in words): on the
+    training links the fit did not use where there are any (none with device gains, which fit every link), else
+    on the fitted links (where the fitted values have the fit's optimism). An alternative taken is put into
+    res.params."""
+    check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
+    if check is None:
+        pred, tgt = training_predictor(links, torch.as_tensor(target_db[fit, None]), devices), target_db[fit, None]
+        on = "the fitted links"
+    else:
+        pred, tgt = training_predictor(check[0], torch.as_tensor(check[1])), check[1]
+        on = f"{plural(len(tgt), 'training link')} the fit did not use"
+    with torch.no_grad():
+        rows = material_rows(res.params.values(), names, freq_hz)
+    flags = check_materials(pred, res.params, tgt, rows, freq_hz)
+    if any(f.taken for f in flags):
+        with torch.no_grad():
+            fitted = training_predictor(links, torch.as_tensor(target_db[fit, None]), devices)(res.params)
+            res.train_mae_db = float((fitted - torch.as_tensor(target_db[fit, None])).abs().mean())
+    return flags, on
+
+
 def _log_crossing(res, progress) -> None:
     """Which materials the fit took from another start's fit (fit_physical._cross_finals), with the loss."""
     n = res.extra.get("crossed_materials", 0)
@@ -466,6 +490,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             g = g.detach().numpy()
             progress.log(f"device gains ({side}, {len(g)} devices): mean {g.mean():+.2f} dB, spread {g.std():.2f} dB, "
                          f"range {g.min():+.2f} .. {g.max():+.2f} dB; devices the fit did not see get 0 dB")
+    flags, flags_on = _check_materials(links, res, target_db, fit, room, tx, rx, freq_hz, band, names, devices)
     seen = np.zeros(len(names), bool)
     seen[room.material_of_patch[np.unique(links.paths.patch[links.paths.kind > 0].numpy())]] = True
     unseen = [n for n, s in zip(names, seen) if not s]
@@ -482,6 +507,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                                         PairSettings(opacity=settings.opacity, polarisation=settings.polarisation),
                                         names, float(res.params.gain_db.detach()))
     model_attrs["material_tabulated"] = np.asarray(tabulated, dtype=object)   # "": as fitted
+    flag_lines = {f.index: f.words(flags_on) for f in flags}
+    model_attrs["material_check"] = np.asarray([flag_lines.get(i, "") for i in range(len(names))], dtype=object)
     model_attrs.update({"model_kind": MODEL_KIND, "sharing": sharing,
                         "model_doc": "room paths (images over planar patches) + diffuse, physical materials "
                                      "(docs/physics.md section 8.10)"})
@@ -536,6 +563,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
                      f"|Gamma(0)| {row['gamma_normal_abs']:.2f}{range_words(row)}"
                      + (f"  ({key})" if key else ""))
+    for i, line in flag_lines.items():
+        table[i]["check"] = line
+        progress.log(f"warning: implausible for its surface: {line}")
     if ranges is not None:
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
                      "(rf_fit.room.reflection_ranges)")
@@ -543,7 +573,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                        res.steps, time.time() - t_start, trace_s, room.provider.name,
                        {"trace": trace_s, "fit": res.wall_time_s}, materials=table,
                        warnings=([f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
-                       + bounds)
+                       + bounds + [f"implausible for its surface: {line}" for line in flag_lines.values()])
 
 
 def map_crossings(room: RoomGeometry, geom) -> dict:
