@@ -48,6 +48,10 @@ class EditResult:
     plot: Path | None = None
     radio_plot: Path | None = None
     radio_change: dict = field(default_factory=dict)
+    # the frequency [Hz] of the radio change and whether it was the model's fitted one, taken because none was
+    # asked for (freq_hz None)
+    radio_freq_hz: float | None = None
+    radio_freq_assumed: bool = False
 
 
 def per_gaussian_keys(art) -> tuple[list[str], list[tuple[str, str]]]:
@@ -79,14 +83,16 @@ def _outside(means_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int:
 
 
 def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_empty: bool = False, plot_path=None,
-        map_tx=None, config_toml: str = "", progress=None) -> EditResult:
+        map_tx=None, freq_hz: float | None = None, config_toml: str = "", progress=None) -> EditResult:
     """Apply `edits` in order to the rf artifact at rf_path; write out_path unless dry_run.
 
     A selection is evaluated on the scene as the earlier edits left it. An empty selection is an error
     unless allow_empty (or the edit's own allow_empty). Moving Gaussians outside the input's bounding
     box of centres gives a warning. plot_path: optional before/after top-view PNG; with it (and an
     artifact written) also the radio change beside it, PLOT_radio.png: the map of the Tx at map_tx
-    [3] m before/after/difference for an RSSI model, RCS versus aspect before/after otherwise."""
+    [3] m before/after/difference for an RSSI model, RCS versus aspect before/after otherwise, at freq_hz Hz
+    (None: the model's first fitted frequency; a room model refuses one outside its material laws' range, in one
+    line, before anything is written)."""
     progress = progress or NullProgress()
     t0 = time.time()
     rf_path = Path(rf_path)
@@ -97,6 +103,15 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
     art = read_artifact(rf_path, "rf")
     if str(art.attrs.get("task", "")) == "rssi":
         require_room_model(art)   # one line naming the file and the model, for RSSI models rfir does not predict
+    before_model = None
+    if freq_hz is not None:
+        freq_hz = _checked_frequency(freq_hz)
+        if plot_path is not None and not dry_run and _is_room_model(art) and map_tx is not None:
+            from rfir_stages.model.radio_model import load_model
+
+            # loaded now so that a frequency outside its range is refused before the edited artifact is written
+            before_model = load_model(art, quantity="rssi")
+            before_model.predictor.check_frequencies([freq_hz])
     fields, free_keys = per_gaussian_keys(art)
     arrays = {k: np.array(art[k], copy=True) for k in fields}
     arrays.update({f"{g}/{k}": np.array(art.free[g][k], copy=True) for g, k in free_keys})
@@ -146,16 +161,32 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
     if not dry_run:
         result.path = _write(out_path, rf_path, art, scene, records, config_toml, t0, drop_residual)
         if plot_path is not None:
-            result.radio_plot, result.radio_change = _radio_change(Path(plot_path), art, result.path, map_tx)
+            result.radio_plot, result.radio_change = _radio_change(Path(plot_path), art, result.path, map_tx, freq_hz,
+                                                                   before_model)
+            if result.radio_plot is not None:
+                result.radio_freq_hz = result.radio_change["freq_hz"]
+                result.radio_freq_assumed = freq_hz is None
+    if freq_hz is not None and result.radio_plot is None:
+        result.warnings.append("--freq: no radio change was drawn (it needs --plot, an artifact written, and --map-tx "
+                               "for an RSSI model)")
     return result
+
+
+def _checked_frequency(freq_hz) -> float:
+    """freq_hz as a float [Hz]; a ConfigError (one line) unless a positive finite number."""
+    f = float(freq_hz)
+    if not (np.isfinite(f) and f > 0):
+        raise ConfigError(f"--freq: expected a positive frequency in hertz, got {freq_hz}")
+    return f
 
 
 def _is_room_model(art) -> bool:
     return quantity_of(art) == "rssi"   # a model of links in a room: its radio change is a map
 
 
-def _radio_change(plot_path: Path, art, edited_path: Path, map_tx):
-    """(PNG, summary) of the radio change, or (None, {}) for an RSSI model without map_tx."""
+def _radio_change(plot_path: Path, art, edited_path: Path, map_tx, freq_hz: float | None = None, before_model=None):
+    """(PNG, summary) of the radio change at freq_hz Hz (None: the fitted frequency), or (None, {}) for an RSSI
+    model without map_tx; before_model: the input's RadioModel when already loaded."""
     from .map_change import rcs_change, rssi_map_change
 
     target = plot_path.with_name(plot_path.stem + "_radio.png")
@@ -163,9 +194,10 @@ def _radio_change(plot_path: Path, art, edited_path: Path, map_tx):
     if _is_room_model(art):
         if map_tx is None:
             return None, {}
-        return target, rssi_map_change(target, art, after, np.asarray(map_tx, np.float64))
+        return target, rssi_map_change(target, art if before_model is None else before_model, after,
+                                       np.asarray(map_tx, np.float64), freq_hz=freq_hz)
     if str(art.attrs.get("task", "")) in ("rcs", "wideband") and not art.free.get("model@attrs", {}).get("wideband"):
-        return target, rcs_change(target, art, after)
+        return target, rcs_change(target, art, after, freq_hz=freq_hz)
     return None, {}
 
 

@@ -37,6 +37,9 @@ def edit(
     map_tx: Annotated[Optional[str], typer.Option(
         "--map-tx", metavar="X,Y,Z",
                 help="X,Y,Z (m): the transmitter of the radio-map change of an RSSI model (with --plot).")] = None,
+    freq: Annotated[Optional[float], typer.Option(
+        "--freq", metavar="HZ", help="Frequency [Hz] of the radio change (with --plot), e.g. 5.8e9; an RSSI model "
+                                     "predicts inside its material laws' range. Default: the fitted frequency.")] = None,
 ) -> None:
     """Edit the Gaussians of an rf artifact; predict the edited scene with `rfir predict` (no new measurements)."""
     opts = options(ctx)
@@ -50,7 +53,7 @@ def edit(
             edits += read_script(script, allow_empty)
         with RichReporter(opts.verbosity) as reporter:
             return run(rf, out, edits, dry_run=dry_run, allow_empty=allow_empty, plot_path=plot,
-                       map_tx=comma_numbers(map_tx, "--map-tx", 3), config_toml=opts.config_toml(), progress=reporter)
+                       map_tx=comma_numbers(map_tx, "--map-tx", 3), freq_hz=freq, config_toml=opts.config_toml(), progress=reporter)
 
     r = run_guarded(ctx, work)
     for i, rec in enumerate(r.records, 1):
@@ -65,7 +68,8 @@ def edit(
     if r.plot is not None:
         console.print(f"plot: {r.plot}", highlight=False)
     if r.radio_plot is not None:
-        console.print(f"radio change: {r.radio_plot} (mean |change| {r.radio_change['mean_abs_change_db']:.2f} dB, "
-                      f"max {r.radio_change['max_abs_change_db']:.2f} dB over {r.radio_change['points']} points)",
-                      highlight=False)
+        why = " (the frequency the model was fitted at; --freq sets another)" if r.radio_freq_assumed else ""
+        console.print(f"radio change: {r.radio_plot} at {r.radio_freq_hz / 1e9:g} GHz{why} (mean |change| "
+                      f"{r.radio_change['mean_abs_change_db']:.2f} dB, max {r.radio_change['max_abs_change_db']:.2f} dB "
+                      f"over {r.radio_change['points']} points)", highlight=False)
 
