@@ -182,3 +182,15 @@ def test_segment_hits_leave_out_the_surfaces_at_either_end():
     provider = _Hits([(0, 5, 0.01), (0, 6, 1.0), (0, 7, 1.99), (1, 8, LEG_MARGIN_M + 1e-6), (1, 9, 0.5)])
     leg, gaussian, t, _ = segment_hits(provider, start, end)
     assert leg.tolist() == [0, 1, 1] and gaussian.tolist() == [6, 8, 9] and t.tolist()[0] == 1.0
+
+
+def test_a_material_that_is_vacuum_reflects_nothing_and_transmits_fully_at_every_angle():
+    """eta = 1 has no interface: R = 0 and |T| = 1 at every incidence, grazing included (where the formulas are 0/0)."""
+    cos_theta = torch.tensor([0.0, 1e-6, 0.3, 1.0], dtype=torch.float64)
+    vacuum = torch.tensor(1.0 + 0j, dtype=torch.complex128)
+    for r in fresnel(vacuum, cos_theta) + fresnel(vacuum, cos_theta, k0=50.0, thickness_m=torch.tensor(0.1)):
+        # 1 - (1 - c^2) loses digits near grazing: 1e-4, not machine precision
+        assert torch.all(torch.isfinite(r)) and torch.all(r.abs() < 1e-4), r
+    for t in slab_transmission(vacuum, cos_theta, 50.0, torch.tensor(0.1)):
+        assert torch.all(torch.isfinite(t)), t
+        np.testing.assert_allclose(t.abs().numpy(), 1.0, atol=1e-9)

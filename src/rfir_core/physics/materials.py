@@ -134,10 +134,11 @@ def fresnel(eta, cos_theta, k0=None, thickness_m=None) -> tuple[torch.Tensor, to
     cc = c.to(torch.complex128)
     r_te = (cc - root) / (cc + root)
     r_tm = (eta_f * cc - root) / (eta_f * cc + root)
-    # vacuum at grazing incidence is 0/0: the limit is -1 for both
+    # 0/0 only where root = c = 0, i.e. eta = 1 (a material that is vacuum) at grazing incidence: there is no
+    # interface, so the limit along eta = 1 is 0 (no reflection, full transmission), as at every other angle
     bad = ~torch.isfinite(r_te) | ~torch.isfinite(r_tm)
-    r_te = torch.where(bad, torch.full_like(r_te, -1.0), r_te)
-    r_tm = torch.where(bad, torch.full_like(r_tm, -1.0), r_tm)
+    r_te = torch.where(bad, torch.zeros_like(r_te), r_te)
+    r_tm = torch.where(bad, torch.zeros_like(r_tm), r_tm)
     if thickness_m is not None:
         if k0 is None:
             raise ValueError("a slab reflection coefficient needs k0")
