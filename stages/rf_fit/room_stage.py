@@ -557,15 +557,17 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     bounds = bound_warnings(table)
     for w in bounds:
         progress.log(f"warning: {w}")
-    for row, key in zip(table, tabulated):
+    flags_by = {f.index: f for f in flags}
+    for i, (row, key) in enumerate(zip(table, tabulated)):
         row["tabulated"] = key
         progress.log(f"  {row['material']:<16} eps_r {row['eps_r']:5.2f}  sigma {row['sigma_s_per_m']:8.3g} S/m  "
                      f"thickness {row['thickness_m'] * 100:5.1f} cm  S {row['scattering']:.2f}  "
                      f"|Gamma(0)| {row['gamma_normal_abs']:.2f}{range_words(row)}"
-                     + (f"  ({key})" if key else ""))
+                     + (f"  ({key})" if key else "")
+                     + ("" if i not in flags_by else f"  [fitted {flags_by[i].reason}, implausible for its surface; "
+                        + (f"taken as {flags_by[i].taken}" if flags_by[i].taken else "alternatives at the end") + "]"))
     for i, line in flag_lines.items():
         table[i]["check"] = line
-        progress.log(f"warning: implausible for its surface: {line}")
     if ranges is not None:
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
                      "(rf_fit.room.reflection_ranges)")

@@ -114,3 +114,42 @@ def test_an_alternative_worse_than_the_fitted_value_is_not_taken(room_links):
     assert [f.name for f in flags] == ["wall_a"] and flags[0].maes_db["fitted"] == pytest.approx(0.0, abs=1e-9)
     assert all(v > 0 for k, v in flags[0].maes_db.items() if k != "fitted") and flags[0].taken == ""
     assert all(torch.equal(v, keep[k]) for k, v in p.state_dict().items())     # the fit stays what it was
+
+
+def test_rf_fit_names_the_flags_with_their_alternatives_in_its_output_the_artifact_and_info(tmp_path):
+    """The reduced room's closed form has no walls but the partition: the fit thins the walls it cannot see,
+    and rf-fit names each thin wall with its alternatives' MAEs (printed, stored, shown by rfir info)."""
+    import re
+
+    from typer.testing import CliRunner
+
+    from rfir_cli.main import app
+    from rfir_core.artifacts import read_artifact
+
+    from .helpers import write_measurements, write_scene
+
+    write_scene(tmp_path / "scene.h5", spacing_m=0.3)
+    write_measurements(tmp_path / "meas.h5")
+    fast = ["--set", "rf_fit.physical.iterations=30", "--set", "rf_fit.physical.start_iterations=8",
+            "--set", "rf_fit.room.reflection_ranges=false", "--set", "rf_fit.room.map_visibility=false"]
+    r = CliRunner().invoke(app, [*fast, "rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"),
+                                 "-o", str(tmp_path / "rf.h5")], terminal_width=400)
+    assert r.exit_code == 0, r.output
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    attrs = rf.free["model@attrs"]
+    names = [str(n) for n in attrs["material_names"]]
+    checks = [str(c) for c in attrs["material_check"]]
+    thick = np.asarray(rf["material/thickness_m"])
+    for name, line, th in zip(names, checks, thick):
+        # every wall the fit left under MIN_WALL_THICKNESS_M is named (one replaced is named too); the table never
+        should = surface_class(name) == "wall" and th < MIN_WALL_THICKNESS_M
+        assert bool(line) >= should and (surface_class(name) is not None or not line), (name, line, th)
+        if line:
+            assert line.startswith(f"{name}: fitted ") and "MAE on the fitted links" in line
+            assert line.count(" dB") >= 3                                         # the fitted value + alternatives
+            assert line in " ".join(r.output.split())                             # printed at the end
+    assert any(checks)                                                            # the thin walls of this room
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "rf.h5")], terminal_width=400)
+    assert info.exit_code == 0 and sum("implausible for its surface" in s for s in info.output.splitlines()) \
+        == sum(map(bool, checks))
+    assert re.search(r"\[fitted .*implausible for its surface", r.output)

@@ -77,6 +77,8 @@ def _show_materials(path: str) -> None:
                       *([] if span is None else [f"{span[i][0]:.2f}-{span[i][1]:.2f} {range_note(*span[i])}".strip()]),
                       *([tabulated[i] if i < len(tabulated) else ""] if any(tabulated) else []))
     console.print(table)
+    for line in (str(c) for c in art.free.get("model@attrs", {}).get("material_check", []) if str(c)):
+        console.print(f"implausible for its surface (rf-fit's check): {line}", highlight=False, markup=False)
 
 
 def _show_row_counts(path: str) -> None:
