@@ -1,8 +1,10 @@
 """The `flat` scene (closed shell, rooms, labels) and the measured-like transform (no Sionna)."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +19,8 @@ from rfir_stages.simulate.scenes import build_scene
 from rfir_stages.simulate.settings import parse_settings
 
 SHELL = ("floor", "ceiling", "outer_wall", "window", "entrance_door")
+
+SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
 
 
 def _ray_hits(origins, dirs, tri):
@@ -184,5 +188,9 @@ def test_bad_settings_and_scenes_are_refused(tmp_path):
         ml.protocols(build_scene("flat"), ml.parse_settings({**table, "holdout_room": "attic"}))
     with pytest.raises(ConfigError, match="floor plan"):
         ml.floorplan_mesh(build_scene("classroom"), np.random.default_rng(0), 0.03)
-    assert ml.main([str(tmp_path / "nothing"), str(tmp_path / "out")]) == 2
+    # the command line lives in scripts/ (stages never parse arguments)
+    spec = importlib.util.spec_from_file_location("measured_like_cli", SCRIPTS / "measured_like.py")
+    cli = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cli)
+    assert cli.main([str(tmp_path / "nothing"), str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
