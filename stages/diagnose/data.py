@@ -1,7 +1,10 @@
 """Rows for diagnose from a model and a measurement file.
 
 MODEL is an `rf` artifact (its radio model, rfir_stages.model.radio_model, predicts the measured links at the
-measured frequencies it predicts by default, with the effects diagnose recorded in it, as `rfir predict` does),
+measured frequencies, with the effects diagnose recorded in it, as `rfir predict` does: a room model at every
+measured frequency inside its material laws' range, a frequency outside refused in one line; an object model at
+the measured ones it predicts by default (its fitted frequencies or band), or at the measured ones when it
+predicts none of them by default; which frequencies were used, and why, is info["frequencies"]),
 or a `predictions` artifact (any method's prediction of the same links), or a `measurements`
 artifact used as a prediction (a plain ray tracer's output, e.g. Sionna without the effect).
 Train/test: the rf fit's split as predict scores it; otherwise the measurement file's split column
@@ -60,7 +63,7 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     info = {"model": str(model_path), "model_kind": kind, "measurements": str(measurements_path), "task": task}
     split = None
     if kind == "rf":
-        pred, split = _predict_measured(model, meas, task, progress)   # rf: the measured rows, in their order
+        pred, split, info["frequencies"] = _predict_measured(model, meas, task, progress)   # the measured rows
         if geometry_path is None:
             geometry_path = model_path
     else:
@@ -75,6 +78,9 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     f_model = np.asarray(pred["freq_hz"], np.float64)
     cols = _columns(f_model, f_meas, model_path)
     mcols = _columns(f_meas[cols], f_model, model_path)
+    if "frequencies" not in info:
+        info["frequencies"] = (", ".join(f"{f / 1e9:g}" for f in f_meas[cols][:4]) + (" ..." if len(cols) > 4 else "")
+                               + f" GHz (the measured frequencies the {kind} artifact holds)")
     pred_db = np.asarray(pred["path_gain_db"], np.float64)[order][:, mcols]
     meas_db = np.asarray(meas["path_gain_db"], np.float64)[:, cols]
     if split is None and meas.get("split") is not None:
@@ -119,19 +125,42 @@ def load_rows(model_path, measurements_path, work_dir: Path, *, geometry_path=No
     return rows, info
 
 
-def _predict_measured(rf, meas, task: str, progress) -> tuple[dict, np.ndarray | None]:
-    """({tx_pos, rx_pos, freq_hz, path_gain_db [L, F] dB}, the fit's split [L] or None) of the measured links,
-    predicted by the radio model of `rf` (refused, one line, when it predicts another task's quantity)."""
+def _predict_measured(rf, meas, task: str, progress) -> tuple[dict, np.ndarray | None, str]:
+    """({tx_pos, rx_pos, freq_hz, path_gain_db [L, F] dB}, the fit's split [L] or None, the frequencies predicted
+    and why, in words) of the measured links, predicted by the radio model of `rf` at the frequencies of
+    prediction_frequencies (refused, one line, when it predicts another task's quantity, or a room model a
+    frequency outside its material laws' range)."""
     radio = load_model(rf, quantity=task)
     tx, rx = np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)
     check_overlap(radio.geometry, meas, str(meas.path))
-    freqs = radio.default_freqs(np.asarray(meas["freq_hz"], np.float64))
+    freqs, why = prediction_frequencies(radio, np.asarray(meas["freq_hz"], np.float64))
     if freqs.size == 0:
         raise StageError("the model predicts none of the measured frequencies", path=rf.path)
+    if task == "rssi":
+        radio.predictor.check_frequencies(freqs)   # one line before any tracing
     aspect, rng = meas.get("aspect_rad"), meas.get("range_m")
     pg = radio.predict(tx, rx, freqs, progress=progress)
     pg = apply_recorded_effects(rf, pg, tx, rx, freqs, aspect_rad=aspect, range_m=rng)
-    return {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg}, radio.training_split(meas)
+    return {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg}, radio.training_split(meas), why
+
+
+def prediction_frequencies(radio, measured_hz: np.ndarray) -> tuple[np.ndarray, str]:
+    """(frequencies [F] Hz the model `radio` (a RadioModel) predicts the measured links at, why in words), for the
+    measured frequencies measured_hz [K] Hz.
+
+    A room model ("rssi"): every measured one (its paths are evaluated at any frequency inside its material laws'
+    range). An object model: the measured ones it predicts by default (fitted frequencies; a band fit's band), or,
+    when that leaves none, every measured one (its materials follow their laws at any frequency)."""
+    fitted = ", ".join(f"{f / 1e9:g}" for f in radio.fitted_freqs_hz[:4]) + (" ..." if radio.fitted_freqs_hz.size > 4 else "")
+    covered = radio.default_freqs(measured_hz)
+    if radio.task != "rssi" and covered.size:
+        freqs = covered
+    else:
+        freqs = np.asarray(measured_hz, np.float64)
+    shown = ", ".join(f"{f / 1e9:g}" for f in freqs[:4]) + (f" ... ({freqs.size})" if freqs.size > 4 else "")
+    if all(np.any(np.abs(covered - f) <= 1e-6 * f) for f in freqs):
+        return freqs, f"{shown} GHz (measured, and what the model was fitted at)"
+    return freqs, f"{shown} GHz (the measurements' frequencies; the model was fitted at {fitted} GHz)"
 
 
 def measured_phases(channel: np.ndarray | None, where: str) -> tuple[np.ndarray | None, str]:

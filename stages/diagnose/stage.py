@@ -38,6 +38,7 @@ class DiagnoseResult:
     files: list = field(default_factory=list)
     headline: str = ""
     wall_s: float = 0.0
+    frequencies: str = ""                          # the frequencies predicted and why, in words (data.load_rows)
 
 
 def _mae(rows, pred, mask) -> float:
@@ -58,7 +59,7 @@ def run(model_path, measurements_path, out_dir, *, geometry_path=None, max_effec
     out.mkdir(parents=True, exist_ok=True)
     rows, info = load_rows(model_path, measurements_path, out, geometry_path=geometry_path, seed=seed,
                            progress=progress)
-    res = DiagnoseResult(out)
+    res = DiagnoseResult(out, frequencies=info.get("frequencies", ""))
     current = rows.pred_db.copy()
     where0 = analyse(rows, current, seed)
     res.files.append(plot(out / "residual_before.png", rows, rows.meas_db - current, where0,
@@ -170,6 +171,7 @@ def _report_md(r: dict) -> str:
     lines = [f"# Diagnosis of {info['model']}", "", f"**{r['headline']}**", "",
              f"Measurements: `{info['measurements']}` ({info['task']}, {plural(info['num_links'], 'link')} x "
              f"{plural(info['num_freqs'], 'frequency')}; {info['num_train']} train / {info['num_test']} held-out rows, {info['split']}).", "",
+             f"Predicted at {info.get('frequencies', 'the measured frequencies')}.", "",
              "## Gap", "", "| step | named effect | confidence | held-out MAE before | after | parameters |",
              "|---|---|---|---|---|---|"]
     for s in r["steps"]:

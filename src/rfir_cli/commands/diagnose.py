@@ -36,6 +36,8 @@ def diagnose(
                        config_toml=opts.config_toml(), progress=reporter)
 
     r = run_guarded(ctx, work)
+    if r.frequencies:
+        console.print(f"predicted at {r.frequencies}", highlight=False, markup=False)
     console.print(r.headline, highlight=False, markup=False)
     for i, n in enumerate(r.named, 1):
         params = ", ".join(f"{k} = {v:.4g}" for k, v in n["params"].items())
