@@ -68,7 +68,8 @@ def find_planes(x: np.ndarray, normals: np.ndarray, *, distance_m: float, normal
     distance_m: the RANSAC inlier distance and the members' largest distance from the refitted plane [m];
     normal_deg: largest angle between a member's normal and the plane's; min_points: the fewest members of a
     plane (and of each connected piece; smaller pieces are left out of every plane); piece_eps_m: DBSCAN
-    neighbour distance that splits a plane into its connected pieces; max_planes: the search stops there.
+    neighbour distance that splits a plane into its connected pieces (at least 3 times the members' median
+    nearest-neighbour distance); max_planes: the search stops there.
     Points in no plane are those in no returned Plane's members."""
     import open3d as o3d
 
@@ -101,7 +102,7 @@ def find_planes(x: np.ndarray, normals: np.ndarray, *, distance_m: float, normal
                 failures += 1
                 continue
             failures = 0
-            piece = connected_pieces(x[members], piece_eps_m, min_points)
+            piece = connected_pieces(x[members], max(piece_eps_m, 3.0 * _spacing_m(x[members])), min_points)
             for p in np.unique(piece[piece >= 0]):
                 idx = members[piece == p]
                 n_p, o_p, rms = fit_plane(x[idx])
@@ -111,6 +112,16 @@ def find_planes(x: np.ndarray, normals: np.ndarray, *, distance_m: float, normal
             if progress is not None:
                 progress.advance()
     return planes
+
+
+def _spacing_m(x: np.ndarray) -> float:
+    """Median distance [m] from each of the points x [N, 3] to its nearest neighbour: coarse surfels (a mesh tiled at
+    tens of centimetres) are farther apart than piece_eps_m and would otherwise fall apart into single points."""
+    from scipy.spatial import cKDTree
+
+    if len(x) < 2:
+        return 0.0
+    return float(np.median(cKDTree(x).query(x, k=2)[0][:, 1]))
 
 
 def _members(x, normals, pool, normal, offset, distance_m, cos_max) -> np.ndarray:
