@@ -10,10 +10,12 @@ absolute dB error on the scoring links (links the fit did not use where there ar
 for each variant as the median residual (the MAE's optimum; one number over all the links, alike for every
 variant). Cost: (1 + alternatives) evaluations of the scoring links per flagged material.
 
-An alternative replaces the fitted value only when its error is no larger than the fitted value's (PREFER_MARGIN_DB
-of 0): the scoring links then cannot prefer the unphysical value, and the physical one carries to where they do
-not reach. Where the links tell them apart the fit stays what it was: a tabulated material that merely fits about
-as well is the tabulated step's decision (rfir_stages.model.tabulated, one standard error), not this check's.
+An alternative replaces the fitted value only when the links scored are links the fit did not use and its error
+there is no larger than the fitted value's (PREFER_MARGIN_DB of 0): those links then cannot prefer the unphysical
+value, and the physical one carries to where they do not reach. On the links the values were fitted to, the check
+names the alternatives and changes nothing: the fitted value's error there has the fit's optimism, and a tabulated
+material that merely fits about as well is the tabulated step's decision (rfir_stages.model.tabulated, one standard
+error), not this check's.
 """
 from __future__ import annotations
 
@@ -52,7 +54,8 @@ S_ALTERNATIVES = (0.5, 0.2)     # the lower S scored for an S at the top of its 
 @dataclass
 class MaterialFlag:
     """A flagged material: index, name, surface class, what is implausible (words), the variants scored
-    {label: MAE dB} (the fitted value first, under "fitted"), and the label taken ("" where the fit stays)."""
+    {label: MAE dB} (the fitted value first, under "fitted"), the label taken ("" where the fit stays) and its
+    table key ("" for an S)."""
 
     index: int
     name: str
@@ -60,6 +63,7 @@ class MaterialFlag:
     reason: str
     maes_db: dict = field(default_factory=dict)
     taken: str = ""
+    taken_key: str = ""
 
     def words(self, links_words: str) -> str:
         """'floor: fitted metal-like (sigma 2.4e+07 S/m), MAE 3.10 dB; concrete 20.0 cm: 3.40 dB; ...'."""
@@ -117,7 +121,7 @@ def alternatives(surface: str, reason: str, freq_hz: float, sigma_exponent: floa
             if law[4] <= f_ghz <= law[5]:
                 th = TYPICAL_THICKNESS_M[key]
                 eps, sig = tabulated_values(key, freq_hz, sigma_exponent)
-                out.append((f"{key.replace('_', ' ')} {th * 100:g} cm", {"eps_r": eps, "sigma_1ghz": sig,
+                out.append((f"{key.replace('_', ' ')} {th * 100:g} cm", {"key": key, "eps_r": eps, "sigma_1ghz": sig,
                                                                        "thickness_m": th}))
     if "scattering" in reason:
         out += [(f"S {s:g}", {"scattering": s}) for s in S_ALTERNATIVES]
@@ -125,10 +129,11 @@ def alternatives(surface: str, reason: str, freq_hz: float, sigma_exponent: floa
 
 
 def check_materials(predict_db: Callable[[MaterialParams], torch.Tensor], params: MaterialParams, target_db,
-                    rows: list[dict], freq_hz: float) -> list[MaterialFlag]:
+                    rows: list[dict], freq_hz: float, held_out: bool) -> list[MaterialFlag]:
     """Flag the materials of `params` (rows: material_rows of it, one per material) and score their alternatives
-    on the links of predict_db(params) -> [M, K] dB against target_db [M, K] dB (module docstring). An alternative
-    no worse than the fitted value by PREFER_MARGIN_DB is put into `params` in place (flag.taken)."""
+    on the links of predict_db(params) -> [M, K] dB against target_db [M, K] dB (module docstring). held_out: the
+    links are links the fit did not use; then an alternative no worse than the fitted value by PREFER_MARGIN_DB is
+    put into `params` in place (flag.taken, flag.taken_key: its table key, "" for an S)."""
     flags = []
     for i, row in enumerate(rows):
         reasons = flag_reasons(row, not params.half_space)
@@ -139,14 +144,14 @@ def check_materials(predict_db: Callable[[MaterialParams], torch.Tensor], params
         keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
         best = None
         for label, kw in alternatives(flag.surface, flag.reason, freq_hz, params.sigma_exponent):
-            params.set_values(i, **kw)
+            params.set_values(i, **{k: v for k, v in kw.items() if k != "key"})
             flag.maes_db[label] = held_out_mae(predict_db, params, target_db)
             params.load_state_dict(keep)
             if best is None or flag.maes_db[label] < flag.maes_db[best[0]]:
                 best = (label, kw)
-        if best is not None and flag.maes_db[best[0]] <= flag.maes_db["fitted"] + PREFER_MARGIN_DB:
-            params.set_values(i, **best[1])
-            flag.taken = best[0]
+        if held_out and best is not None and flag.maes_db[best[0]] <= flag.maes_db["fitted"] + PREFER_MARGIN_DB:
+            params.set_values(i, **{k: v for k, v in best[1].items() if k != "key"})
+            flag.taken, flag.taken_key = best[0], best[1].get("key", "")
         flags.append(flag)
     return flags
 

@@ -289,8 +289,8 @@ def _check_materials(links, res, target_db: np.ndarray, fit: np.ndarray, room, t
                      names: list[str], devices):
     """(material_checks.check_materials flags of the fit `res`, the links they were scored on in words): on the
     training links the fit did not use where there are any (none with device gains, which fit every link), else
-    on the fitted links (where the fitted values have the fit's optimism). An alternative taken is put into
-    res.params."""
+    on the fitted links (where the fitted values have the fit's optimism, and no alternative is taken). An
+    alternative taken is put into res.params."""
     check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
     if check is None:
         pred, tgt = training_predictor(links, torch.as_tensor(target_db[fit, None]), devices), target_db[fit, None]
@@ -300,7 +300,7 @@ def _check_materials(links, res, target_db: np.ndarray, fit: np.ndarray, room, t
         on = f"{plural(len(tgt), 'training link')} the fit did not use"
     with torch.no_grad():
         rows = material_rows(res.params.values(), names, freq_hz)
-    flags = check_materials(pred, res.params, tgt, rows, freq_hz)
+    flags = check_materials(pred, res.params, tgt, rows, freq_hz, held_out=check is not None)
     if any(f.taken for f in flags):
         with torch.no_grad():
             fitted = training_predictor(links, torch.as_tensor(target_db[fit, None]), devices)(res.params)
@@ -491,6 +491,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             progress.log(f"device gains ({side}, {len(g)} devices): mean {g.mean():+.2f} dB, spread {g.std():.2f} dB, "
                          f"range {g.min():+.2f} .. {g.max():+.2f} dB; devices the fit did not see get 0 dB")
     flags, flags_on = _check_materials(links, res, target_db, fit, room, tx, rx, freq_hz, band, names, devices)
+    for f in flags:
+        if f.taken_key:
+            tabulated[f.index] = f.taken_key
     seen = np.zeros(len(names), bool)
     seen[room.material_of_patch[np.unique(links.paths.patch[links.paths.kind > 0].numpy())]] = True
     unseen = [n for n, s in zip(names, seen) if not s]

@@ -56,7 +56,8 @@ def test_a_plausible_fit_is_not_flagged(room_links):
     lk, target, names = room_links
     p = _plausible(len(names))
     assert all(flag_reasons(r) == [] for r in _rows(p, names))
-    assert check_materials(training_predictor(lk, torch.as_tensor(target)), p, target, _rows(p, names), F) == []
+    pred = training_predictor(lk, torch.as_tensor(target))
+    assert check_materials(pred, p, target, _rows(p, names), F, held_out=True) == []
 
 
 def test_each_threshold_flags_its_surface_and_not_an_object_or_a_named_metal(room_links):
@@ -83,7 +84,13 @@ def test_a_metal_floor_is_scored_against_its_alternatives_and_the_scores_are_dir
     p = _plausible(len(names))
     p.set_values(floor, eps_r=1.0, sigma_1ghz=METAL_SIGMA_S_PER_M, thickness_m=0.002)
     fitted_mae = _direct_mae(lk, target, p)
-    flags = check_materials(training_predictor(lk, torch.as_tensor(target)), p, target, _rows(p, names), F)
+    pred = training_predictor(lk, torch.as_tensor(target))
+    keep = {k: v.clone() for k, v in p.state_dict().items()}
+    on_fitted = check_materials(pred, p, target, _rows(p, names), F, held_out=False)
+    # on the links the values were fitted to the alternatives are named and nothing is taken
+    assert [f.name for f in on_fitted] == ["floor"] and on_fitted[0].taken == ""
+    assert all(torch.equal(v, keep[k]) for k, v in p.state_dict().items())
+    flags = check_materials(pred, p, target, _rows(p, names), F, held_out=True)
     assert [f.name for f in flags] == ["floor"]
     f = flags[0]
     assert list(f.maes_db) == ["fitted", "concrete 20 cm", "wood 3 cm"]      # floorboard is tabulated above 2.4 GHz
@@ -95,7 +102,8 @@ def test_a_metal_floor_is_scored_against_its_alternatives_and_the_scores_are_dir
         assert f.maes_db[label] == pytest.approx(_direct_mae(lk, target, q), rel=1e-9)
     # the closed form's floor is a dielectric: an alternative does better than the metal, and is taken
     best = min(("concrete 20 cm", "wood 3 cm"), key=f.maes_db.get)
-    assert f.maes_db[best] < f.maes_db["fitted"] and f.taken == best
+    assert f.maes_db[best] < f.maes_db["fitted"] and f.taken == best and f.taken_key == best.split()[0]
+    assert on_fitted[0].maes_db == f.maes_db
     assert _rows(p, names)[floor]["sigma_s_per_m"] < 1.0 and flag_reasons(_rows(p, names)[floor]) == []
     line = f.words("the fitted links")
     assert line.startswith("floor: fitted metal-like (sigma ") and f"{best}: {f.maes_db[best]:.2f} dB" in line
@@ -110,7 +118,7 @@ def test_an_alternative_worse_than_the_fitted_value_is_not_taken(room_links):
     with torch.no_grad():
         exact = pred(p).numpy()                # the links measured as this state predicts them: it fits exactly
     keep = {k: v.clone() for k, v in p.state_dict().items()}
-    flags = check_materials(pred, p, exact, _rows(p, names), F)
+    flags = check_materials(pred, p, exact, _rows(p, names), F, held_out=True)
     assert [f.name for f in flags] == ["wall_a"] and flags[0].maes_db["fitted"] == pytest.approx(0.0, abs=1e-9)
     assert all(v > 0 for k, v in flags[0].maes_db.items() if k != "fitted") and flags[0].taken == ""
     assert all(torch.equal(v, keep[k]) for k, v in p.state_dict().items())     # the fit stays what it was
