@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from rfir_core.artifacts import read_artifact
-from rfir_core.errors import InputFileError, StageError
+from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_stages.model.links import check_overlap, geometry_from_artifact
 from rfir_stages.model.occlusion import make_provider
 from rfir_stages.model.radio_model import load_model
@@ -136,8 +136,11 @@ def _predict_measured(rf, meas, task: str, progress) -> tuple[dict, np.ndarray |
     freqs, why = prediction_frequencies(radio, np.asarray(meas["freq_hz"], np.float64))
     if freqs.size == 0:
         raise StageError("the model predicts none of the measured frequencies", path=rf.path)
-    if task == "rssi":
-        radio.predictor.check_frequencies(freqs)   # one line before any tracing
+    if task == "rssi":   # one line naming the measurements, before any tracing
+        try:
+            radio.predictor.check_frequencies(freqs)
+        except ConfigError as err:
+            raise InputFileError(f"the measured {err}", path=meas.path) from None
     aspect, rng = meas.get("aspect_rad"), meas.get("range_m")
     pg = radio.predict(tx, rx, freqs, progress=progress)
     pg = apply_recorded_effects(rf, pg, tx, rx, freqs, aspect_rad=aspect, range_m=rng)

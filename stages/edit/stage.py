@@ -111,7 +111,10 @@ def run(rf_path, out_path, edits: list[Edit], *, dry_run: bool = False, allow_em
 
             # loaded now so that a frequency outside its range is refused before the edited artifact is written
             before_model = load_model(art, quantity="rssi")
-            before_model.predictor.check_frequencies([freq_hz])
+            try:
+                before_model.predictor.check_frequencies([freq_hz])
+            except ConfigError as err:
+                raise ConfigError(f"--freq {freq_hz:g}: {err}") from None
     fields, free_keys = per_gaussian_keys(art)
     arrays = {k: np.array(art[k], copy=True) for k in fields}
     arrays.update({f"{g}/{k}": np.array(art.free[g][k], copy=True) for g, k in free_keys})

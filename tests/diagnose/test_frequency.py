@@ -96,7 +96,7 @@ def test_diagnose_refuses_measurements_outside_the_material_laws_range(air_room,
     r = _invoke("diagnose", air_room, meas, "-o", tmp_path / "report")
     lines = [x for x in r.output.splitlines() if x.strip()]
     assert r.exit_code != 0 and "Traceback" not in r.output, r.output
-    assert len(lines) == 1 and "150 GHz is outside 1-100 GHz" in lines[0], r.output
+    assert len(lines) == 1 and "meas.h5: the measured frequency 150 GHz is outside 1-100 GHz" in lines[0], r.output
 
 
 class _Model:

@@ -90,5 +90,5 @@ def test_edit_cli_prints_the_frequency_and_refuses_one_outside_the_range(air_roo
     r = invoke("edit", air_room, "-o", tmp_path / "g.h5", *common, "--plot", tmp_path / "g.png", "--freq", "500e9")
     lines = [x for x in r.output.splitlines() if x.strip()]
     assert r.exit_code != 0 and "Traceback" not in r.output, r.output
-    assert len(lines) == 1 and "500 GHz is outside 1-100 GHz" in lines[0], r.output
+    assert len(lines) == 1 and "--freq 5e+11: frequency 500 GHz is outside 1-100 GHz" in lines[0], r.output
     assert not (tmp_path / "g.h5").exists()
