@@ -76,13 +76,18 @@ class MaterialFlag:
 
 
 def surface_class(name: str) -> str | None:
-    """"floor", "ceiling" or "wall" from a material's name (wall_a, partition, floor_1), or None."""
+    """"floor", "ceiling" or "wall" from a material's name (wall_a, partition, floor_1, ceiling_concrete), or None.
+    A name that names a tabulated building material and no floor or ceiling is a wall ("concrete", "glass": rfir
+    import floorplan labels each wall by its material)."""
     low = str(name).lower()
     for cls, pattern in (("floor", r"floor(?!board)"), ("ceiling", r"ceiling(?!_board)"),
                          ("wall", r"wall|partition")):
         if re.search(rf"(^|[^a-z]){pattern}", low):
             return cls
-    return None
+    named = named_material(name)
+    if named is None or named == "metal" or named.endswith("_ground"):
+        return None
+    return {"floorboard": "floor", "ceiling_board": "ceiling"}.get(named, "wall")
 
 
 def flag_reasons(row: dict, thickness_known: bool = True) -> list[str]:
@@ -96,7 +101,10 @@ def flag_reasons(row: dict, thickness_known: bool = True) -> list[str]:
         out.append(f"metal-like (sigma {row['sigma_s_per_m']:.3g} S/m, |Gamma(0)| {row['gamma_normal_abs']:.2f})")
     if row["scattering"] >= S_TOP:
         out.append(f"scattering S {row['scattering']:.2f} (top of its range)")
-    if cls == "wall" and thickness_known and row["thickness_m"] < MIN_WALL_THICKNESS_M:
+    # a material named by one that is thin itself (glass 1 cm, plasterboard 1.25 cm) may be as thin as that
+    named = named_material(row["material"])
+    thin_built = named is not None and TYPICAL_THICKNESS_M.get(named, MIN_WALL_THICKNESS_M) < MIN_WALL_THICKNESS_M
+    if cls == "wall" and thickness_known and not thin_built and row["thickness_m"] < MIN_WALL_THICKNESS_M:
         out.append(f"{row['thickness_m'] * 100:.1f} cm thick")
     return out
 
@@ -109,14 +117,18 @@ def held_out_mae(predict_db: Callable[[MaterialParams], torch.Tensor], params: M
     return float(np.abs(res - np.median(res)).mean())
 
 
-def alternatives(surface: str, reason: str, freq_hz: float, sigma_exponent: float) -> list[tuple[str, dict]]:
+def alternatives(surface: str, reason: str, freq_hz: float, sigma_exponent: float,
+                 named: str | None = None) -> list[tuple[str, dict]]:
     """(label, MaterialParams.set_values keywords) of the variants scored for a flag: the class's tabulated
-    materials valid at freq_hz [Hz] (in MaterialParams' law with sigma_exponent) for a metal-like or thin fit,
-    lower S for an S at the top of its range."""
+    materials valid at freq_hz [Hz] (in MaterialParams' law with sigma_exponent; the one the material's name
+    names first, `named`, three in all) for a metal-like or thin fit, lower S for an S at the top of its range."""
     out = []
     if "metal-like" in reason or "thick" in reason:
         f_ghz = float(freq_hz) / 1e9
-        for key in CLASS_ALTERNATIVES[surface]:
+        keys = CLASS_ALTERNATIVES[surface]
+        if named in TYPICAL_THICKNESS_M and named != "metal":
+            keys = (named, *(k for k in keys if k != named))[:3]
+        for key in keys:
             law = ITU_MATERIALS[key]
             if law[4] <= f_ghz <= law[5]:
                 th = TYPICAL_THICKNESS_M[key]
@@ -143,7 +155,8 @@ def check_materials(predict_db: Callable[[MaterialParams], torch.Tensor], params
         flag.maes_db["fitted"] = held_out_mae(predict_db, params, target_db)
         keep = {k: v.detach().clone() for k, v in params.state_dict().items()}
         best = None
-        for label, kw in alternatives(flag.surface, flag.reason, freq_hz, params.sigma_exponent):
+        for label, kw in alternatives(flag.surface, flag.reason, freq_hz, params.sigma_exponent,
+                                      named_material(row["material"])):
             params.set_values(i, **{k: v for k, v in kw.items() if k != "key"})
             flag.maes_db[label] = held_out_mae(predict_db, params, target_db)
             params.load_state_dict(keep)

@@ -48,8 +48,20 @@ def _direct_mae(lk, target, p: MaterialParams) -> float:
 
 def test_surface_classes_come_from_the_names():
     assert [surface_class(n) for n in ("floor", "ceiling", "wall_a", "partition", "floorboard", "table_00",
-                                       "ceiling_board", "Floor_2")] == \
-        ["floor", "ceiling", "wall", "wall", None, None, None, "floor"]
+                                       "ceiling_board", "Floor_2", "floor_concrete", "concrete", "glass", "metal",
+                                       "metal_cabinet")] == \
+        ["floor", "ceiling", "wall", "wall", "floor", None, "ceiling", "floor", "floor", "wall", "wall", None, None]
+
+
+def test_a_floor_plan_wall_named_by_its_material_is_checked_against_that_material_first():
+    from rfir_stages.model.material_checks import alternatives
+
+    row = {"material": "brick", "sigma_s_per_m": 0.05, "gamma_normal_abs": 0.3, "scattering": 0.2,
+           "thickness_m": 0.009}
+    assert flag_reasons(row) == ["0.9 cm thick"]
+    assert flag_reasons(dict(row, material="glass")) == []              # a pane is as thin as that
+    assert [a[0] for a in alternatives("wall", "0.9 cm thick", F, 1.0, "brick")] == \
+        ["brick 15 cm", "concrete 20 cm", "plasterboard 1.25 cm"]
 
 
 def test_a_plausible_fit_is_not_flagged(room_links):
