@@ -2,8 +2,8 @@
 
 A room fit can end with a floor fitted as a metal, every wall at scattering S 1.0 or a wall 9 mm thick: values
 that explain the training links but not what the surface is, and that mislead where the survey does not reach.
-After the fit, each material whose name gives its surface class (floor, ceiling, wall; a name that names metal is
-left alone) is checked against the thresholds below; each flagged material is then replaced in turn by two or
+After the fit, each material whose name gives its surface class (floor, ceiling, wall, or a building material a
+floor-plan wall is labelled by; a name that names metal is left alone) is checked against the thresholds below; each flagged material is then replaced in turn by two or
 three tabulated materials of its class (ITU-R P.2040 at their typical thickness, its S kept) or, for an S at the
 top of its range, by lower S, the other materials left as fitted, and every variant is scored by its mean
 absolute dB error on the scoring links (links the fit did not use where there are any), the system gain refitted
