@@ -173,3 +173,45 @@ def test_rf_fit_names_the_flags_with_their_alternatives_in_its_output_the_artifa
     assert info.exit_code == 0 and sum("implausible for its surface" in s for s in info.output.splitlines()) \
         == sum(map(bool, checks))
     assert re.search(r"\[fitted .*implausible for its surface", r.output)
+
+
+def test_on_links_the_fit_did_not_use_an_alternative_no_worse_replaces_the_fitted_value(tmp_path):
+    """rf_fit.room.fit_links below the training links: the check scores on the links the fit left out, and a
+    material replaced there is stored with the tabulated values of the alternative taken (and its key)."""
+    import re
+
+    from typer.testing import CliRunner
+
+    from rfir_cli.main import app
+    from rfir_core.artifacts import read_artifact
+    from rfir_stages.model.tabulated import tabulated_values
+
+    from .helpers import write_measurements, write_scene
+
+    write_scene(tmp_path / "scene.h5", spacing_m=0.3)
+    write_measurements(tmp_path / "meas.h5")
+    fast = ["--set", "rf_fit.physical.iterations=30", "--set", "rf_fit.physical.start_iterations=8",
+            "--set", "rf_fit.room.reflection_ranges=false", "--set", "rf_fit.room.map_visibility=false",
+            "--set", "rf_fit.room.fit_links=50"]
+    r = CliRunner().invoke(app, [*fast, "rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"),
+                                 "-o", str(tmp_path / "rf.h5")], terminal_width=400)
+    assert r.exit_code == 0, r.output
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    attrs = rf.free["model@attrs"]
+    names = [str(n) for n in attrs["material_names"]]
+    lines = [(i, str(c)) for i, c in enumerate(attrs["material_check"]) if str(c)]
+    assert lines and all("MAE on 46 training links the fit did not use" in c for _, c in lines)
+    assert any("taken: " in c for _, c in lines)          # this room's closed form has no walls: a thin one is taken
+    for i, line in lines:
+        taken = re.search(r"taken: (\w+) ([\d.]+) cm", line)
+        if taken is None:
+            continue
+        key, th_cm = taken.group(1), float(taken.group(2))
+        maes = dict(re.findall(r"; ([\w ]+? [\d.]+ cm): ([\d.]+) dB", line))
+        fitted = float(re.search(r"did not use ([\d.]+) dB", line).group(1))
+        assert float(maes[f"{key} {taken.group(2)} cm"]) <= fitted                  # no worse on those links
+        eps, sig = tabulated_values(key, 2.4e9, float(attrs.get("sigma_exponent", 1.0)))
+        assert rf["material/eps_r"][i] == pytest.approx(eps, rel=1e-9)
+        assert rf["material/sigma_1ghz_s_per_m"][i] == pytest.approx(sig, rel=1e-9)
+        assert rf["material/thickness_m"][i] == pytest.approx(th_cm / 100, rel=1e-9)
+        assert str(attrs["material_tabulated"][i]) == key, names[i]
