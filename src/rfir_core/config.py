@@ -98,9 +98,11 @@ def _coerce(default, value, dotted: str, origin: str):
     raise ConfigError(f"'{dotted}' in {origin} must be {type(default).__name__}, got {value!r}")
 
 
-# numeric keys whose default is not negative but whose value may be (an offset, a phase, "-1: every core")
+# numeric keys whose default is not negative but whose value may be (an offset, a phase, "-1: every core",
+# a grid margin: negative puts receivers outside the walls)
 SIGNED = frozenset({"calibrate.sfm.num_threads", "simulate.measurement.gain_offset_db",
-                    "simulate.measurement.leakage_phase_deg", "simulate.measurement.aspect_offset_deg"})
+                    "simulate.measurement.leakage_phase_deg", "simulate.measurement.aspect_offset_deg",
+                    "simulate.rssi.rx_margin_m"})
 # words in a key that make it a share of a whole, in [0, 1]
 SHARE_WORDS = ("fraction", "opacity", "share")
 # words in a key whose value must be strictly positive (a step size, a prior's width)

@@ -1,11 +1,7 @@
 """Ray tracing with calibrated materials (baseline): Sionna RT on a mesh, one radio material per object
 class, its relative permittivity and conductivity fitted to training links by gradient descent through
-Sionna's differentiable path solver (Dr.Jit automatic differentiation).
-
-    python -m rfir_stages.baselines.sionna_calibrated MESH.ply MEASUREMENTS.h5 --split random|holdout_tx
-        --results results/NAME.json [--iterations 40] [--links 400] [--tx-per-step 4] [--depth D]
-        [--samples N] [--lr 0.1] [--lr-decay 0.1] [--material concrete] [--thickness 0.2]
-        [--learn-thickness] [--seed 0]
+Sionna's differentiable path solver (Dr.Jit automatic differentiation). Command line:
+scripts/baseline_sionna_calibrated.py.
 
 What a radio engineer does first with a ray tracer and a few measurements:
 - classes: a labelled mesh (`rfir simulate`'s meshes/<scene>_gt.ply, face labels, names in the
@@ -34,11 +30,9 @@ What a radio engineer does first with a ray tracer and a few measurements:
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import re
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
@@ -50,6 +44,10 @@ from rfir_core.errors import ConfigError, InputFileError, RfirError, StageError
 
 GLOBAL_CLASS = "all"
 SPLITS = ("random", "holdout_tx")
+
+
+def _silent(message: str) -> None:
+    """The default `say`: progress lines are the caller's to show (the script prints them)."""
 
 
 @dataclass
@@ -271,7 +269,7 @@ def link_groups(train: np.ndarray, tx_id: np.ndarray, rx_id: np.ndarray, links: 
 
 
 def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, freq_hz, s: CalibSettings,
-              say=print) -> dict:
+              say=_silent) -> dict:
     """Adam on theta over the subsample (`link_groups`: receiver ids, rows per transmitter); returns
     theta, per-step batch losses and the subsample MAE before / after."""
     import drjit as dr
@@ -352,7 +350,7 @@ def calibrate(scene, mats: ClassMaterials, tx, rx, tx_id, rx_id, y, subsample, f
 # --------------------------------------------------------------------------------------------
 # the baseline
 # --------------------------------------------------------------------------------------------
-def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=print) -> dict:
+def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=_silent) -> dict:
     """Calibrate on the training rows, predict every link, score the test rows; writes results_path."""
     from rfir_core.artifacts import read_artifact
     from rfir_core.progress import NullProgress
@@ -437,47 +435,3 @@ def run(mesh_path, meas_path, split: str, results_path, s: CalibSettings, say=pr
     tmp.write_text(json.dumps(out, indent=2) + "\n")
     tmp.replace(results_path)      # never a half-written results file
     return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    d = CalibSettings()
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("mesh", help="PLY mesh (face labels + labels.json: one material per class; else one material)")
-    ap.add_argument("measurements", help="RSSI measurements artifact (rfir simulate)")
-    ap.add_argument("--split", choices=SPLITS, default="random")
-    ap.add_argument("--results", required=True)
-    ap.add_argument("--material", default=d.material, help="guessed ITU material every class starts from")
-    ap.add_argument("--thickness", type=float, default=d.thickness_m, help="slab thickness at the start, m")
-    ap.add_argument("--learn-thickness", action="store_true", help="calibrate each class's slab thickness too")
-    ap.add_argument("--iterations", type=int, default=d.iterations)
-    ap.add_argument("--lr", type=float, default=d.lr)
-    ap.add_argument("--lr-decay", type=float, default=d.lr_decay, help="last step size / first")
-    ap.add_argument("--links", type=int, default=d.links, help="training links in the calibration subsample")
-    ap.add_argument("--tx-per-step", type=int, default=d.tx_per_step)
-    ap.add_argument("--depth", type=int, default=d.max_depth,
-                    help="bounces of the calibration solves (default: the prediction's, configs/simulate.toml)")
-    ap.add_argument("--samples", type=int, default=d.samples_per_src, help="rays per transmitter of the calibration "
-                    "solves (default: the prediction's)")
-    ap.add_argument("--seed", type=int, default=d.seed)
-    a = ap.parse_args(argv)
-    s = CalibSettings(material=a.material, thickness_m=a.thickness, iterations=a.iterations, lr=a.lr,
-                      lr_decay=a.lr_decay, learn_thickness=a.learn_thickness, links=a.links,
-                      tx_per_step=a.tx_per_step, max_depth=a.depth,
-                      samples_per_src=a.samples, seed=a.seed)
-    try:
-        out = run(a.mesh, a.measurements, a.split, a.results, s, say=lambda m: print(m, flush=True))
-    except RfirError as exc:
-        print(f"error: sionna-calibrated: {exc}", file=sys.stderr)
-        return getattr(exc, "exit_code", 1)
-    m = out["metrics"]
-    print(f"sionna-calibrated: test MAE {m['mae_db']:.3f} dB, train MAE {m['mae_train_db']:.3f} dB "
-          f"({m['num_test']} test links), {out['wall_time_s']:.0f} s; results {a.results}")
-    for c, v in out["materials"].items():
-        print(f"  {c:16s} eps_r {v['eps_r']:7.3f}  sigma {v['sigma_s_per_m']:.4g} S/m  "
-              f"thickness {v['thickness_m']:.4g} m")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

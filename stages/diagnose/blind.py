@@ -1,14 +1,11 @@
 """A blind test of `rfir diagnose`: cases with hidden effects injected into copies of simulated data,
-diagnosed without their answers, then scored.
-
-    python -m rfir_stages.diagnose.blind make DATA [--quick]   # simulate (cached) and write the cases
-    python -m rfir_stages.diagnose.blind run DATA OUT [--quick] # make if needed, diagnose, score
+diagnosed without their answers, then scored (command line: scripts/diagnose_blind.py).
 
 Two small scenes are simulated once with `rfir simulate` (the classroom's RSSI links, 6 Tx x 110 Rx with
 receivers also outside the walls; the lego on a physical-optics turntable, 360 aspects) and cached in
 DATA/scenes. Each case is a folder DATA/cases/case_NN with the clean simulation as the model and a copy of
 its measurements with the hidden effect(s) and 0.5 dB of Gaussian noise. The answers are written apart,
-to DATA/answers.json; case numbers are shuffled so a name says nothing. `run` diagnoses every case reading
+to DATA/answers.json; case numbers are shuffled so a name says nothing. `run_set` diagnoses every case reading
 only its two files (and the room's geometry for the crossings), and opens the answers only to score:
 a case is right when the named effects are the hidden ones (for an effect outside the catalogue: nothing
 named and the headline says "structure the model lacks" by the right axis; for the negative: nothing
@@ -16,7 +13,6 @@ named), and every named step shrinks the held-out gap. OUT/diagnose_blind.{json,
 """
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import subprocess
@@ -242,29 +238,15 @@ def write_table(rows: list[dict], out_dir: Path) -> None:
     (out_dir / "diagnose_blind.md").write_text("\n".join(lines) + "\n")
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rfir_stages.diagnose.blind", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="cmd", required=True)
-    m = sub.add_parser("make", help="simulate (cached) and write the cases and their answers")
-    m.add_argument("data", type=Path)
-    m.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
-    r = sub.add_parser("run", help="make if needed, diagnose every case blind, then score")
-    r.add_argument("data", type=Path)
-    r.add_argument("out", type=Path)
-    r.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
-    a = p.parse_args(argv)
-    if a.cmd == "make":
-        make(a.data, a.quick)
-        return 0
-    if not (a.data / "answers.json").exists():
-        make(a.data, a.quick)
-    a.out.mkdir(parents=True, exist_ok=True)
-    said = diagnose_cases(a.data, a.out)
-    rows = score(said, json.loads((a.data / "answers.json").read_text()))
-    write_table(rows, a.out)
-    print((a.out / "diagnose_blind.md").read_text())
-    return 0
+def run_set(data_dir: Path, out_dir: Path, quick: bool = False) -> list[dict]:
+    """Make the cases if DATA has none, diagnose every case blind, score, write OUT/diagnose_blind.{json,md}.
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+    quick: only the QUICK cases. Returns the score's rows (one per case)."""
+    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    if not (data_dir / "answers.json").exists():
+        make(data_dir, quick)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    said = diagnose_cases(data_dir, out_dir)
+    rows = score(said, json.loads((data_dir / "answers.json").read_text()))
+    write_table(rows, out_dir)
+    return rows

@@ -1,6 +1,5 @@
-"""Full-wave check of the PO backend: BEM (EFIE) vs `rfir_stages.po` on a PEC plate and a dihedral.
-
-    python -m rfir_stages.fullwave.compare --out results/fullwave [--aspects 360] [--plate-n 24] [--dihedral-n 17]
+"""Full-wave check of the PO backend: BEM (EFIE) vs `rfir_stages.po` on a PEC plate and a dihedral
+(command line: scripts/fullwave_compare.py).
 
 Monostatic, far field, 2.4 GHz, V polarisation (E along the plate edge / the dihedral fold), aspects
 in the x-y plane. Writes `<out>/fullwave_vs_po.json` (curves, gaps by region, timings) and
@@ -8,7 +7,6 @@ in the x-y plane. Writes `<out>/fullwave_vs_po.json` (curves, gaps by region, ti
 """
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -115,24 +113,17 @@ def plot(cases: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--aspects", type=int, default=360)
-    ap.add_argument("--plate-n", type=int, default=24, help="quads per plate side (24: edges lambda/10 at 2.4 GHz)")
-    ap.add_argument("--dihedral-n", type=int, default=17, help="quads per side of each dihedral face")
-    a = ap.parse_args(argv)
-    cases = [run_case("plate", a.plate_n, a.aspects), run_case("dihedral", a.dihedral_n, a.aspects)]
-    a.out.mkdir(parents=True, exist_ok=True)
-    tmp = a.out / "fullwave_vs_po.json.part"
-    tmp.write_text(json.dumps({"command": f"python -m rfir_stages.fullwave.compare --out {a.out} "
-                               f"--aspects {a.aspects} --plate-n {a.plate_n} --dihedral-n {a.dihedral_n}",
-                               "cases": cases}, indent=1))
-    tmp.replace(a.out / "fullwave_vs_po.json")
-    plot(cases, a.out / "fullwave_vs_po.png")
-    for c in cases:
-        print(c["kind"], json.dumps({k: c[k] for k in ("broadside", "bisector", "timings", "regions") if k in c}, indent=1))
+def write_check(out: Path, aspects: int = 360, plate_n: int = 24, dihedral_n: int = 17,
+                command: str = "") -> list[dict]:
+    """Run both cases and write <out>/fullwave_vs_po.json (with `command`, the line that made it) and .png.
 
-
-if __name__ == "__main__":
-    main()
+    aspects: aspect count over 360 degrees; plate_n / dihedral_n: quads per side of the plate / of each
+    dihedral face (24: edges lambda/10 at 2.4 GHz). Returns the cases (run_case's dicts)."""
+    cases = [run_case("plate", plate_n, aspects), run_case("dihedral", dihedral_n, aspects)]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / "fullwave_vs_po.json.part"
+    tmp.write_text(json.dumps({"command": command, "cases": cases}, indent=1))
+    tmp.replace(out / "fullwave_vs_po.json")     # never a half-written check
+    plot(cases, out / "fullwave_vs_po.png")
+    return cases

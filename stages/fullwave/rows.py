@@ -1,17 +1,15 @@
-"""rfir's RCS protocols on full-wave data: the BEM curves of the full-wave check as measurements.
-
-    python -m rfir_stages.fullwave.rows results/reproduce/fullwave/fullwave_vs_po.json OUT [--range 10]
+"""rfir's RCS protocols on full-wave data: the BEM curves of the full-wave check as measurements
+(command line: scripts/fullwave_rows.py).
 
 For each case of the check (a 0.3 m PEC plate and a dihedral of two such plates; 2.4 GHz, V, 360
-monostatic aspects in the x-y plane) writes OUT/<kind>.csv (a turntable measurement for `rfir import
-csv`: isotropic antennas, `power = rcs`, the radar at --range m, even aspects `train` and odd `test`)
-and OUT/<kind>.ply (the same screen as a triangle mesh for `rfir mesh-gaussians`, no labels: the
+monostatic aspects in the x-y plane) writes <out>/<kind>.csv (a turntable measurement for `rfir import
+csv`: isotropic antennas, `power = rcs`, the radar at range_m, even aspects `train` and odd `test`)
+and <out>/<kind>.ply (the same screen as a triangle mesh for `rfir mesh-gaussians`, no labels: the
 material is fitted). The BEM is far-field; the range only has to be far enough for the object
 (2 D^2 / lambda = 1.4 m here). The commands that score rfir on them are in docs/results.md.
 """
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -43,22 +41,19 @@ def write_csv(path: Path, case: dict, range_m: float) -> None:
     path.write_text("\n".join(rows) + "\n")
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("check", type=Path, help="fullwave_vs_po.json of `python -m rfir_stages.fullwave.compare`")
-    ap.add_argument("out", type=Path)
-    ap.add_argument("--range", type=float, default=10.0, dest="range_m", help="radar range, m")
-    a = ap.parse_args(argv)
-    cases = json.loads(a.check.read_text())["cases"]
-    a.out.mkdir(parents=True, exist_ok=True)
+def write_rows(check: Path, out: Path, range_m: float = 10.0) -> list[tuple[Path, Path, int]]:
+    """Write <out>/<kind>.csv and <out>/<kind>.ply for every case of the check's JSON `check`.
+
+    range_m: radar range, m. Returns (csv path, ply path, aspects) per case."""
+    cases = json.loads(Path(check).read_text())["cases"]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
     for case in cases:
         kind = case["kind"]
         size = float(case["size_m"])
         v, f = plate_screen(size, COARSE_QUADS) if kind == "plate" else dihedral_screen(size, size, COARSE_QUADS)
-        write_ply(a.out / f"{kind}.ply", v, f)
-        write_csv(a.out / f"{kind}.csv", case, a.range_m)
-        print(f"wrote {a.out / kind}.csv ({len(case['phi_deg'])} aspects) and {kind}.ply")
-
-
-if __name__ == "__main__":
-    main()
+        write_ply(out / f"{kind}.ply", v, f)
+        write_csv(out / f"{kind}.csv", case, range_m)
+        written.append((out / f"{kind}.csv", out / f"{kind}.ply", len(case["phi_deg"])))
+    return written

@@ -5,7 +5,7 @@ the same split: nearest aspect, linear interpolation, log-distance, multi-wall, 
 NeRF2-style and WRF-GS-style fields: scripts/baseline_nerf2.py and scripts/baseline_wrfgs.py.
 Ray tracing: scripts/baseline_raytrace.py (Sionna RT on a mesh with one guessed ITU material; on a labelled
 mesh, ITU materials per label plus a fitted system gain, and a grid of wall materials and thicknesses chosen on
-the training links) and rfir_stages.baselines.sionna_calibrated (materials per object class calibrated through
+the training links) and scripts/baseline_sionna_calibrated.py (materials per object class calibrated through
 Sionna's gradients).
 """
 from __future__ import annotations
@@ -145,7 +145,7 @@ def raytrace_calibrated(r: Plan, label: str, mesh: Path, meas: Path, split: str,
     by gradient descent on `links` training links of the split, scored on its test links."""
     j = r.json_path(f"{label}__raytrace_calibrated")
     step = r.step(f"{label}__raytrace_calibrated",
-                  [r.python, "-m", "rfir_stages.baselines.sionna_calibrated", str(mesh), str(meas), "--split", split,
+                  [r.python, str(SCRIPTS / "baseline_sionna_calibrated.py"), str(mesh), str(meas), "--split", split,
                    "--iterations", str(iterations), "--links", str(links), "--results", str(j)], j)
     return Result(r, j, step).cell()
 

@@ -1,24 +1,20 @@
-"""A links CSV of a measured survey, thinned for the reproduce workflow's `measured` target.
+"""A links CSV of a measured survey, thinned for the reproduce workflow's `measured` target
+(command line: scripts/survey_thin.py).
 
-    python -m rfir_stages.reproduce.survey LINKS.csv OUT.csv [--every-tx K] [--drop-split]
-
-Keeps the '#' set-up lines and the column header, and the links of every K-th transmitter (by
-tx_id, in increasing order: the quick variant's every third beacon position); --drop-split leaves
+`thin` keeps the '#' set-up lines and the column header, and the links of every K-th transmitter (by
+tx_id, in increasing order: the quick variant's every third beacon position); drop_split leaves
 out the `split` column, so that `rfir import csv --split PROTOCOL` can write another one.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import io
-import sys
-from pathlib import Path
 
 
 def thin(text: str, every_tx: int = 1, drop_split: bool = False) -> tuple[str, int, int]:
     """(the CSV text kept, links kept, transmitters kept) of a links CSV's text."""
     if every_tx < 1:
-        raise ValueError("--every-tx must be >= 1")
+        raise ValueError(f"every_tx must be >= 1, not {every_tx}")
     lines = text.splitlines()
     head = [ln for ln in lines if ln.startswith("#")]
     body = [ln for ln in lines if ln.strip() and not ln.startswith("#")]
@@ -48,26 +44,3 @@ def _number(v: str) -> bool:
         return True
     except ValueError:
         return False
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m rfir_stages.reproduce.survey", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("links", type=Path)
-    ap.add_argument("out", type=Path)
-    ap.add_argument("--every-tx", type=int, default=1, help="keep every K-th transmitter (default 1: all)")
-    ap.add_argument("--drop-split", action="store_true", help="leave out the split column")
-    a = ap.parse_args(argv)
-    try:
-        text, n_links, n_tx = thin(a.links.read_text(), a.every_tx, a.drop_split)
-    except (OSError, ValueError, IndexError) as exc:
-        print(f"error: survey {a.links}: {exc}", file=sys.stderr)
-        return 2
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
-    print(f"{a.out}: {n_links} links of {n_tx} transmitters" + (" (no split column)" if a.drop_split else ""))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -388,7 +388,7 @@ def _measured_data(r: Plan) -> tuple[dict[str, Path], Path]:
     folder = r.data / "measured"
     every = int(r.sizes.get("measured_every_tx", 1))
     links, bare = folder / "links.csv", folder / "links_nosplit.csv"
-    thin = [r.python, "-m", "rfir_stages.reproduce.survey", str(SURVEY / "tetam_links.csv")]
+    thin = [r.python, str(M.SCRIPTS / "survey_thin.py"), str(SURVEY / "tetam_links.csv")]
     r.step("data__measured_links", [*thin, str(links), "--every-tx", str(every)], links)
     r.step("data__measured_links_nosplit", [*thin, str(bare), "--every-tx", str(every), "--drop-split"], bare)
     surveys = {}
@@ -612,11 +612,11 @@ DIAGNOSE = "diagnose_blind"
 
 
 def declare_diagnose(r: Plan) -> str:
-    """The blind diagnose set (stages/diagnose/blind.py, docs/guide/diagnose.md): hidden effects in copies of
+    """The blind diagnose set (scripts/diagnose_blind.py, docs/guide/diagnose.md): hidden effects in copies of
     simulated data, diagnosed without their answers, scored; it writes its own table to
     OUT/diagnose/diagnose_blind.{md,json} (and a report per case)."""
     out = r.out / "diagnose"
-    return r.step(DIAGNOSE, [r.python, "-m", "rfir_stages.diagnose.blind", "run", str(r.data / "diagnose_blind"),
+    return r.step(DIAGNOSE, [r.python, str(M.SCRIPTS / "diagnose_blind.py"), "run", str(r.data / "diagnose_blind"),
                              str(out), *(["--quick"] if r.quick else [])],
                   out / "diagnose_blind.md", [out / "diagnose_blind.json"])
 
@@ -625,11 +625,11 @@ FULLWAVE = "fullwave_po"
 
 
 def declare_fullwave(r: Plan) -> str:
-    """The full-wave check of the PO backend (stages/fullwave/compare.py, docs/po.md): boundary elements
+    """The full-wave check of the PO backend (scripts/fullwave_compare.py, docs/po.md): boundary elements
     against `rfir_stages.po` on a 0.3 m PEC plate and a dihedral, 360 aspects at 2.4 GHz; writes
     OUT/fullwave/fullwave_vs_po.{json,png} (curves, gaps by aspect region, timings). Full variant only."""
     out = r.out / "fullwave"
-    return r.step(FULLWAVE, [r.python, "-m", "rfir_stages.fullwave.compare", "--out", str(out), "--aspects", "360",
+    return r.step(FULLWAVE, [r.python, str(M.SCRIPTS / "fullwave_compare.py"), "--out", str(out), "--aspects", "360",
                              "--plate-n", "16", "--dihedral-n", "12"],
                   out / "fullwave_vs_po.json", [out / "fullwave_vs_po.png"])
 

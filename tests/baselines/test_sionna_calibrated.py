@@ -1,8 +1,10 @@
 """Ray tracing with calibrated materials: the differentiable link power equals the simulator's own path
 combination, class naming follows the room model, calibration from a wrong material moves toward the
 material the data were simulated with and lowers the error, bad input fails in one line."""
+import importlib.util
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from rfir_stages.baselines import sionna_calibrated as sc  # noqa: E402
 from rfir_stages.geom.mesh_io import Mesh  # noqa: E402
 from rfir_stages.simulate.scenes import SceneObject, SceneSpec, wall, write_ply  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[2]
 F_HZ = 2.4e9
 TX = np.array([[-2.0, -0.6, 0.2], [-2.0, 0.5, -0.3], [-1.5, 0.0, 0.4]])
 RX = np.array([[x, y, z] for x in (1.5, 2.5) for y in (-0.8, 0.0, 0.8) for z in (-0.2, 0.3)]
@@ -144,18 +147,27 @@ def test_calibration_moves_toward_the_true_material_and_lowers_the_error(tmp_pat
 def test_a_mesh_without_labels_gets_one_global_material_and_says_so(tmp_path, capsys):
     mesh, meas = _simulate(tmp_path, "plasterboard", labelled=False)
     res = tmp_path / "r.json"
-    rc = sc.main([str(mesh), str(meas), "--split", "holdout_tx", "--results", str(res), "--iterations", "2",
+    rc = _cli().main([str(mesh), str(meas), "--split", "holdout_tx", "--results", str(res), "--iterations", "2",
                   "--links", "10", "--samples", "2000", "--tx-per-step", "1"])
     assert rc != 0 and not res.exists()                  # 3 transmitters: 4 cannot be held out
-    rc = sc.main([str(mesh), str(meas), "--results", str(res), "--iterations", "2", "--links", "10",
+    rc = _cli().main([str(mesh), str(meas), "--results", str(res), "--iterations", "2", "--links", "10",
                   "--samples", "2000", "--tx-per-step", "1"])
     out = json.loads(res.read_text())
     assert rc == 0 and list(out["materials"]) == [sc.GLOBAL_CLASS]
     assert "one global material" in out["materials_scope"] and "one global material" in capsys.readouterr().out
 
 
+def _cli():
+    """scripts/baseline_sionna_calibrated.py, the command line of the baseline, loaded by path."""
+    spec = importlib.util.spec_from_file_location("baseline_sionna_calibrated_cli",
+                                                  ROOT / "scripts" / "baseline_sionna_calibrated.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def _one_line_error(capsys, argv) -> tuple[int, str]:
-    rc = sc.main(argv)
+    rc = _cli().main(argv)
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "Traceback" not in err
     return rc, err

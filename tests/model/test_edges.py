@@ -123,7 +123,7 @@ def _ang(phi, centre):
 
 def test_plate_and_dihedral_against_the_full_wave_curves():
     """The BEM curves of results/reproduce/fullwave/fullwave_vs_po.json (made by `make reproduce-fullwave`:
-    python -m rfir_stages.fullwave.compare --out results/reproduce/fullwave --aspects 360 --plate-n 16
+    python scripts/fullwave_compare.py --out results/reproduce/fullwave --aspects 360 --plate-n 16
     --dihedral-n 12; 0.3 m PEC plate and dihedral, 2.4 GHz, V, far field), every 6th aspect, against the
     model with perfect conductors and nothing fitted (3 cm surfels). Plate off broadside and the plane:
     PO alone is 8 dB low on average, with the edge waves within 1.5 dB MAE; near the plane (PO: no echo)

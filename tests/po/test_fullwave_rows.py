@@ -1,11 +1,22 @@
 """The full-wave rows: BEM curves written as a turntable CSV and a mesh that rfir imports as they are."""
+import importlib.util
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
 
-from rfir_stages.fullwave.rows import main
 from rfir_stages.geom.mesh_io import read_ply_mesh
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _cli():
+    """scripts/fullwave_rows.py loaded by path."""
+    spec = importlib.util.spec_from_file_location("fullwave_rows_cli", ROOT / "scripts" / "fullwave_rows.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def test_curves_round_trip_through_rfir_import(tmp_path):
@@ -18,7 +29,7 @@ def test_curves_round_trip_through_rfir_import(tmp_path):
     case = {"kind": "plate", "size_m": 0.3, "freq_hz": 2.4e9, "polarization": "V", "phi_deg": phi.tolist(),
             "bem_dbsm": rcs.tolist()}
     (tmp_path / "check.json").write_text(json.dumps({"cases": [case]}))
-    main([str(tmp_path / "check.json"), str(tmp_path / "rows")])
+    assert _cli().main([str(tmp_path / "check.json"), str(tmp_path / "rows")]) == 0
     mesh = read_ply_mesh(tmp_path / "rows" / "plate.ply")
     extent = mesh.vertices.max(0) - mesh.vertices.min(0)
     assert np.allclose(sorted(extent), [0.0, 0.3, 0.3])

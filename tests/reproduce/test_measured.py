@@ -2,12 +2,14 @@
 quick variant, imported once per protocol, fitted and scored; its table reads the results."""
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 from rfir_stages.reproduce.survey import thin
 from rfir_stages.reproduce.targets import MEASURED_PROTOCOLS, declare
 
-LINKS = Path(__file__).resolve().parents[1] / "data" / "public_survey" / "tetam_links.csv"
+ROOT = Path(__file__).resolve().parents[2]
+LINKS = ROOT / "tests" / "data" / "public_survey" / "tetam_links.csv"
 
 
 def test_thin_keeps_every_kth_transmitter_and_the_set_up_lines():
@@ -20,6 +22,20 @@ def test_thin_keeps_every_kth_transmitter_and_the_set_up_lines():
     assert header.split(",")[-3:] == ["split", "n_packets", "rssi_std_db"]
     bare, n_all, _ = thin(text, 1, drop_split=True)
     assert n_all == 1500 and "split" not in next(ln for ln in bare.splitlines() if not ln.startswith("#")).split(",")
+
+
+def test_the_thinning_script_writes_the_kept_links_and_fails_in_one_line(tmp_path, capsys):
+    """scripts/survey_thin.py (the workflow's step) writes what `thin` keeps; bad input: one line, exit 2."""
+    spec = importlib.util.spec_from_file_location("survey_thin_cli", ROOT / "scripts" / "survey_thin.py")
+    cli = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cli)
+    out = tmp_path / "sub" / "links.csv"
+    assert cli.main([str(LINKS), str(out), "--every-tx", "3"]) == 0
+    assert out.read_text() == thin(LINKS.read_text(), 3)[0]
+    assert "504 links of 42 transmitters" in capsys.readouterr().out
+    assert cli.main([str(LINKS), str(tmp_path / "x.csv"), "--every-tx", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "tetam_links.csv" in err and "every_tx" in err and not (tmp_path / "x.csv").exists()
 
 
 def test_the_measured_target_imports_each_protocol_and_fits_the_floor_plan():

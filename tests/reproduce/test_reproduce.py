@@ -235,7 +235,7 @@ def test_code_paths_exist_and_simulators_do_not_follow_the_fitted_model():
     def covers(paths, rel):
         return any(rel == p or rel.startswith(p.rstrip("/") + "/") for p in paths)
 
-    for command in ("simulate", "rfir_stages.fullwave.compare"):
+    for command in ("simulate", "scripts/fullwave_compare.py"):
         assert covers(CODE[command], "src/rfir_core/physics/materials.py")
         assert not covers(CODE[command], "stages/model/physical.py")
         assert not covers(CODE[command], "stages/model/room.py")
