@@ -23,3 +23,4 @@ class RfFitResult:
     selection: dict = field(default_factory=dict)    # material sharing requested / selected, validation MAEs
     materials: list = field(default_factory=list)    # one dict per fitted material
     warnings: list = field(default_factory=list)
+    material_checks: list = field(default_factory=list)   # materials implausible for their surface, alternatives

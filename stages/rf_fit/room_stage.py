@@ -285,13 +285,12 @@ def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: 
     return room.band_links(tx[rest], rx[rest], freq_hz, band), target_db[rest, None]
 
 
-def _check_materials(links, res, target_db: np.ndarray, fit: np.ndarray, room, tx, rx, freq_hz: float, band: str,
-                     names: list[str], devices):
-    """(material_checks.check_materials flags of the fit `res`, the links they were scored on in words): on the
-    training links the fit did not use where there are any (none with device gains, which fit every link), else
-    on the fitted links (where the fitted values have the fit's optimism, and no alternative is taken). An
-    alternative taken is put into res.params."""
-    check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
+def _check_materials(links, res, target_db: np.ndarray, fit: np.ndarray, check, names: list[str], freq_hz: float,
+                     devices):
+    """(material_checks.check_materials flags of the fit `res`, the links they were scored on in words): on
+    `check` = (links, target_db [M, 1]) of training links the fit did not use (_check_links; None with device
+    gains, which fit every link), else on the fitted links `links` (target_db[fit]; where the fitted values have
+    the fit's optimism, and no alternative is taken). An alternative taken is put into res.params."""
     if check is None:
         pred, tgt = training_predictor(links, torch.as_tensor(target_db[fit, None]), devices), target_db[fit, None]
         on = "the fitted links"
@@ -479,10 +478,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         with torch.no_grad():
             res.params.gain_db += devices.centre()
     tabulated = [""] * len(names)
+    # with device gains, decided on the links they were fitted to (the others have no gain fitted for them)
+    check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
     if settings.tabulated_materials:
         t_tab = time.time()
-        # with device gains, decided on the links they were fitted to (the others have no gain fitted for them)
-        check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
         _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
         progress.log(f"tabulated materials tried in {time.time() - t_tab:.1f} s (rf_fit.room.tabulated_materials)")
     if devices is not None:
@@ -490,7 +489,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             g = g.detach().numpy()
             progress.log(f"device gains ({side}, {len(g)} devices): mean {g.mean():+.2f} dB, spread {g.std():.2f} dB, "
                          f"range {g.min():+.2f} .. {g.max():+.2f} dB; devices the fit did not see get 0 dB")
-    flags, flags_on = _check_materials(links, res, target_db, fit, room, tx, rx, freq_hz, band, names, devices)
+    t_check = time.time()
+    flags, flags_on = _check_materials(links, res, target_db, fit, check, names, freq_hz, devices)
+    progress.log(f"materials implausible for their surface: {len(flags)}, alternatives scored on {flags_on} in "
+                 f"{time.time() - t_check:.1f} s")
     for f in flags:
         if f.taken_key:
             tabulated[f.index] = f.taken_key
@@ -578,7 +580,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                        res.steps, time.time() - t_start, trace_s, room.provider.name,
                        {"trace": trace_s, "fit": res.wall_time_s}, materials=table,
                        warnings=([f"materials no training path touches: {', '.join(unseen)}"] if unseen else [])
-                       + bounds + [f"implausible for its surface: {line}" for line in flag_lines.values()])
+                       + bounds + [f"implausible for its surface: {line}" for line in flag_lines.values()],
+                       material_checks=list(flag_lines.values()))
 
 
 def map_crossings(room: RoomGeometry, geom) -> dict:
