@@ -10,8 +10,13 @@ import math
 
 import numpy as np
 
+import torch
+
 from rfir_core.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
+from rfir_stages.model.artifact import physical_fields
+from rfir_stages.model.physical import MaterialValues, PairSettings
+from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.simulate.scenes import _merge, box, rect_xy, wall
 
 ROOM = (4.0, 3.0, 2.5)
@@ -113,3 +118,29 @@ def write_measurements(path, freq_hz=2.4e9, seed=0, tx_gain_db=None, rx_gain_db=
     # the reference model's own levels: ideal devices, as rfir simulate's (rf-fit's device_gains = "auto")
     return write_artifact(path, "measurements", data, attrs={"task": "rssi", "scene": "testroom"},
                           free={"simulator": {"@attrs": {"simulator": "tests reference model"}}} if simulated else None)
+
+
+def write_air_room(path, freq_hz: float = 2.4e9):
+    """The room model (model_kind rssi_physical) of a 4 x 3 x 2.5 m room with a table, fitted at freq_hz, whose
+    every material is air (eps_r 1, sigma 1e-9 S/m, no diffuse share): it predicts free space."""
+    parts = [rect_xy(0, 4, 0, 3, 0.0, up=True), rect_xy(0, 4, 0, 3, 2.5, up=False),
+             wall((0, 0, 0), (0, 1, 0), (1, 0, 0), 3, 2.5), wall((4, 0, 0), (0, 1, 0), (-1, 0, 0), 3, 2.5),
+             wall((0, 0, 0), (1, 0, 0), (0, 1, 0), 4, 2.5), wall((0, 3, 0), (1, 0, 0), (0, -1, 0), 4, 2.5),
+             box((0.6, 0.6, 0.0), (1.4, 1.2, 0.7))]
+    names = ["floor", "ceiling", "wall_a", "wall_b", "wall_c", "wall_d", "table"]
+    v, f = _merge(parts)
+    labels = np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)])
+    fields = gaussians_from_mesh(v, f, 0.6, labels=labels)
+    labels = np.asarray(fields["gaussians/labels"], np.int64)     # per Gaussian now
+    t = lambda k: torch.as_tensor(np.asarray(fields[f"gaussians/{k}"], np.float64))  # noqa: E731
+    n = len(names)
+    # sigma exactly 0 gives NaN inside the room's coefficient tables; 1e-9 S/m is air for any purpose here
+    air = MaterialValues(torch.ones(n), torch.full((n,), 1e-9), 1.0, torch.zeros(n), torch.full((n,), 0.1))
+    model, attrs = physical_fields(air, torch.as_tensor(labels), surfel_areas(t("means"), t("log_scales"),
+                                   t("rotations"), t("normals")), np.array([freq_hz]), PairSettings(), names, 0.0)
+    data = {k: v for k, v in fields.items() if k.startswith("gaussians/")}
+    data.update(model)
+    data["rf/freq_hz"] = np.array([freq_hz])
+    attrs.update({"antenna_kind": "isotropic", "model_kind": "rssi_physical"})
+    return write_artifact(path, "rf", data, attrs={"task": "rssi", "label_names": np.asarray(names, dtype=object)},
+                          free={"model": {"@attrs": attrs}})
