@@ -15,7 +15,9 @@ import torch
 from rfir_core.artifacts import write_artifact
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.model.artifact import physical_fields
+from rfir_stages.model.occlusion import FrozenGeometry, make_provider
 from rfir_stages.model.physical import MaterialValues, PairSettings
+from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
 from rfir_stages.model.surfels import surfel_areas
 from rfir_stages.simulate.scenes import _merge, box, rect_xy, wall
 
@@ -144,3 +146,22 @@ def write_air_room(path, freq_hz: float = 2.4e9):
     attrs.update({"antenna_kind": "isotropic", "model_kind": "rssi_physical"})
     return write_artifact(path, "rf", data, attrs={"task": "rssi", "label_names": np.asarray(names, dtype=object)},
                           free={"model": {"@attrs": attrs}})
+
+
+def metal_floor_paths(n_rx: int, freq_hz: float, max_order: int = 1):
+    """(tx [n,3], rx [n,3], room paths, patch count) over a 30 x 30 m floor alone: Tx at 1.5 m, n_rx receivers at
+    1 m from 1 to 10 m along x, traced at freq_hz with horizontal polarisation (the two-ray closed form's set-up)."""
+    v = np.array([[-15.0, -15, 0], [15, -15, 0], [15, 15, 0], [-15, 15, 0]])
+    g = gaussians_from_mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), 1.0, labels=np.zeros(2, np.int64))
+    t = lambda key: torch.as_tensor(np.asarray(g[key], np.float64))  # noqa: E731
+    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
+                          t("gaussians/normals"))
+    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
+    patches = build_patch_set(geom, areas, torch.as_tensor(g["gaussians/labels"], dtype=torch.int64), coplanar_m=0.01,
+                              extent="disks")
+    x = np.linspace(1.0, 10.0, n_rx)
+    tx = np.tile([[0.0, 0.0, 1.5]], (n_rx, 1))
+    rx = np.stack([x, np.zeros_like(x), np.full_like(x, 1.0)], 1)
+    paths = trace_room_paths(tx, rx, np.full(n_rx, freq_hz), patches, make_provider("auto", geom), polarisation="H",
+                             max_order=max_order)
+    return tx, rx, paths, patches.num

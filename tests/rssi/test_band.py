@@ -19,38 +19,20 @@ from rfir_cli.main import app
 from rfir_core.physics.materials import C0
 from rfir_stages.model.physical import MaterialParams
 from rfir_stages.model.room import BLE_CHANNELS_HZ, BandLinks, RoomPredictor
-from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
-from rfir_stages.model.surfels import surfel_areas
-from rfir_stages.model.occlusion import make_provider
 
 from .helpers import links as grid_links
-from .helpers import room_geometry, write_measurements, write_scene
+from .helpers import metal_floor_paths, room_geometry, write_measurements, write_scene
 
 FAST = ["--set", "rf_fit.physical.iterations=30", "--set", "rf_fit.physical.start_iterations=10",
         "--set", "rf_fit.room.starts_kept=1", "--set", "rf_fit.room.reflection_ranges=false"]
 
 
 def test_incoherent_power_of_a_metal_floor_is_the_sum_of_the_two_rays():
-    from rfir_stages.geom import gaussians_from_mesh
-    from rfir_stages.model.occlusion import FrozenGeometry
-
     f = 2.4e9
     lam, k = C0 / f, 2 * math.pi * f / C0
-    v = np.array([[-15.0, -15, 0], [15, -15, 0], [15, 15, 0], [-15, 15, 0]])
-    g = gaussians_from_mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), 1.0, labels=np.zeros(2, np.int64))
-    t = lambda key: torch.as_tensor(np.asarray(g[key], np.float64))  # noqa: E731
-    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
-                          t("gaussians/normals"))
-    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    patches = build_patch_set(geom, areas, torch.as_tensor(g["gaussians/labels"], dtype=torch.int64), coplanar_m=0.01,
-                              extent="disks")
-    x = np.linspace(1.0, 10.0, 60)
-    tx = np.tile([[0.0, 0.0, 1.5]], (len(x), 1))
-    rx = np.stack([x, np.zeros_like(x), np.full_like(x, 1.0)], 1)
-    paths = trace_room_paths(tx, rx, np.full(len(x), f), patches, make_provider("auto", geom), polarisation="H",
-                             max_order=1)
-    metal = torch.full((patches.num, 1), complex(1.0, -math.inf), dtype=torch.complex128)
-    s0 = torch.zeros(patches.num, dtype=torch.float64)
+    tx, rx, paths, n_patches = metal_floor_paths(60, f)
+    metal = torch.full((n_patches, 1), complex(1.0, -math.inf), dtype=torch.complex128)
+    s0 = torch.zeros(n_patches, dtype=torch.float64)
     coherent = np.abs(paths.field(metal, None, s0).numpy()) ** 2
     incoherent = paths.field(metal, None, s0, incoherent=True).numpy()
     # H polarisation along y, perpendicular to the plane of incidence: TE, |R| = 1 on metal, e_T . e_R = 1

@@ -23,12 +23,9 @@ from rfir_core.errors import ConfigError
 from rfir_core.physics.materials import C0, abs2
 from rfir_stages.model.physical import MaterialParams
 from rfir_stages.model.room import MaterialPart, RoomPredictor, band_of
-from rfir_stages.model.room_paths import build_patch_set, trace_room_paths
-from rfir_stages.model.surfels import surfel_areas
-from rfir_stages.model.occlusion import FrozenGeometry, make_provider
 
 from .helpers import links as grid_links
-from .helpers import room_geometry, write_measurements, write_scene
+from .helpers import metal_floor_paths, room_geometry, write_measurements, write_scene
 
 
 @pytest.fixture(scope="module")
@@ -80,23 +77,9 @@ def test_links_evaluated_at_a_frequency_equal_links_traced_there(room):
 
 
 def test_metal_floor_paths_traced_at_one_frequency_give_the_two_ray_form_at_another():
-    from rfir_stages.geom import gaussians_from_mesh
-
-    v = np.array([[-15.0, -15, 0], [15, -15, 0], [15, 15, 0], [-15, 15, 0]])
-    g = gaussians_from_mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), 1.0, labels=np.zeros(2, np.int64))
-    t = lambda key: torch.as_tensor(np.asarray(g[key], np.float64))  # noqa: E731
-    geom = FrozenGeometry(t("gaussians/means"), t("gaussians/log_scales"), t("gaussians/rotations"),
-                          t("gaussians/normals"))
-    areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals)
-    patches = build_patch_set(geom, areas, torch.as_tensor(g["gaussians/labels"], dtype=torch.int64), coplanar_m=0.01,
-                              extent="disks")
-    x = np.linspace(1.0, 10.0, 40)
-    tx = np.tile([[0.0, 0.0, 1.5]], (len(x), 1))
-    rx = np.stack([x, np.zeros_like(x), np.full_like(x, 1.0)], 1)
-    paths = trace_room_paths(tx, rx, np.full(len(x), 2.4e9), patches, make_provider("auto", geom), polarisation="H",
-                             max_order=1)
-    metal = torch.full((patches.num, 1), complex(1.0, -math.inf), dtype=torch.complex128)
-    s0 = torch.zeros(patches.num, dtype=torch.float64)
+    tx, rx, paths, n_patches = metal_floor_paths(40, 2.4e9)
+    metal = torch.full((n_patches, 1), complex(1.0, -math.inf), dtype=torch.complex128)
+    s0 = torch.zeros(n_patches, dtype=torch.float64)
     d0 = np.linalg.norm(rx - tx, axis=1)
     d1 = np.linalg.norm(rx - tx * [1, 1, -1], axis=1)
     for f in (2.4e9, 5.8e9, 28e9):
