@@ -1,52 +1,29 @@
 """`rfir diagnose` with measurements at another frequency than the model was fitted at: the room model predicts
 at the measured frequency and says so; one outside its material laws' range is refused in one line.
 
-The model is a room whose every material is air (free space, tests/edit/test_edit_frequency.py builds the same
-room); the measurements are free space (Friis, an independent closed form) at 5.8 GHz plus 0.3 dB of seeded
-noise. Predicted at 5.8 GHz the held-out MAE is the noise's (~0.24 dB); at the fitted 2.4 GHz it would be
-20 log10(5.8 / 2.4) = 7.7 dB.
+The model is a room whose every material is air (free space, tests/rssi/helpers.py `write_air_room`); the
+measurements are free space (Friis, an independent closed form) at 5.8 GHz plus 0.3 dB of seeded noise. Predicted at
+5.8 GHz the held-out MAE is the noise's (~0.24 dB); at the fitted 2.4 GHz it would be 20 log10(5.8 / 2.4) = 7.7 dB.
 """
+import importlib.util
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from typer.testing import CliRunner
 
 from rfir_cli.main import app
 from rfir_core.artifacts import write_artifact
-from rfir_stages.geom import gaussians_from_mesh
-from rfir_stages.model.artifact import physical_fields
-from rfir_stages.model.physical import MaterialValues, PairSettings
-from rfir_stages.model.surfels import surfel_areas
-from rfir_stages.simulate.scenes import _merge, box, rect_xy, wall
+
+# tests/diagnose is a package of its own, so the shared builder of tests/rssi/helpers.py is loaded by its path
+_spec = importlib.util.spec_from_file_location("rssi_helpers", Path(__file__).resolve().parents[1] / "rssi" / "helpers.py")
+_helpers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_helpers)
+write_air_room = _helpers.write_air_room
 
 C0 = 299_792_458.0
-
-
-def write_air_room(path, freq_hz: float = 2.4e9):
-    """The room model (rssi_physical) of a 4 x 3 x 2.5 m room with a table, fitted at freq_hz, every material air."""
-    parts = [rect_xy(0, 4, 0, 3, 0.0, up=True), rect_xy(0, 4, 0, 3, 2.5, up=False),
-             wall((0, 0, 0), (0, 1, 0), (1, 0, 0), 3, 2.5), wall((4, 0, 0), (0, 1, 0), (-1, 0, 0), 3, 2.5),
-             wall((0, 0, 0), (1, 0, 0), (0, 1, 0), 4, 2.5), wall((0, 3, 0), (1, 0, 0), (0, -1, 0), 4, 2.5),
-             box((0.6, 0.6, 0.0), (1.4, 1.2, 0.7))]
-    names = ["floor", "ceiling", "wall_a", "wall_b", "wall_c", "wall_d", "table"]
-    v, f = _merge(parts)
-    fields = gaussians_from_mesh(v, f, 0.6, labels=np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)]))
-    labels = np.asarray(fields["gaussians/labels"], np.int64)
-    t = lambda k: torch.as_tensor(np.asarray(fields[f"gaussians/{k}"], np.float64))  # noqa: E731
-    n = len(names)
-    # sigma exactly 0 gives NaN inside the room's coefficient tables; 1e-9 S/m is air for any purpose here
-    air = MaterialValues(torch.ones(n), torch.full((n,), 1e-9), 1.0, torch.zeros(n), torch.full((n,), 0.1))
-    model, attrs = physical_fields(air, torch.as_tensor(labels), surfel_areas(t("means"), t("log_scales"),
-                                   t("rotations"), t("normals")), np.array([freq_hz]), PairSettings(), names, 0.0)
-    data = {k: v for k, v in fields.items() if k.startswith("gaussians/")}
-    data.update(model)
-    data["rf/freq_hz"] = np.array([freq_hz])
-    attrs.update({"antenna_kind": "isotropic", "model_kind": "rssi_physical"})
-    return write_artifact(path, "rf", data, attrs={"task": "rssi", "label_names": np.asarray(names, dtype=object)},
-                          free={"model": {"@attrs": attrs}})
 
 
 def write_free_space_measurements(path, freq_hz: float, noise_db: float = 0.3):
