@@ -69,27 +69,18 @@ def classroom_links(seed: int = 0) -> dict:
 
 
 def run_fit(scene: Path, meas: Path, out: Path, fit_links: int) -> dict:
-    """One `rfir rf-fit` in its own process: wall, CPU and peak memory of that process, and what it logged."""
-    cmd = [str(Path(sys.executable).with_name("rfir")), "--seed", "0", "--set", f"rf_fit.room.fit_links={fit_links}",
-           "rf-fit", str(scene), str(meas), "-o", str(out)]
-    t0 = time.time()
-    with tempfile.TemporaryFile("w+") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, text=True)
-        _, status, usage = os.wait4(proc.pid, 0)
-        wall = time.time() - t0
-        log.seek(0)
-        text = log.read()
-    if os.waitstatus_to_exitcode(status) != 0:
-        sys.exit(f"bench_room_fit: rf-fit failed on {scene.name}:\n{text[-3000:]}")
+    """One `rfir rf-fit` in its own process (run_cli): wall, CPU and peak memory of that process, and what it logged."""
+    run = run_cli(["--seed", "0", "--set", f"rf_fit.room.fit_links={fit_links}", "rf-fit", str(scene), str(meas),
+                   "-o", str(out)])
+    text = run.pop("log")
     attrs = read_artifact(out, "rf").free["training@attrs"]
     patches = re.search(r"Gaussians in (\d+) planar patches", text)
     paths = re.search(r"\(([\d.]+) per link\)", text)
-    return {"fit_links": fit_links, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
-            "peak_rss_mb": usage.ru_maxrss / 1024, "trace_s": float(attrs["trace_time_s"]),
+    return {"fit_links": fit_links, **run, "trace_s": float(attrs["trace_time_s"]),
             "fit_s": float(attrs["fit_time_s"]), "stage_s": float(attrs["wall_time_s"]),
             "patches": int(patches.group(1)) if patches else None,
             "paths_per_link": float(paths.group(1)) if paths else None,
-            "train_mae_db": float(attrs["train_mae_db"]), "load_average_1min": os.getloadavg()[0]}
+            "train_mae_db": float(attrs["train_mae_db"])}
 
 
 def run_cli(args: list[str]) -> dict:
