@@ -124,7 +124,7 @@ def write_measurements(path, freq_hz=2.4e9, seed=0, tx_gain_db=None, rx_gain_db=
 
 def write_air_room(path, freq_hz: float = 2.4e9):
     """The room model (model_kind rssi_physical) of a 4 x 3 x 2.5 m room with a table, fitted at freq_hz, whose
-    every material is air (eps_r 1, sigma 1e-9 S/m, no diffuse share): it predicts free space."""
+    every material is air (eps_r 1, sigma 0, no diffuse share): it predicts free space."""
     parts = [rect_xy(0, 4, 0, 3, 0.0, up=True), rect_xy(0, 4, 0, 3, 2.5, up=False),
              wall((0, 0, 0), (0, 1, 0), (1, 0, 0), 3, 2.5), wall((4, 0, 0), (0, 1, 0), (-1, 0, 0), 3, 2.5),
              wall((0, 0, 0), (1, 0, 0), (0, 1, 0), 4, 2.5), wall((0, 3, 0), (1, 0, 0), (0, -1, 0), 4, 2.5),
@@ -136,8 +136,7 @@ def write_air_room(path, freq_hz: float = 2.4e9):
     labels = np.asarray(fields["gaussians/labels"], np.int64)     # per Gaussian now
     t = lambda k: torch.as_tensor(np.asarray(fields[f"gaussians/{k}"], np.float64))  # noqa: E731
     n = len(names)
-    # sigma exactly 0 gives NaN inside the room's coefficient tables; 1e-9 S/m is air for any purpose here
-    air = MaterialValues(torch.ones(n), torch.full((n,), 1e-9), 1.0, torch.zeros(n), torch.full((n,), 0.1))
+    air = MaterialValues(torch.ones(n), torch.zeros(n), 1.0, torch.zeros(n), torch.full((n,), 0.1))
     model, attrs = physical_fields(air, torch.as_tensor(labels), surfel_areas(t("means"), t("log_scales"),
                                    t("rotations"), t("normals")), np.array([freq_hz]), PairSettings(), names, 0.0)
     data = {k: v for k, v in fields.items() if k.startswith("gaussians/")}

@@ -130,7 +130,9 @@ def fresnel(eta, cos_theta, k0=None, thickness_m=None) -> tuple[torch.Tensor, to
     c = _f64(cos_theta).clamp(0.0, 1.0)
     pec = ~torch.isfinite(eta)
     eta_f = torch.where(pec, torch.full_like(eta, 4.0), eta)  # placeholder, overwritten below
-    root = torch.sqrt(eta_f - (1.0 - c * c))  # principal branch: Im <= 0 for lossy media (decaying wave)
+    # principal branch: Im <= 0 for lossy media (decaying wave). (eta - 1) + c^2, not eta - (1 - c^2): near grazing
+    # 1 - c^2 rounds to 1 and a vacuum (eta = 1) would get root 0, hence r = 1, at the tables' last angle node
+    root = torch.sqrt((eta_f - 1.0) + c * c)
     cc = c.to(torch.complex128)
     r_te = (cc - root) / (cc + root)
     r_tm = (eta_f * cc - root) / (eta_f * cc + root)
@@ -167,7 +169,7 @@ def slab_transmission(eta, cos_theta, k0, thickness_m) -> tuple[torch.Tensor, to
     pec = ~torch.isfinite(eta)
     eta_f = torch.where(pec, torch.full_like(eta, 4.0), eta)
     c = _f64(cos_theta).clamp(0.0, 1.0)
-    root = torch.sqrt(eta_f - (1.0 - c * c))
+    root = torch.sqrt((eta_f - 1.0) + c * c)      # as in fresnel
     r_te, r_tm = fresnel(eta_f, c)
     th = _f64(thickness_m)
     ph = _propagate(root, k0, th, 2.0)
