@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import torch
 
 from rfir_core.artifacts import check_output, write_artifact
 from rfir_core.errors import ConfigError, StageError
@@ -126,17 +127,24 @@ class RadioModel:
         """The fitted materials, name -> {"eps_r": relative permittivity, "sigma_1ghz_s_per_m": conductivity at
         1 GHz [S/m], "sigma_exponent": d in sigma(f) = sigma_1GHz (f / 1 GHz)^d, "thickness_m": slab thickness
         [m] (0: a half-space), "scattering": S in [0, 1) (the diffuse share of the field), "gaussians": how many
-        Gaussians carry it}. Materials without a stored name are called material_I."""
+        Gaussians carry it, "gamma_normal_abs": |Gamma| at normal incidence at the first fitted frequency, and
+        "gamma_normal_range": (low, high) of that |Gamma| that the training links allow (stored by rf-fit with
+        rf_fit.physical.reflection_ranges; absent otherwise)}. Materials without a stored name are material_I."""
         mats, names = self.physical.mats, self.physical.names
         index = self.physical.material_of_gaussian.numpy()
         th = None if mats.thickness_m is None else mats.thickness_m.numpy()
+        gamma = mats.normal_reflection(torch.as_tensor(self.fitted_freqs_hz[:1])).abs()[:, 0].numpy()
+        span = self.artifact.get("material/gamma_normal_range")
         out = {}
         for i in range(len(mats.eps_r)):
             name = names[i] if i < len(names) else f"material_{i}"
             out[name] = {"eps_r": float(mats.eps_r[i]), "sigma_1ghz_s_per_m": float(mats.sigma_1ghz[i]),
                          "sigma_exponent": float(mats.sigma_exponent),
                          "thickness_m": 0.0 if th is None else float(th[i]),
-                         "scattering": float(mats.scattering[i]), "gaussians": int(np.sum(index == i))}
+                         "scattering": float(mats.scattering[i]), "gaussians": int(np.sum(index == i)),
+                         "gamma_normal_abs": float(gamma[i])}
+            if span is not None:
+                out[name]["gamma_normal_range"] = (float(span[i][0]), float(span[i][1]))
         return out
 
     def memory_estimate_bytes(self, num_links: int, chunk_links: int) -> int:

@@ -39,6 +39,10 @@ def test_the_guide_example_runs_and_removing_the_partition_raises_the_map_behind
     exec(compile(_python_block(), str(PAGE), "exec"), scope)
     printed = capsys.readouterr().out
     assert "held-out MAE" in printed and "partition: eps_r" in printed
+    # every material's |Gamma(0)| lies inside the range the training links allow (rf-fit's reflection ranges)
+    for name, m in scope["model"].materials().items():
+        lo, hi = m["gamma_normal_range"]
+        assert lo - 1e-6 <= m["gamma_normal_abs"] <= hi + 1e-6, (name, m)
     for name in ("rf.h5", "rf_no_partition.h5", "rf_copy.h5"):
         assert (tmp_path / name).is_file(), name
     survey, test = scope["survey"], scope["test"]

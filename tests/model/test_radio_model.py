@@ -114,8 +114,14 @@ def test_room_model_whose_materials_are_air_predicts_free_space(air_room):
 
 def test_materials_name_each_fitted_value_and_save_writes_a_model_that_predicts_the_same(plate, tmp_path):
     model = load_model(plate)
-    assert model.materials() == {"metal": {"eps_r": 1.0, "sigma_1ghz_s_per_m": 1e7, "sigma_exponent": 0.0,
-                                           "thickness_m": 0.0, "scattering": 0.0, "gaussians": model.geometry.num}}
+    metal = model.materials()["metal"]
+    gamma = metal.pop("gamma_normal_abs")
+    assert metal == {"eps_r": 1.0, "sigma_1ghz_s_per_m": 1e7, "sigma_exponent": 0.0, "thickness_m": 0.0,
+                     "scattering": 0.0, "gaussians": model.geometry.num}        # no ranges stored: none given
+    # |Gamma(0)| of a half-space, (1 - n) / (1 + n) with n^2 = eps_r - j sigma / (omega eps0)
+    f = model.fitted_freqs_hz[0]
+    n = np.sqrt(1.0 - 1j * 1e7 / (2 * np.pi * f * 8.8541878128e-12))
+    assert gamma == pytest.approx(abs((1 - n) / (1 + n)), abs=1e-9)
     copy = load_model(model.save(tmp_path / "copy.h5"))
     tx = np.array([[3.0, 0.0, 0.0], [0.0, 3.0, 0.5]])
     np.testing.assert_array_equal(copy.predict(tx, tx), model.predict(tx, tx))
