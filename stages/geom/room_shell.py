@@ -40,8 +40,6 @@ class ShellSettings:
     cell_m: float = 0.1
     close_m: float = 0.3
     min_opening_m: float = 0.5
-    inset_color: float = 0.0
-    inset_min_m2: float = 0.5
 
 
 @dataclass
@@ -51,7 +49,7 @@ class Surface:
     occupied [nu, nv] bool: cell (i, j) of cell_m at origin + (i + 1/2) cell u + (j + 1/2) cell v is surface
     (False: an opening); tilt_deg: the fitted plane's angle from horizontal (floor, ceiling) or vertical (wall)
     before snapping (nan when inferred); inferred: placed from other surfaces (a ceiling at the walls' top);
-    inset_cells [nu, nv] bool: a wall's cells given to its insets (wall_insets), None without."""
+    inset_cells [nu, nv] bool: a surface's cells given to its insets (insets.py), None without."""
     name: str
     kind: str
     normal: np.ndarray
@@ -320,62 +318,3 @@ def surface_quads(surface: Surface) -> tuple[np.ndarray, np.ndarray]:
         tri = [[0, 1, 2], [0, 2, 3]] if not flip else [[0, 2, 1], [0, 3, 2]]
         faces += [[4 * k + t for t in f] for f in tri]
     return np.asarray(verts, float).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3)
-
-
-def wall_insets(x: np.ndarray, colors: np.ndarray, walls: list[Surface], settings: ShellSettings) -> list[Surface]:
-    """Parts of the walls of another colour (a door, a window pane, a board on the wall): surfaces of their own in
-    their wall's plane, named WALL_inset_NN (so that rf-fit's class sharing gives each wall's insets a material of
-    their own), cut out of the wall's occupancy.
-
-    x [N, 3] m, colors [N, 3] RGB in [0, 1]. Photos of textured surfaces give Gaussians of every colour, so the
-    colour compared is a local mean: the mean RGB of the wall's Gaussians (within distance_m of its plane) in
-    each cell, averaged over the occupied cells within 2 close_m around it. Cells whose mean lies farther than
-    inset_color from the wall's median are of another colour; such cells in one connected piece, grown by the cells
-    around it whose 3 x 3 mean is nearer its colour than the wall's, of at least inset_min_m2 (holes filled)
-    make an inset."""
-    from scipy import ndimage
-
-    insets = []
-    size = 2 * int(round(settings.close_m / settings.cell_m)) + 1
-    for wall in walls:
-        shape = wall.occupied.shape
-        rel = x - wall.origin
-        i = np.floor(rel @ wall.u / wall.cell_m).astype(int)
-        j = np.floor(rel @ wall.v / wall.cell_m).astype(int)
-        on = (np.abs(x @ wall.normal - wall.offset) <= settings.distance_m) & (i >= 0) & (i < shape[0]) \
-            & (j >= 0) & (j < shape[1])
-        if on.sum() < 20:
-            continue
-        flat = i[on] * shape[1] + j[on]
-        count = np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape).astype(float)
-        sums = np.stack([np.bincount(flat, weights=colors[on, c], minlength=count.size).reshape(shape)
-                         for c in range(3)], -1)
-        local_n = ndimage.uniform_filter(count, size, mode="constant")
-        local = np.stack([ndimage.uniform_filter(sums[..., c], size, mode="constant") for c in range(3)], -1)
-        seen = (count > 0) & wall.occupied
-        mean = local / np.maximum(local_n, 1e-12)[..., None]
-        median = np.median(mean[seen], axis=0)
-        other = seen & (np.linalg.norm(mean - median, axis=-1) > settings.inset_color)
-        r = int(round(settings.close_m / settings.cell_m))
-        pieces, num = ndimage.label(_closed(other, r))
-        near = np.stack([ndimage.uniform_filter(sums[..., c], 3, mode="constant") for c in range(3)], -1) \
-            / np.maximum(ndimage.uniform_filter(count, 3, mode="constant"), 1e-12)[..., None]
-        k = 0
-        for p in range(1, num + 1):
-            # the local mean blurs the edges: around the piece, a cell whose 3 x 3 mean colour is nearer the
-            # piece's than the wall's is the piece's
-            core = pieces == p
-            own = np.median(near[core & seen], axis=0)
-            ring = ndimage.binary_dilation(core, np.ones((size, size), bool)) & seen
-            closer = np.linalg.norm(near - own, axis=-1) < np.linalg.norm(near - median, axis=-1)
-            cells = ndimage.binary_fill_holes(_closed(core | (ring & closer), r)) & wall.occupied
-            if cells.sum() * settings.cell_m ** 2 < settings.inset_min_m2:
-                continue
-            members = np.flatnonzero(on)[cells[i[on], j[on]]]
-            insets.append(Surface(f"{wall.name}_inset_{k:02d}", "inset", wall.normal, wall.offset, members,
-                                  wall.tilt_deg, origin=wall.origin, u=wall.u, v=wall.v, occupied=cells,
-                                  cell_m=wall.cell_m))
-            wall.occupied = wall.occupied & ~cells
-            wall.inset_cells = cells if wall.inset_cells is None else wall.inset_cells | cells
-            k += 1
-    return insets

@@ -6,12 +6,12 @@ left out (from_mesh.gaussians_from_mesh on the extent's rectangles, at `spacing_
 room` tiles a mesh), so that the room model's patches are its planes with their edges (`tile_shell = false`:
 the shell's own Gaussians projected onto their surfaces instead). The Gaussians off the shell inside it are
 joined into object segments (DBSCAN); those on one of the object planes (levelled or plumbed within snap_deg,
-as the shell's) are projected onto it, with the plane's normal and their footprint flattened into it. Parts of
-a wall of another colour (a door, window panes, a board) can become its insets (room_shell.wall_insets;
-`inset_color` > 0). Gaussians in no segment, and those behind the shell, stay as they were, unlabelled (-1;
-`keep_free = false`: left out): the free Gaussians. Labels are named by class (floor, ceiling, wall_NN,
-wall_NN_inset_NN, object_NN), so rf-fit's class sharing gives one material to the walls, one to each wall's
-insets, one to the objects.
+as the shell's) are projected onto it, with the plane's normal and their footprint flattened into it. Rectangles
+of the shell of another colour or depth (a door, window panes, a board) become insets, grouped across the room
+into classes by appearance (insets.py; `insets = false`: none). Gaussians in no segment, and those behind the
+shell, stay as they were, unlabelled (-1; `keep_free = false`: left out): the free Gaussians. Labels are named by
+class (floor, ceiling, wall_NN, inset_A_NN, object_NN), so rf-fit's class sharing gives one material to the
+walls, one to each class of insets, one to the objects.
 """
 from __future__ import annotations
 
@@ -24,7 +24,8 @@ import numpy as np
 from rfir_core.errors import ConfigError, InputFileError, StageError
 
 from .planes import Plane, connected_pieces, find_planes
-from .room_shell import ShellSettings, Surface, build_shell, surface_quads, wall_insets
+from .insets import InsetSettings, find_insets
+from .room_shell import ShellSettings, Surface, build_shell, surface_quads
 
 
 @dataclass
@@ -40,6 +41,12 @@ class StructureSettings(ShellSettings):
     tile_shell: bool = True
     keep_free: bool = True
     object_planes_only: bool = False
+    insets: bool = True
+    inset_cell_m: float = 0.25
+    inset_depth_m: float = 0.15
+    inset_spread: float = 2.5
+    inset_fill: float = 0.7
+    inset_min_m2: float = 0.5
 
 
 @dataclass
@@ -68,7 +75,8 @@ def settings_from(table: dict) -> StructureSettings:
     if unknown:
         raise ConfigError(f"geom.structure: unknown key(s) {', '.join(unknown)}")
     s = StructureSettings(**table)
-    for name in ("distance_m", "cell_m", "spacing_m", "piece_eps_m", "object_eps_m"):
+    for name in ("distance_m", "cell_m", "spacing_m", "piece_eps_m", "object_eps_m", "inset_cell_m", "inset_depth_m",
+                 "inset_spread"):
         if not getattr(s, name) > 0:
             raise ConfigError(f"geom.structure.{name} must be positive, got {getattr(s, name)}")
     return s
@@ -121,8 +129,9 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
         raise StageError(f"{scene_path}: no room shell in {len(planes)} planes: {exc}") from None
 
     colors = art.data.get("gaussians/colors")
-    if colors is not None and np.asarray(colors).shape[1] == 3 and settings.inset_color > 0:
-        surfaces += wall_insets(x, np.asarray(colors, float), [s for s in surfaces if s.kind == "wall"], settings)
+    if colors is not None and np.asarray(colors).shape[1] == 3 and settings.insets:
+        inset_settings = InsetSettings(**{f.name: getattr(settings, f.name) for f in fields(InsetSettings)})
+        surfaces += find_insets(x, normals, np.asarray(colors, float), list(surfaces), inset_settings)
     on_shell, behind = _shell_sides(x, surfaces, settings.distance_m)
     inside = ~on_shell & ~behind
     piece = np.full(len(x), -1)

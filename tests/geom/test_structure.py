@@ -95,7 +95,7 @@ def room_result(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("structure")
     fields, _ = sampled_room(np.random.default_rng(3))
     scene = _write(tmp / "room.h5", fields)
-    result = run(scene, tmp / "planes.h5", {"inset_color": 0.12}, known_distance="floor:ceiling=2.8")
+    result = run(scene, tmp / "planes.h5", {}, known_distance="floor:ceiling=2.8")
     return result, read_artifact(tmp / "planes.h5", "scene"), fields
 
 
@@ -170,10 +170,11 @@ def test_artifact_has_labelled_planes_objects_and_free(room_result):
 def test_board_is_an_inset_of_its_wall(room_result):
     result, art, _ = room_result
     insets = [s for s in result.surfaces if s.kind == "inset"]
-    assert len(insets) == 1 and insets[0].name.endswith("_inset_00")
+    assert [s.name for s in insets] == ["inset_a_00"]
     board = insets[0]
-    wall = next(s for s in result.surfaces if s.name == board.name.rsplit("_inset", 1)[0])
-    assert wall.normal[0] > 0.99
+    # its host: the x = 0 wall, whose plane and grid it shares
+    wall = next(s for s in result.surfaces if s.kind == "wall" and s.normal[0] > 0.99)
+    assert board.occupied.shape == wall.occupied.shape and np.allclose(board.origin, wall.origin)
     board_m2 = (BOARD[1] - BOARD[0]) * (BOARD[3] - BOARD[2])
     area = board.occupied.sum() * board.cell_m ** 2
     assert abs(area - board_m2) < 0.15 * board_m2
@@ -182,6 +183,7 @@ def test_board_is_an_inset_of_its_wall(room_result):
     x = art.data["gaussians/means"][art.data["gaussians/labels"] == names.index(board.name)]
     assert np.allclose(x[:, 0], 0.0, atol=0.02)
     assert x[:, 1].min() > BOARD[0] - 0.1 and x[:, 1].max() < BOARD[1] + 0.1
+    assert x[:, 2].min() > BOARD[2] - 0.1 and x[:, 2].max() < BOARD[3] + 0.1
 
 
 def test_shell_gaussians_projected_without_tiling(tmp_path):
