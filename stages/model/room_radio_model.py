@@ -5,6 +5,8 @@
 (patches, diffuse cells, the tracer, the device gains) and sums each link's paths as the model was fitted
 (room.band). It predicts at any frequency inside its material laws' range (RoomPredictor.predict_db: the paths
 are traced once per block of links, the frequency applied at evaluation); by default at the one it was fitted at.
+The residual terms rf-fit chose (device patterns, clutter field, kriging; residual_terms.py) are added in dB at
+every frequency; predict_with_physics_only gives the prediction without them.
 """
 from __future__ import annotations
 
@@ -12,7 +14,8 @@ import numpy as np
 
 from rfir_core.errors import StageError
 
-from .radio_model_base import RadioModel
+from .radio_model_base import FLOOR_DB, RadioModel
+from .residual_terms import ResidualTerms
 from .room import RoomPredictor
 
 
@@ -28,6 +31,8 @@ class RoomRadioModel(RadioModel):
         self.predictor = RoomPredictor(rf, occlusion)
         self.settings = self.predictor.room.settings
         self.geometry = self.predictor.geom
+        # the residual terms in dB on top of the physics (None: a model fitted without them)
+        self.residual_terms = ResidualTerms.from_model(rf.free.get("model", {}), rf.free.get("model@attrs", {}))
 
     @property
     def provider(self):
@@ -66,7 +71,10 @@ class RoomRadioModel(RadioModel):
         else:
             with progress.task("predict (room)", total=len(tx)) as bar:
                 out = self.predictor.predict_db(tx, rx, freqs, chunk_links, bar)
-        return out, (out.copy() if physics_only else None)
+        if self.residual_terms is None:
+            return out, (out.copy() if physics_only else None)
+        terms = self.residual_terms.apply_db(tx, rx)[:, None]
+        return np.maximum(out + terms, FLOOR_DB), (out if physics_only else None)
 
 
 class _Advance:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import fields, replace
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -38,6 +39,7 @@ from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M
 from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, choose_device_gains, held_out_rows
 from .physical_stage import attach_ranges, bound_warnings, range_words
 from .result import RfFitResult
+from .residual_choice import choose_residual_terms, clutter_map, parse_request, training_residuals
 
 MODEL_KIND = "rssi_physical"
 SHARINGS = ("auto", "class", "label", "segment", "global")
@@ -82,6 +84,10 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
         table["max_interactions"] = interactions
     sharing = str(table.pop("sharing", "auto"))
     if sharing not in SHARINGS:
+    try:   # run_room's residual terms, checked before any work
+        parse_request(table.pop("residual_terms", "auto"))
+    except ValueError as e:
+        raise ConfigError(f"rf_fit.room.residual_terms: {e}") from None
         raise ConfigError(f"rf_fit.room.sharing = {sharing!r}: expected one of {', '.join(SHARINGS)}")
     known = {f.name for f in fields(RoomSettings)}
     unknown = sorted(set(table) - known)
@@ -521,6 +527,14 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
     model_attrs["geometry_key"] = room.geometry_key()     # the stored surfel areas are these Gaussians'
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
+    # residual terms in dB on the fitted physics, chosen on the training links (residual_choice; physics.md 8.15)
+    means = geom.means.numpy()
+    terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
+                                                                  target_db, freq_hz, band),
+                                  means.min(0)[:2], means.max(0)[:2], seed,
+                                  str((config.get("room", {}) or {}).get("residual_terms", "auto")))
+    progress.log(f"residual terms: {terms.which} ({terms.reason})"
+                 + ("" if terms.terms is None else f": {terms.terms.describe()}"))
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     if ranges is not None:
         data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
@@ -552,7 +566,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     # the patches' occupancy grids: loading the model then rasterises nothing (most of a room's load time)
     model_attrs["patch_extents_key"] = room.extents_key()
     grids = {f"patch_{k}": v for k, v in extent_grids(room.patches).items()}
-    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table()), **map_rows, **grids},
+    if terms.terms is not None:
+        model_attrs.update(terms.terms.attrs())
+    free = {"model": {"@attrs": model_attrs, **({} if devices is None else devices.table()), **map_rows, **grids,
+                      **({} if terms.terms is None else terms.terms.table())},
             "training": {"loss_curve": res.loss_curve, "train_rows": np.asarray(rows, np.int64),
                          "fit_rows": np.asarray(rows, np.int64)[fit],
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
@@ -572,6 +589,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      + ("" if i not in flags_by else f"  [fitted {flags_by[i].reason}, implausible for its surface; "
                         + (f"taken as {flags_by[i].taken}" if flags_by[i].taken else "alternatives at the end") + "]"))
     for i, line in flag_lines.items():
+    if terms.terms is not None and terms.terms.field_db_per_m is not None:
+        png = Path(out_path).with_name(Path(out_path).stem + "_clutter.png")
+        clutter_map(terms.terms, means[np.abs(geom.normals.numpy()[:, 2]) < 0.5, :2], png)
+        progress.log(f"clutter field map (where the model put what the floor plan lacks): {png}")
         table[i]["check"] = line
     if ranges is not None:
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
