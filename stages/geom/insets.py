@@ -4,22 +4,23 @@ the photo Gaussians' colour and depth, grouped across the room into classes by a
 Photos of textured surfaces give Gaussians of every colour, and a photo Gaussian lies a few centimetres off its
 surface, so nothing is decided per Gaussian. Each surface (a wall; the floor and a seen ceiling too) is cut into
 square cells of `inset_cell_m`; a cell's appearance is the median colour (RGB) and the median offset from the plane
-[m] of its Gaussians within `inset_depth_m` of the plane whose normal is within `normal_deg` of the surface's (a window set into the wall lies behind it, a board
-stands out by a centimetre or two). The cells' appearance is smoothed by the median of
-each cell's 3 x 3 neighbourhood (texture varies within a cell; an inset is wider than three cells). The surface's
-dominant appearance is the median over its cells, and its own texture spread, per feature, the cells' median
-absolute deviation from it (scaled to a standard deviation): a cell differs when its colour (root mean square over
-R, G, B) or its offset lies more than `inset_spread` spreads from the dominant one. The threshold is in units of
-each surface's own spread, so a plain wall and a brick wall are judged alike.
+[m] of its Gaussians within `inset_depth_m` of the plane whose normals are within `normal_deg` of the surface's (a
+window set into the wall lies behind it, a board stands out by a centimetre or two). The cells' appearance is
+smoothed by the median of each cell's 3 x 3 neighbourhood (texture varies within a cell; an inset is wider than
+three cells). The surface's dominant appearance is the median over its cells, and its own texture spread, per
+feature, the cells' median absolute deviation from it (scaled to a standard deviation): a cell differs when its
+colour (root mean square over R, G, B) or its offset lies more than `inset_spread` spreads from the dominant one.
+The threshold is in units of each surface's own spread, so a plain wall and a brick wall are judged alike.
 
-Differing cells in one 4-connected piece make an inset when they fill at least `inset_fill` of the seen cells of
-their bounding box (doors, windows and boards are rectangles; furniture's shadows and texture blotches are not)
-and it covers at least `inset_min_m2`. The box's edges are then placed to a Gaussian's precision: along each edge,
-every Gaussian is scored by which side of the midway point between the inset's and the surface's appearance it
-falls on (projected on the direction in which the two differ, in spread units), and the edge goes where the scores
-on its two sides agree best with inside and outside. An inset has edges: across each edge inside the surface, the
-median appearance of a cell-wide strip inside exceeds that of the strip outside by at least half the inset's
-contrast (a smooth drift of the Gaussians, such as a wall bowing out under the ceiling, differs without edges).
+Differing cells, less spurs narrower than three cells, in one 4-connected piece make an inset when they fill at
+least `inset_fill` of the seen cells of their bounding box (doors, windows and boards are rectangles; furniture's
+shadows and texture blotches are not) and it covers at least `inset_min_m2`. The box's edges are then placed to a
+Gaussian's precision: along each edge, every Gaussian is scored by which side of the midway point between the
+inset's and the surface's appearance it falls on (projected on the direction in which the two differ, in spread
+units), and the edge goes where the scores on its two sides agree best with inside and outside. An inset has
+edges: across each edge inside the surface, the median appearance of a cell-wide strip inside exceeds that of the
+strip outside by at least half the inset's contrast (a smooth drift of the Gaussians, such as a wall bowing out
+under the ceiling, differs without edges).
 
 Insets of all surfaces are grouped by appearance: agglomerative clustering (average linkage) of their median
 colour and offset, in units of the room's pooled texture spread (the median of the surfaces' spreads), cut at
@@ -70,10 +71,10 @@ class _Found:
 
 def find_insets(x: np.ndarray, normals: np.ndarray, colors: np.ndarray, surfaces: list[Surface],
                 settings: InsetSettings) -> list[Surface]:
-    """The insets of `surfaces` (module docstring) from Gaussians x [N, 3] m with unit normals [N, 3] and colors [N, 3]
-    RGB in [0, 1]: new
-    surfaces of kind "inset" named inset_A_NN, in their host's plane and grid, their cells cut out of the host's
-    occupancy (host.occupied, host.inset_cells updated). Surfaces without a grid (an inferred ceiling) are skipped."""
+    """The insets of `surfaces` (module docstring) from Gaussians x [N, 3] m with unit normals [N, 3] and colors
+    [N, 3] RGB in [0, 1]: new surfaces of kind "inset" named inset_A_NN, in their host's plane and grid, their
+    cells cut out of the host's occupancy (host.occupied, host.inset_cells updated). Surfaces without Gaussians
+    (an inferred ceiling) are skipped."""
     found = []
     for surface in surfaces:
         if surface.occupied.size == 0 or len(surface.members) == 0:
@@ -105,7 +106,8 @@ def _letters(rank: int) -> str:
     return letters[rank] if rank < 26 else _letters(rank // 26 - 1) + letters[rank % 26]
 
 
-def surface_appearance(x: np.ndarray, normals: np.ndarray, colors: np.ndarray, surface: Surface, settings: InsetSettings):
+def surface_appearance(x: np.ndarray, normals: np.ndarray, colors: np.ndarray, surface: Surface,
+                       settings: InsetSettings):
     """The surface's cells of inset_cell_m and their appearance: (index [M] of the Gaussians in its band, their
     (a, b) [M, 2] m along u, v, their features [M, 4] (RGB, offset from the plane [m]), smoothed cell features
     [nu, nv, 4] (nan: unseen), dominant appearance [4], spread [4])."""
@@ -113,10 +115,10 @@ def surface_appearance(x: np.ndarray, normals: np.ndarray, colors: np.ndarray, s
     d = x @ surface.normal - surface.offset
     rel = x - surface.origin
     a, b = rel @ surface.u, rel @ surface.v
-    # a band as deep in front as behind: cut nearer on one side, it would pull a board's median offset back
-    # the normal test keeps the neighbouring surfaces' Gaussians (a ceiling's, near a wall's top) out of the band
-    band = (np.abs(d) <= settings.inset_depth_m) & (np.abs(normals @ surface.normal) >= np.cos(np.radians(settings.normal_deg))) \
-        & (a >= 0) & (a < width) & (b >= 0) & (b < height)
+    # a band as deep in front as behind (cut nearer on one side, it would pull a board's median offset back); the
+    # normal test keeps the neighbouring surfaces' Gaussians (a ceiling's, near a wall's top) out of it
+    facing = np.abs(normals @ surface.normal) >= np.cos(np.radians(settings.normal_deg))
+    band = (np.abs(d) <= settings.inset_depth_m) & facing & (a >= 0) & (a < width) & (b >= 0) & (b < height)
     idx = np.flatnonzero(band)
     feats = np.concatenate([colors[idx], d[idx, None]], 1)
     cell = settings.inset_cell_m
