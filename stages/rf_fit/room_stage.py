@@ -38,8 +38,8 @@ from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M
 
 from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, choose_device_gains, held_out_rows
 from .physical_stage import attach_ranges, bound_warnings, range_words
-from .result import RfFitResult
 from .residual_choice import choose_residual_terms, clutter_map, parse_request, training_residuals
+from .result import RfFitResult
 
 MODEL_KIND = "rssi_physical"
 SHARINGS = ("auto", "class", "label", "segment", "global")
@@ -83,11 +83,11 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
     else:
         table["max_interactions"] = interactions
     sharing = str(table.pop("sharing", "auto"))
-    if sharing not in SHARINGS:
     try:   # run_room's residual terms, checked before any work
         parse_request(table.pop("residual_terms", "auto"))
     except ValueError as e:
         raise ConfigError(f"rf_fit.room.residual_terms: {e}") from None
+    if sharing not in SHARINGS:
         raise ConfigError(f"rf_fit.room.sharing = {sharing!r}: expected one of {', '.join(SHARINGS)}")
     known = {f.name for f in fields(RoomSettings)}
     unknown = sorted(set(table) - known)
@@ -512,6 +512,14 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     ranges = (reflection_ranges(links, res.params, target_db[fit, None], freq_hz, devices, progress)
               if settings.reflection_ranges else None)
     ranges_s = time.time() - t_ranges
+    # residual terms in dB on the fitted physics, chosen on the training links (residual_choice; physics.md 8.15)
+    means = geom.means.numpy()
+    terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
+                                                                  target_db, freq_hz, band),
+                                  means.min(0)[:2], means.max(0)[:2], seed,
+                                  str((config.get("room", {}) or {}).get("residual_terms", "auto")))
+    progress.log(f"residual terms: {terms.which} ({terms.reason})"
+                 + ("" if terms.terms is None else f": {terms.terms.describe()}"))
     with torch.no_grad():
         vals = res.params.values()
     data, model_attrs = physical_fields(vals, torch.as_tensor(material), room.areas, np.asarray([freq_hz]),
@@ -527,14 +535,6 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
     model_attrs["geometry_key"] = room.geometry_key()     # the stored surfel areas are these Gaussians'
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
-    # residual terms in dB on the fitted physics, chosen on the training links (residual_choice; physics.md 8.15)
-    means = geom.means.numpy()
-    terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
-                                                                  target_db, freq_hz, band),
-                                  means.min(0)[:2], means.max(0)[:2], seed,
-                                  str((config.get("room", {}) or {}).get("residual_terms", "auto")))
-    progress.log(f"residual terms: {terms.which} ({terms.reason})"
-                 + ("" if terms.terms is None else f": {terms.terms.describe()}"))
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     if ranges is not None:
         data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
@@ -574,6 +574,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                          "fit_rows": np.asarray(rows, np.int64)[fit],
                          "holdout_tx_ids": np.asarray(held, np.int64), "@attrs": training_attrs}}
     write_artifact(out_path, "rf", data, attrs=attrs, provenance=prov, free=free)
+    if terms.terms is not None and terms.terms.field_db_per_m is not None:
+        png = Path(out_path).with_name(Path(out_path).stem + "_clutter.png")
+        clutter_map(terms.terms, means[np.abs(geom.normals.numpy()[:, 2]) < 0.5, :2], png)
+        progress.log(f"clutter field map (where the model put what the floor plan lacks): {png}")
     table = material_rows(vals, names, freq_hz)
     attach_ranges(table, ranges)
     bounds = bound_warnings(table)
@@ -589,10 +593,6 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      + ("" if i not in flags_by else f"  [fitted {flags_by[i].reason}, implausible for its surface; "
                         + (f"taken as {flags_by[i].taken}" if flags_by[i].taken else "alternatives at the end") + "]"))
     for i, line in flag_lines.items():
-    if terms.terms is not None and terms.terms.field_db_per_m is not None:
-        png = Path(out_path).with_name(Path(out_path).stem + "_clutter.png")
-        clutter_map(terms.terms, means[np.abs(geom.normals.numpy()[:, 2]) < 0.5, :2], png)
-        progress.log(f"clutter field map (where the model put what the floor plan lacks): {png}")
         table[i]["check"] = line
     if ranges is not None:
         progress.log(f"materials' |Gamma(0)| ranges the links allow: {ranges_s:.1f} s "
