@@ -23,7 +23,7 @@ import numpy as np
 
 from rfir_core.errors import ConfigError, InputFileError, StageError
 
-from .planes import Plane, connected_pieces, find_planes
+from .planes import Plane, connected_pieces, find_planes, footprint_areas_m2
 from .insets import InsetSettings, find_insets
 from .room_shell import ShellSettings, Surface, build_shell, surface_quads
 
@@ -33,6 +33,7 @@ class StructureSettings(ShellSettings):
     """[geom.structure] (configs/geom.toml): the shell's thresholds and the plane search, object and tiling ones."""
     normal_deg: float = 25.0
     min_points: int = 40
+    min_area_m2: float = 2.0
     piece_eps_m: float = 0.2
     max_planes: int = 60
     object_eps_m: float = 0.15
@@ -120,11 +121,13 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     normals = normals / length[:, None]
 
     with progress.task("structure: planes", total=settings.max_planes) as task:
+        areas = footprint_areas_m2(art.data["gaussians/log_scales"])    # votes by area: any Gaussians (planes.py)
         planes = find_planes(x, normals, distance_m=settings.distance_m, normal_deg=settings.normal_deg,
                              min_points=settings.min_points, piece_eps_m=settings.piece_eps_m,
+                             areas_m2=areas, min_area_m2=settings.min_area_m2,
                              max_planes=settings.max_planes, seed=seed, progress=task)
     try:
-        surfaces = build_shell(x, planes, settings)
+        surfaces = build_shell(x, planes, settings, areas)
     except ValueError as exc:
         raise StageError(f"{scene_path}: no room shell in {len(planes)} planes: {exc}") from None
 
