@@ -75,7 +75,8 @@ class CalibrateInputs:
 
 @dataclass
 class CalibResult:
-    """What calibrate did: counts, errors, the alignment, where it wrote, how long each phase took."""
+    """What calibrate did: counts, errors, the alignment, where it wrote, how long each phase took, and the SfM
+    matcher it used with the reason ("" for an imported model)."""
 
     out: Path
     n_images: int
@@ -91,6 +92,7 @@ class CalibResult:
     undistorted_dir: Path | None = None
     timings_s: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    matcher: str = ""
 
     @property
     def registered_fraction(self) -> float:
@@ -125,7 +127,8 @@ def _check_reference_names(refs_names: list[str], images: ImageSet, source: str,
 
 
 def _sfm_or_import(inputs: CalibrateInputs, images: ImageSet, options: CalibrateOptions, work: Path, progress,
-                   known_K, known_centres: dict | None = None) -> tuple[object, int]:
+                   known_K, known_centres: dict | None = None) -> tuple[object, int, str]:
+    """(reconstruction or None, number of models, the matcher used and why: "" for an imported model)."""
     if inputs.colmap_model is not None:
         rec = sfm_mod.read_colmap_model(inputs.colmap_model)
         names = [rec.image(i).name for i in rec.reg_image_ids()]
@@ -133,8 +136,10 @@ def _sfm_or_import(inputs: CalibrateInputs, images: ImageSet, options: Calibrate
         if absent:
             raise InputFileError(f"the COLMAP model has {len(absent)} image(s) that are not in {images.folder}: "
                                  f"{', '.join(absent[:5])}", path=inputs.colmap_model)
-        return rec, 1
-    return sfm_mod.run_sfm(images, work, options.sfm, progress, known_K=known_K, known_centres=known_centres)
+        return rec, 1, ""
+    rec, n_models, choice = sfm_mod.run_sfm(images, work, options.sfm, progress, known_K=known_K,
+                                            known_centres=known_centres)
+    return rec, n_models, f"{choice.matcher} ({choice.reason})"
 
 
 def _registration_error(n_reg: int, n: int, n_models: int, need: float) -> StageError:
@@ -188,7 +193,7 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
         work = Path(tmp)
         t = time.time()
         known_centres = dict(zip(centre_refs.names, centre_refs.centres)) if centre_refs is not None else None
-        rec, n_models = _sfm_or_import(inputs, images, options, work, progress, known_K, known_centres)
+        rec, n_models, matcher = _sfm_or_import(inputs, images, options, work, progress, known_K, known_centres)
         timings["sfm" if inputs.colmap_model is None else "import"] = time.time() - t
         n = len(images.names)
         n_reg = 0 if rec is None else rec.num_reg_images()
@@ -290,6 +295,7 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
                 shutil.move(str(staged), str(final))
         prov = Provenance(stage="calibrate", config_toml=config_toml, extra={
             "timings_s": timings, "unregistered": unregistered, "n_models": n_models, "dropped": dropped,
+            "matcher": matcher,
             "camera_model": model.camera_model, "distortion_px": distortion, "warnings": warnings,
             "alignment_method": alignment.method if alignment else "none",
             "alignment_labels": alignment.labels if alignment else [],
@@ -311,7 +317,7 @@ def run(inputs: CalibrateInputs, options: CalibrateOptions | None = None, progre
     timings["total"] = time.time() - t0
     return CalibResult(out, n, len(world.names), unregistered, float(np.mean(world.reproj_error_px)),
                        len(world.points_xyz), metric, alignment, model.camera_model, plot_path, final_model,
-                       final_undist, timings, warnings)
+                       final_undist, timings, warnings, matcher)
 
 
 def _align(rec, centre_refs, point_refs, options: CalibrateOptions) -> Alignment | None:

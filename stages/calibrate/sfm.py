@@ -12,6 +12,7 @@ import numpy as np
 
 from rfir_core.errors import ConfigError, InputFileError, StageError
 
+from . import matcher_choice
 from .images import ImageSet
 
 
@@ -19,11 +20,16 @@ from .images import ImageSet
 class SfmOptions:
     """Structure-from-motion settings (section [calibrate.sfm] of configs/calibrate.toml).
 
-    matcher: "auto" (exhaustive up to exhaustive_max_images; then exhaustive with at most
-      reduced_num_features features per photo up to reduced_exhaustive_max_images; above that spatial
-      when every photo's centre is known, else sequential), "exhaustive", "sequential" (each photo against the next
-      `sequential_overlap`, plus quadratic jumps) or "spatial" (each photo against its
-      `spatial_neighbors` nearest known centres; needs a centre for every photo);
+    matcher: "auto" (exhaustive up to exhaustive_max_images; above that sequential when a probe finds the
+      photos to be a sequence (matcher_choice.py), else exhaustive with at most reduced_num_features features
+      per photo up to reduced_exhaustive_max_images and above that spatial when every photo's centre is known,
+      else sequential), "exhaustive", "sequential" (each photo against the next `sequential_overlap`, plus
+      quadratic jumps and keyframes every `loop_closure_period` photos against each other) or "spatial" (each
+      photo against its `spatial_neighbors` nearest known centres; needs a centre for every photo);
+    probe_pairs, probe_num_features, probe_min_inliers, probe_near_far_ratio: the sequence probe's neighbouring
+      and far pairs (each), its SIFT features per photo, the inliers a verified pair has and how many times the
+      far pairs' median inliers the neighbours' must reach; sequential_min_registered_fraction: below it, auto's
+      sequential matching is redone exhaustively;
     max_num_features: SIFT features per image; max_image_size: longer side used for features (px);
     camera_model: COLMAP model when intrinsics are unknown ("SIMPLE_RADIAL", "PINHOLE", "OPENCV"...);
     max_ignored_distortion_px: distortion smaller than this at the image corners is dropped (no
@@ -36,6 +42,12 @@ class SfmOptions:
     reduced_exhaustive_max_images: int = 300
     reduced_num_features: int = 4096
     sequential_overlap: int = 15
+    loop_closure_period: int = 10
+    probe_pairs: int = 8
+    probe_num_features: int = 1024
+    probe_min_inliers: int = 15
+    probe_near_far_ratio: float = 2.0
+    sequential_min_registered_fraction: float = 0.9
     spatial_neighbors: int = 30
     max_num_features: int = 8192
     max_image_size: int = 3200
@@ -54,9 +66,13 @@ class SfmOptions:
                  "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE")
         if self.camera_model not in known:
             raise ConfigError(f"calibrate.sfm.camera_model = {self.camera_model!r}: expected one of {', '.join(known)}")
-        if min(self.max_num_features, self.reduced_num_features) < 100 or self.sequential_overlap < 1 or self.spatial_neighbors < 1:
-            raise ConfigError("calibrate.sfm: max_num_features must be >= 100, sequential_overlap and "
-                              "spatial_neighbors >= 1")
+        if min(self.max_num_features, self.reduced_num_features, self.probe_num_features) < 100 \
+                or self.sequential_overlap < 1 or self.spatial_neighbors < 1 or self.probe_pairs < 1:
+            raise ConfigError("calibrate.sfm: max_num_features, reduced_num_features and probe_num_features must be "
+                              ">= 100, sequential_overlap, spatial_neighbors and probe_pairs >= 1")
+        if self.loop_closure_period < 0 or not 0 <= self.sequential_min_registered_fraction <= 1:
+            raise ConfigError("calibrate.sfm: loop_closure_period must be >= 0 and sequential_min_registered_fraction "
+                              "within [0, 1]")
 
 
 def _pycolmap():
@@ -71,7 +87,8 @@ def _pycolmap():
 
 
 def choose_matcher(options: SfmOptions, n_images: int, all_centres_known: bool) -> tuple[str, int]:
-    """(matcher, SIFT features per photo) that `options` resolve to for n_images photos.
+    """(matcher, SIFT features per photo) that `options` resolve to for n_images photos without the sequence probe
+    (matcher_choice.choose runs the probe and takes this rule when the photos are not a sequence).
 
     Exhaustive matching costs n^2/2 pairs times features^2: above exhaustive_max_images photos
     "auto" halves the features (a quarter of the cost per pair), above reduced_exhaustive_max_images
@@ -100,17 +117,8 @@ def _write_position_priors(db_path: Path, centres: dict) -> None:
         db.close()
 
 
-def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, known_K: np.ndarray | None = None,
-            known_centres: dict | None = None):
-    """Run SfM on `images` in `work_dir`; return (largest pycolmap.Reconstruction or None, number of models).
-
-    known_K (3,3, OpenCV pixel convention): fixed pinhole intrinsics shared by all photos.
-    known_centres: image name -> world centre (m), used only to pick pairs for spatial matching.
-    """
+def _reader_options(options: SfmOptions, known_K: np.ndarray | None):
     pycolmap = _pycolmap()
-    if hasattr(pycolmap, "set_random_seed"):
-        pycolmap.set_random_seed(options.seed)
-    db = work_dir / "database.db"
     reader = pycolmap.ImageReaderOptions()
     if known_K is not None:
         reader.camera_model = "PINHOLE"
@@ -119,38 +127,132 @@ def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, kno
                                                               known_K[0, 2] + 0.5, known_K[1, 2] + 0.5))
     else:
         reader.camera_model = options.camera_model
+    return reader
+
+
+def _extract(db: Path, images: ImageSet, names: list[str], options: SfmOptions, known_K, n_features: int,
+             task=None) -> None:
+    """SIFT features of the photos `names` into the database db, n_features at most per photo, one shared camera."""
+    pycolmap = _pycolmap()
+    reader = _reader_options(options, known_K)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = options.num_threads
     extraction.max_image_size = options.max_image_size
-    all_known = known_centres is not None and all(nm in known_centres for nm in images.names)
-    matcher, n_features = choose_matcher(options, len(images.names), all_known)
-    if matcher == "spatial" and not all_known:
-        raise ConfigError("calibrate.sfm.matcher = 'spatial' needs a known centre (--poses) for every photo")
     extraction.sift.max_num_features = n_features
     extraction.use_gpu = False
     chunk = 8
-    with progress.task("features", total=len(images.names)) as task:
-        for start in range(0, len(images.names), chunk):
-            names = images.names[start:start + chunk]
-            pycolmap.extract_features(db, images.folder, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                                      reader_options=reader, extraction_options=extraction,
-                                      device=pycolmap.Device.cpu)
-            task.advance(len(names))
-            reader.existing_camera_id = 1  # the later chunks share the first chunk's camera
+    for start in range(0, len(names), chunk):
+        part = names[start:start + chunk]
+        pycolmap.extract_features(db, images.folder, image_names=part, camera_mode=pycolmap.CameraMode.SINGLE,
+                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+        if task is not None:
+            task.advance(len(part))
+        reader.existing_camera_id = 1  # the later chunks share the first chunk's camera
+
+
+def _matching_options(options: SfmOptions):
+    pycolmap = _pycolmap()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = options.num_threads
     matching.use_gpu = False
-    with progress.task(f"matching ({matcher})", total=1) as task:
-        if matcher == "exhaustive":
+    return matching
+
+
+def _match_listed(db: Path, names: list[str], pairs: list[tuple[int, int]], options: SfmOptions) -> None:
+    """Match the listed pairs (indices into names) with geometric verification (pycolmap's imported pairs)."""
+    pycolmap = _pycolmap()
+    listing = db.parent / f"pairs_{len(pairs)}.txt"
+    listing.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    pycolmap.match_image_pairs(db, matching_options=_matching_options(options),
+                               pairing_options=pycolmap.ImportedPairingOptions(match_list_path=listing),
+                               device=pycolmap.Device.cpu)
+
+
+def probe_inliers(images: ImageSet, work_dir: Path, options: SfmOptions, known_K,
+                  near: list[tuple[int, int]], far: list[tuple[int, int]]) -> matcher_choice.SequenceProbe:
+    """Verified inliers of the pairs near and far (indices into images.names) on probe_num_features features per
+    photo, in a database of their own under work_dir (matcher_choice's sequence probe)."""
+    pycolmap = _pycolmap()
+    work_dir.mkdir(parents=True, exist_ok=True)
+    db = work_dir / "probe.db"
+    used = sorted({k for pair in near + far for k in pair})
+    _extract(db, images, [images.names[k] for k in used], options, known_K, options.probe_num_features)
+    _match_listed(db, images.names, near + far, options)
+    database = pycolmap.Database.open(str(db))
+    try:
+        ids = {image.name: image.image_id for image in database.read_all_images()}
+        pair_ids, counts = database.read_two_view_geometry_num_inliers()
+    finally:
+        database.close()
+    inliers = dict(zip(pair_ids, counts))
+
+    def count(i, j):
+        return int(inliers.get(pycolmap.image_pair_to_pair_id(ids[images.names[i]], ids[images.names[j]]), 0))
+
+    return matcher_choice.SequenceProbe(np.array([count(i, j) for i, j in near], float),
+                                        np.array([count(i, j) for i, j in far], float))
+
+
+def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, known_K: np.ndarray | None = None,
+            known_centres: dict | None = None):
+    """Run SfM on `images` in `work_dir`; return (largest pycolmap.Reconstruction or None, number of models, the
+    MatcherChoice it used). The matcher choice and, when auto's sequential matching registers too few photos, the
+    exhaustive rerun are printed through progress.log.
+
+    known_K (3,3, OpenCV pixel convention): fixed pinhole intrinsics shared by all photos.
+    known_centres: image name -> world centre (m), used only to pick pairs for spatial matching.
+    """
+    pycolmap = _pycolmap()
+    if hasattr(pycolmap, "set_random_seed"):
+        pycolmap.set_random_seed(options.seed)
+    n = len(images.names)
+    all_known = known_centres is not None and all(nm in known_centres for nm in images.names)
+    base = choose_matcher(options, n, all_known)
+    if base[0] == "spatial" and not all_known:
+        raise ConfigError("calibrate.sfm.matcher = 'spatial' needs a known centre (--poses) for every photo")
+
+    def probe(near, far):
+        with progress.task("matching: sequence probe", total=1) as task:
+            result = probe_inliers(images, work_dir / "probe", options, known_K, near, far)
+            task.advance(1)
+        return result
+
+    choice = matcher_choice.choose(options, n, base, probe)
+    progress.log(f"matching: {choice.matcher} ({choice.reason})")
+    rec, n_models = _sfm_with(choice, images, work_dir / "sfm", options, progress, known_K, known_centres)
+    registered = 0 if rec is None else rec.num_reg_images()
+    if choice.probed and registered < options.sequential_min_registered_fraction * n:
+        choice = matcher_choice.fallback(options, n, all_known, registered)
+        progress.log(f"matching: {choice.matcher} instead ({choice.reason})")
+        rec2, n_models2 = _sfm_with(choice, images, work_dir / "fallback", options, progress, known_K, known_centres)
+        if rec2 is not None and rec2.num_reg_images() >= registered:
+            rec, n_models = rec2, n_models2
+    return rec, n_models, choice
+
+
+def _sfm_with(choice: matcher_choice.MatcherChoice, images: ImageSet, work_dir: Path, options: SfmOptions, progress,
+              known_K, known_centres):
+    """Features, matching by `choice` and incremental mapping in work_dir: (largest model or None, models)."""
+    pycolmap = _pycolmap()
+    work_dir.mkdir(parents=True, exist_ok=True)
+    db = work_dir / "database.db"
+    with progress.task("features", total=len(images.names)) as task:
+        _extract(db, images, images.names, options, known_K, choice.num_features, task)
+    matching = _matching_options(options)
+    with progress.task(f"matching ({choice.matcher})", total=1) as task:
+        if choice.matcher == "exhaustive":
             pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
-        elif matcher == "sequential":
+        elif choice.matcher == "sequential":
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = options.sequential_overlap
             pairing.quadratic_overlap = True
-            pairing.loop_detection = False  # needs a vocabulary tree download
+            pairing.loop_detection = False  # COLMAP's needs a vocabulary tree (a download): keyframes instead
             pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing,
                                       device=pycolmap.Device.cpu)
-        elif matcher == "spatial":
+            loops = matcher_choice.loop_pairs(len(images.names), options.loop_closure_period, options.sequential_overlap)
+            if loops:
+                _match_listed(db, images.names, loops, options)
+        elif choice.matcher == "spatial":
             _write_position_priors(db, known_centres)
             pairing = pycolmap.SpatialPairingOptions()
             pairing.max_num_neighbors = options.spatial_neighbors
@@ -160,7 +262,7 @@ def run_sfm(images: ImageSet, work_dir: Path, options: SfmOptions, progress, kno
             pycolmap.match_spatial(db, matching_options=matching, pairing_options=pairing,
                                    device=pycolmap.Device.cpu)
         else:
-            raise StageError(f"unknown matcher {options.matcher!r} (expected auto, exhaustive or sequential)")
+            raise StageError(f"unknown matcher {choice.matcher!r} (expected auto, exhaustive, sequential or spatial)")
         task.advance(1)
     mapping = pycolmap.IncrementalPipelineOptions()
     mapping.num_threads = options.num_threads
