@@ -16,6 +16,12 @@ Devices are told apart by the file's tx_id / rx_id where it has them (a receiver
 is one device), else by position (rounded to 1 mm). A device with one position gets its gain wherever a
 link starts or ends there; a side with one device (the one roaming receiver) gets its gain on every link.
 Which sides get gains ("auto") is decided by validation on held-out positions (choose_device_gains).
+
+The gains enter the dB prediction additively, so for fixed materials their optimum is closed form (ridge
+regression: per device, the shrunk weighted mean of its links' residuals, DeviceGains.profile). A fit may
+therefore profile them out at every step instead of moving them by gradient steps (fit_physical), and fit the
+materials on a subsample of whole devices (whole_device_rows) while every device's final gain comes from all
+its links (DeviceGains.fit_all).
 """
 from __future__ import annotations
 
@@ -35,17 +41,21 @@ def _keys(points_m: np.ndarray) -> np.ndarray:
 class DeviceGains(nn.Module):
     """Gains [D_side] dB of the distinct devices of each fitted side.
 
-    positions: {side: [D, 3] m}; index: {side: [M] int64}, each fit link's device on that side."""
+    Devices are those of the links tx_m, rx_m [M, 3] m (and ids [M]); `rows` [M_fit] int64 picks the links a fit
+    evaluates (None: all M), so that a fit on a subsample still knows every device (one the subsample does not
+    see keeps gain 0 until fit_all gives it one from all its links).
+    positions: {side: [D, 3] m}; index: {side: [M_fit] int64}, each fit link's device on that side; all_index:
+    {side: [M] int64}, each link's."""
 
     def __init__(self, which: str, tx_m: np.ndarray, rx_m: np.ndarray, prior_db: float,
-                 tx_id: np.ndarray | None = None, rx_id: np.ndarray | None = None):
+                 tx_id: np.ndarray | None = None, rx_id: np.ndarray | None = None, rows: np.ndarray | None = None):
         super().__init__()
         if which not in CHOICES:
             raise ValueError(f"device gains {which!r} unknown ({', '.join(CHOICES)})")
         if not prior_db > 0:
             raise ValueError("the device gains' prior standard deviation must be > 0 dB")
         self.prior_db = float(prior_db)
-        self.positions, self.index, self.ids = {}, {}, {}
+        self.positions, self.index, self.all_index, self.ids = {}, {}, {}, {}
         self.gains = nn.ParameterDict()
         for side, pts, ids in zip(SIDES, (tx_m, rx_m), (tx_id, rx_id)):
             if which in (side, "both"):
@@ -53,15 +63,22 @@ class DeviceGains(nn.Module):
                 self.positions[side] = pos
                 if ids is not None:
                     self.ids[side] = uniq
-                self.index[side] = torch.as_tensor(inv, dtype=torch.int64)
+                self.all_index[side] = torch.as_tensor(inv, dtype=torch.int64)
+                self.index[side] = self.all_index[side] if rows is None else \
+                    self.all_index[side][torch.as_tensor(np.asarray(rows, np.int64))]
                 self.gains[side] = nn.Parameter(torch.zeros(len(pos), dtype=torch.float64))
 
     @property
     def num_devices(self) -> int:
         return sum(int(g.numel()) for g in self.gains.values())
 
+    @property
+    def num_fitted(self) -> int:
+        """Devices with at least one fit link (the gains a fit determines)."""
+        return sum(int(torch.unique(i).numel()) for i in self.index.values())
+
     def link_db(self) -> torch.Tensor:
-        """Gain of each fit link [M, 1] dB."""
+        """Gain of each fit link [M_fit, 1] dB."""
         out = 0.0
         for side, g in self.gains.items():
             out = out + g[self.index[side]]
@@ -71,6 +88,40 @@ class DeviceGains(nn.Module):
         """The prior's term of the per-link loss (module docstring); residual_mse detached by the caller."""
         total = sum((g ** 2).sum() for g in self.gains.values())
         return residual_mse / self.prior_db ** 2 * total / max(num_links, 1)
+
+    @torch.no_grad()
+    def profile(self, residual_db: torch.Tensor, weights: torch.Tensor | None = None) -> None:
+        """Set the gains to their optimum for the fit links' residuals (measured minus physical prediction, [M_fit]
+        dB) with link weights [M_fit] (mean 1; None: all alike): the minimum over g of the fit's loss
+        mean_links w (residual - g_tx - g_rx)^2 + penalty, with the penalty's s^2 the weighted mean squared
+        residual after the current gains (detached, as the penalty takes it). Per device
+        g_d = sum_{links of d} w r / (sum_{links of d} w + s^2 / prior^2); with both sides, side by side until
+        the gains move by under 1e-6 dB (warm-started from the current gains)."""
+        self._solve(self.index, residual_db, weights)
+
+    @torch.no_grad()
+    def fit_all(self, residual_db: torch.Tensor, weights: torch.Tensor | None = None) -> None:
+        """profile on every link the devices were built from (residual_db, weights [M]): each device's gain from
+        all its links, a device the fit's subsample left out included."""
+        self._solve(self.all_index, residual_db, weights)
+
+    def _solve(self, index: dict, residual_db, weights, tol_db: float = 1e-6, max_sweeps: int = 200) -> None:
+        r = torch.as_tensor(residual_db, dtype=torch.float64).reshape(-1)
+        w = torch.ones_like(r) if weights is None else torch.as_tensor(weights, dtype=torch.float64).reshape(-1)
+        gains = self.gains
+
+        def others(side):
+            return sum((gains[o][index[o]] for o in index if o != side), torch.zeros_like(r))
+        lam = float((w * (r - others(None)) ** 2).sum() / w.sum()) / self.prior_db ** 2 if len(r) else 0.0
+        counts = {side: torch.zeros_like(gains[side]).index_add_(0, index[side], w) + lam for side in index}
+        for _ in range(max_sweeps if len(index) > 1 else 1):
+            moved = 0.0
+            for side in index:
+                new = torch.zeros_like(gains[side]).index_add_(0, index[side], w * (r - others(side))) / counts[side]
+                moved = max(moved, float((new - gains[side]).abs().max()) if new.numel() else 0.0)
+                gains[side].copy_(new)
+            if moved < tol_db:
+                break
 
     @torch.no_grad()
     def centre(self) -> float:
@@ -150,3 +201,22 @@ def ridge_gains(residual_db: np.ndarray, index: dict, prior_db: float, sweeps: i
             rest = r - sum(gains[o][index[o]] for o in index if o != side)
             gains[side] = np.bincount(idx, rest, len(gains[side])) / (np.bincount(idx, None, len(gains[side])) + lam)
     return gains
+
+
+def whole_device_rows(which: str, count: int, tx_m: np.ndarray, rx_m: np.ndarray, ids: dict) -> np.ndarray:
+    """Rows [R] int64 of about `count` of the links tx_m, rx_m [M, 3] m (ids {side: [M] or None}) made of whole
+    devices: the fitted side ("tx", "rx" or "both") with the most devices (a gain per surveyed position: a few
+    links each) gives evenly spaced devices in device order (device_index: ids, else positions sorted), each with
+    every one of its links, so each gain the fit profiles keeps all the links it has; a device of the other side
+    (a fixed anchor) keeps its share. All rows when count covers them."""
+    sides = [s for s in SIDES if which in (s, "both")]
+    device = {s: device_index(p, ids.get(s))[1] for s, p in zip(SIDES, (tx_m, rx_m)) if s in sides}
+    side = max(sides, key=lambda s: int(device[s].max()) + 1 if len(device[s]) else 0)
+    d = device[side]
+    num = int(d.max()) + 1 if len(d) else 0
+    if count <= 0 or count >= len(d) or num == 0:
+        return np.arange(len(d))
+    take = max(1, min(num, int(round(count * num / len(d)))))
+    keep = np.zeros(num, bool)
+    keep[np.unique(np.linspace(0, num - 1, take).round().astype(np.int64))] = True
+    return np.flatnonzero(keep[d])

@@ -13,6 +13,16 @@ ones), with a short refit after each round of switches. With several starts kept
 are then crossed with the others' one material at a time (`_cross_finals`: a swap is kept where it lowers
 the loss) and fitted on for half the iterations. The state with the lowest training loss is kept (not the
 last step).
+
+Device gains (device_gains.py) are profiled out with the mean squared dB loss (`profile_gains`, variable projection):
+they enter the dB prediction additively, so for any materials their optimum under the prior is closed form
+(DeviceGains.profile: per device the shrunk weighted mean of its links' residuals), set before every evaluation
+of the loss. The loss is then a function of the materials alone, and its gradient with the gains held at their
+optimum is that function's gradient (the gains' own gradient is zero there). Adam moves only the materials; the
+cost of a step does not grow with the number of gains, every evaluation (a start switch, a crossing) compares
+materials at their best gains, and a gain seen by a few links is at its optimum from the first step, not after
+hundreds of steps of 0.2 dB. The Huber loss has no closed form: there the gains are fitted by Adam beside the
+materials (as with profile_gains off).
 """
 from __future__ import annotations
 
@@ -123,6 +133,8 @@ class PhysicalFitConfig:
     starts_kept: int = 1
     # one scattering coefficient S for every material (MaterialParams.shared_scattering; rf_fit.room.scattering)
     shared_scattering: bool = False
+    # device gains at their closed-form optimum at every step (module docstring) rather than fitted by Adam
+    profile_gains: bool = True
 
 
 @dataclass
@@ -200,6 +212,26 @@ def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | N
     return pred
 
 
+def gains_from_all_links(devices: DeviceGains, params: MaterialParams, fit_links, fit_rows: np.ndarray, links_of,
+                         target_db: np.ndarray, weights: np.ndarray | None = None, chunk_links: int = 2000) -> None:
+    """Every device's gain from all its links (DeviceGains.fit_all) for the fitted materials `params`: the links
+    the fit evaluated (fit_links, rows fit_rows [R] of the M training links) are predicted as traced, the others
+    traced chunk_links at a time (links_of(rows) -> their links) and dropped, so memory stays that of one chunk.
+    target_db [M] or [M, 1] dB; weights [M] or [M, 1] (link_weights; None: all alike). The power floor is the
+    fit's (FLOOR_BELOW_DB under the weakest fitted measurement)."""
+    target = np.asarray(target_db, np.float64).reshape(-1)
+    floor = _floor_power(target[fit_rows])
+    pred = np.empty(len(target))
+    rest = np.setdiff1d(np.arange(len(target)), fit_rows)
+    with torch.no_grad(), single_thread_torch():
+        pred[fit_rows] = predict_db(fit_links, params, floor)[:, 0].numpy()
+        for lo in range(0, len(rest), chunk_links):
+            rows = rest[lo:lo + chunk_links]
+            pred[rows] = predict_db(links_of(rows), params, floor)[:, 0].numpy()
+    devices.fit_all(torch.as_tensor(target - pred), None if weights is None else
+                    torch.as_tensor(np.asarray(weights, np.float64).reshape(-1)))
+
+
 def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: np.ndarray, freq_hz: float,
                       devices: DeviceGains | None = None, progress=None) -> np.ndarray:
     """[N, 2] range of |Gamma| at normal incidence at freq_hz [Hz] (the first fitted frequency) of each
@@ -237,9 +269,16 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
     target = torch.as_tensor(np.asarray(target_db, dtype=np.float64))
     weight = None if weights is None else torch.as_tensor(np.asarray(weights, np.float64)).reshape(-1, 1)
     pred = training_predictor(agg, target, devices)
+    profiled = devices is not None and cfg.profile_gains and cfg.loss == "db_mse"
+    floor = _floor_power(target)
 
     def objective(params: MaterialParams) -> torch.Tensor:
-        p = pred(params)
+        if profiled:
+            physical = predict_db(agg, params, floor)
+            devices.profile((target - physical.detach())[:, 0], None if weight is None else weight[:, 0])
+            p = physical + devices.link_db().detach()
+        else:
+            p = pred(params)
         loss = _loss(p, target, cfg, weight)
         if devices is not None:
             loss = loss + devices.penalty(((p - target) ** 2).mean().detach(), len(target))
@@ -274,7 +313,7 @@ def _fit_materials(agg, num_materials: int, target_db: np.ndarray, cfg: Physical
                    "lr": cfg.lr}]
         if cfg.fit_gain:
             groups.append({"params": [params.gain_db], "lr": 0.2})
-        if devices is not None:
+        if devices is not None and not profiled:
             groups.append({"params": list(devices.gains.values()), "lr": 0.2})
         opt = torch.optim.Adam(groups)
         best, best_state, curve = math.inf, None, []
@@ -365,7 +404,7 @@ def _num_unknowns(num_materials: int, cfg: PhysicalFitConfig, devices: DeviceGai
     system gain when fitted, one gain per device."""
     per_material = 2 + (0 if cfg.half_space else 1) + (0 if cfg.shared_scattering else 1)
     return (num_materials * per_material + int(cfg.shared_scattering) + int(cfg.fit_gain)
-            + (devices.num_devices if devices is not None else 0))
+            + (devices.num_fitted if devices is not None else 0))
 
 
 def _unknowns_words(num_materials: int, cfg: PhysicalFitConfig, devices: DeviceGains | None) -> str:
@@ -375,8 +414,8 @@ def _unknowns_words(num_materials: int, cfg: PhysicalFitConfig, devices: DeviceG
         words.append("one S")
     if cfg.fit_gain:
         words.append("the system gain")
-    if devices is not None and devices.num_devices:
-        words.append(plural(devices.num_devices, "device gain"))
+    if devices is not None and devices.num_fitted:
+        words.append(plural(devices.num_fitted, "device gain"))
     return "; ".join(words)
 
 

@@ -23,9 +23,10 @@ from rfir_core.physics.materials import ITU_MATERIALS, power_law
 from rfir_core.provenance import Provenance
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
-from rfir_stages.model.device_gains import DeviceGains, device_index
-from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials, link_weights,
-                                             material_index, reflection_ranges, training_predictor)
+from rfir_stages.model.device_gains import DeviceGains, device_index, whole_device_rows
+from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials,
+                                             gains_from_all_links, link_weights, material_index, reflection_ranges,
+                                             training_predictor)
 from rfir_stages.model.fit_physical import training_predictor
 from rfir_stages.model.material_checks import check_materials
 from rfir_stages.model.physical import PairSettings
@@ -278,6 +279,15 @@ def devices_kept(which: str, rows: np.ndarray, tx: np.ndarray, rx: np.ndarray, i
     return True
 
 
+def _whole_devices_words(settings: RoomSettings, fit: np.ndarray, tx: np.ndarray, rx: np.ndarray, ids: dict) -> str:
+    """What the fit takes where an evenly spaced subsample would leave a device under MIN_DEVICE_LINKS links."""
+    count = {s: len(np.unique(device_index(p, ids[s])[1][fit])) for s, p in (("tx", tx), ("rx", rx))}
+    return (f"device gains on: the materials fitted on {len(fit)} of the {len(tx)} training links, whole devices "
+            f"({count['tx']} tx and {count['rx']} rx devices with all their links; rf_fit.room.fit_links = "
+            f"{settings.fit_links}: evenly spaced links would leave a device under {MIN_DEVICE_LINKS}), the device "
+            "gains profiled out in closed form at each step, then every device's gain from all its links")
+
+
 def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent"):
     """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
     it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
@@ -422,9 +432,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         if 0 < settings.fit_links < len(tx) else fit
     if settings.device_gains not in ("off", "validate") and len(sub) < len(tx) and \
             not devices_kept(settings.device_gains, sub, tx, rx, ids):
-        # every device's gain needs its own links: a subsample leaves a few per device
-        progress.log(f"device gains on: fitting on all {len(tx)} training links (rf_fit.room.fit_links = "
-                     f"{settings.fit_links} would leave a device under {MIN_DEVICE_LINKS} links)")
+        # a gain per surveyed position has a few links: the subsample takes whole devices (whole_device_rows)
+        fit = whole_device_rows(settings.device_gains, settings.fit_links, tx, rx, ids)
+        progress.log(_whole_devices_words(settings, fit, tx, rx, ids))
     elif len(sub) < len(tx):
         fit = sub
         progress.log(f"fitting on {len(fit)} of the {len(tx)} training links, evenly spaced "
@@ -457,18 +467,17 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         settings = replace(settings, device_gains=choice.which)
         progress.log(f"device gains: {choice.which} ({choice.reason})")
         if choice.which != "off" and len(fit) < len(tx) and not devices_kept(choice.which, fit, tx, rx, ids):
-            fit = np.arange(len(tx))
-            progress.log(f"device gains on: fitting on all {len(tx)} training links (the {settings.fit_links} of "
-                         f"rf_fit.room.fit_links would leave a device under {MIN_DEVICE_LINKS} links)")
-            links = room.band_links(tx, rx, freq_hz, band)
+            fit = whole_device_rows(choice.which, settings.fit_links, tx, rx, ids)
+            progress.log(_whole_devices_words(settings, fit, tx, rx, ids))
+            links = room.band_links(tx[fit], rx[fit], freq_hz, band)
         elif choice.which != "off" and len(fit) < len(tx):
             progress.log(f"device gains on: every device keeps at least {MIN_DEVICE_LINKS} of the {len(fit)} links "
                          "fitted (rf_fit.room.fit_links)")
+    # every training link's devices, the fit's rows among them: a device the fit leaves out gets its gain from all links
     devices = None if settings.device_gains == "off" else DeviceGains(
-        settings.device_gains, tx[fit], rx[fit], settings.device_gain_prior_db,
-        *(None if ids[s] is None else ids[s][fit] for s in ("tx", "rx")))
-    if devices is not None and devices.num_devices > len(fit) / 5:   # under 5 links a gain: they fit the noise
-        progress.log(f"warning: {plural(devices.num_devices, 'device gain')} for {plural(len(fit), 'training link')}: "
+        settings.device_gains, tx, rx, settings.device_gain_prior_db, ids["tx"], ids["rx"], rows=fit)
+    if devices is not None and devices.num_devices > len(tx) / 5:   # under 5 links a gain: they fit the noise
+        progress.log(f"warning: {plural(devices.num_devices, 'device gain')} for {plural(len(tx), 'training link')}: "
                      "a gain per device "
                      "fits the links it has and carries to no other position (rf_fit.room.device_gains = auto "
                      "chooses by validation)")
@@ -481,6 +490,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     res = fit_room_materials(links, room, settings, len(names), target_db[fit, None], fit_cfg, progress, priors,
                              devices, weights)
     if devices is not None:
+        t_gains = time.time()
+        gains_from_all_links(devices, res.params, links, fit, lambda r: room.band_links(tx[r], rx[r], freq_hz, band),
+                             target_db, link_weights(None if count is None else np.asarray(count)[rows],
+                                                     None if spread is None else np.asarray(spread)[rows]))
+        progress.log(f"device gains: each from all its links ({len(tx)} training links, {len(tx) - len(fit)} of "
+                     f"them traced for it) with the fitted materials in {time.time() - t_gains:.1f} s")
         with torch.no_grad():
             res.params.gain_db += devices.centre()
     tabulated = [""] * len(names)
