@@ -382,30 +382,37 @@ MEASURED_QUICK_GRID = ("concrete,brick,metal", "plan")
 MEASURED_FIT = {"rf_fit.room.map_visibility": "false"}
 
 
-def _measured_data(r: Plan) -> tuple[dict[str, Path], Path]:
-    """The survey's links (quick: every measured_every_tx-th beacon position) imported once per protocol,
-    and surfels of its floor plan (walls 3 m high, concrete floor and ceiling; `--preset room`)."""
-    folder = r.data / "measured"
-    every = int(r.sizes.get("measured_every_tx", 1))
+def _survey_data(r: Plan, key: str, links_csv: Path, walls_csv: Path, every: int,
+                 protocols: tuple) -> tuple[dict[str, Path], Path]:
+    """A measured survey's links (every `every`-th transmitter position) imported once per protocol under
+    r.data/<key>/, and surfels of its floor plan (walls 3 m high, concrete floor and ceiling; `--preset
+    room`): ({protocol name: survey.h5}, scene.h5)."""
+    folder = r.data / key
     links, bare = folder / "links.csv", folder / "links_nosplit.csv"
-    thin = [r.python, str(M.SCRIPTS / "survey_thin.py"), str(SURVEY / "tetam_links.csv")]
-    r.step("data__measured_links", [*thin, str(links), "--every-tx", str(every)], links)
-    r.step("data__measured_links_nosplit", [*thin, str(bare), "--every-tx", str(every), "--drop-split"], bare)
+    thin = [r.python, str(M.SCRIPTS / "survey_thin.py"), str(links_csv)]
+    r.step(f"data__{key}_links", [*thin, str(links), "--every-tx", str(every)], links)
+    r.step(f"data__{key}_links_nosplit", [*thin, str(bare), "--every-tx", str(every), "--drop-split"], bare)
     surveys = {}
-    for name, protocol, _ in MEASURED_PROTOCOLS:
+    for name, protocol, _ in protocols:
         meas = folder / f"survey_{name}.h5"
         split = ["--split", protocol] if protocol else []
-        r.step(f"data__measured_survey_{name}", [r.rfir, "--seed", "0", "import", "csv", str(bare if protocol else links),
-                                                 "-o", str(meas), "--column", "sample_count=n_packets",
-                                                 "--column", "sample_std_db=rssi_std_db", *split], meas)
+        r.step(f"data__{key}_survey_{name}", [r.rfir, "--seed", "0", "import", "csv", str(bare if protocol else links),
+                                              "-o", str(meas), "--column", "sample_count=n_packets",
+                                              "--column", "sample_std_db=rssi_std_db", *split], meas)
         surveys[name] = meas
     room = folder / "room.ply"
-    r.step("data__measured_room", [r.rfir, "import", "floorplan", str(SURVEY / "tetam_walls.csv"), "--height", "3.0",
-                                   "-o", str(room), "--floor-material", "concrete", "--ceiling-material", "concrete"],
+    r.step(f"data__{key}_room", [r.rfir, "import", "floorplan", str(walls_csv), "--height", "3.0",
+                                 "-o", str(room), "--floor-material", "concrete", "--ceiling-material", "concrete"],
            room, [folder / "labels.json"])
     scene = folder / "scene.h5"
-    r.step("data__measured_surfels", [r.rfir, "mesh-gaussians", str(room), "-o", str(scene), "--preset", "room"], scene)
+    r.step(f"data__{key}_surfels", [r.rfir, "mesh-gaussians", str(room), "-o", str(scene), "--preset", "room"], scene)
     return surveys, scene
+
+
+def _measured_data(r: Plan) -> tuple[dict[str, Path], Path]:
+    """The TETAM survey (quick: every measured_every_tx-th beacon position) per protocol, and its surfels."""
+    return _survey_data(r, "measured", SURVEY / "tetam_links.csv", SURVEY / "tetam_walls.csv",
+                        int(r.sizes.get("measured_every_tx", 1)), MEASURED_PROTOCOLS)
 
 
 def _measured_fit_sets(r: Plan) -> dict:
@@ -415,7 +422,8 @@ def _measured_fit_sets(r: Plan) -> dict:
     return {"rf_fit.physical.iterations": n, "rf_fit.physical.start_iterations": max(10, n // 5), **MEASURED_FIT}
 
 
-def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
+def _measured_label(meas: Path, name: str, text: str, site: str = "TETAM lab",
+                    receivers: str = "receivers") -> Callable[[], str]:
     """A row label read from the imported survey: which positions or receivers are test."""
     def label() -> str:
         import numpy as np
@@ -427,8 +435,8 @@ def _measured_label(meas: Path, name: str, text: str) -> Callable[[], str]:
         tx, rx = np.asarray(a["tx_id"]), np.asarray(a["rx_id"])
         if name == "anchors":
             held = ", ".join(str(v) for v in np.unique(rx[test]))
-            return f"TETAM lab, {text} (rx_id {held}: {np.unique(rx[test]).size} of {np.unique(rx).size} receivers)"
-        return f"TETAM lab, {text} ({np.unique(tx[test]).size} of {np.unique(tx).size} positions)"
+            return f"{site}, {text} (rx_id {held}: {np.unique(rx[test]).size} of {np.unique(rx).size} {receivers})"
+        return f"{site}, {text} ({np.unique(tx[test]).size} of {np.unique(tx).size} positions)"
     return label
 
 
@@ -444,10 +452,11 @@ def _diagnose_note(r: Plan, report: Path) -> Callable[[], str]:
 
 
 def target_measured(r: Plan) -> Table:
-    """A real measured survey (public BLE data set, one lab, 12 anchors, 125 beacon positions): rfir's room
-    model on the floor plan against the simple baselines, where the survey reaches (random positions) and where
-    it does not (a held-out area, unseen anchors)."""
-    t = Table("RSSI: measured BLE survey (TETAM lab, 2.44 GHz)", MEASURED_METHODS)
+    """Two real measured surveys (public data sets: a BLE lab, 12 anchors, 125 beacon positions; a Wi-Fi lab
+    hall, 6 access points, 168 phone positions): rfir's room model on the floor plan against the simple
+    baselines, where the survey reaches (random positions) and where it does not (a held-out area, unseen
+    anchors)."""
+    t = Table("RSSI: measured surveys (TETAM lab BLE 2.44 GHz; lab hall Wi-Fi 5.2 GHz)", MEASURED_METHODS)
     surveys, scene = _measured_data(r)
     # every protocol file holds the same links: one Sionna sweep, scored on each split (quick: a 3-set grid)
     sweep, sweep_step = M.raytrace_sweep(r, "measured", r.data / "measured" / "room.ply", surveys["random"],
@@ -490,7 +499,60 @@ def target_measured(r: Plan) -> Table:
                 "transmit power and antenna gains)",
                 _raytrace_note(sionna),
                 _diagnose_note(r, report)]
+    _lab_rows(r, t)
     return t
+
+
+# The measured target's second survey (tests/data/rtt_lab/README.md): Wi-Fi RTT RSS in a lab hall, 6 access
+# points (rx, rx_id), a phone walked along two lines (tx, tx_id: 168 cells of 0.25 m), the walls near the
+# lines digitised from the data set's plan.
+LAB = Path("tests/data/rtt_lab")
+LAB_CITE = ("*Indoor-localization-data-set* (H. Yu, C. She, Y. Hu, G. Wang, R. Wang, B. Vucetic, Y. Li; "
+            "arXiv:2405.13339, 2024), Laboratory scenario, MIT licence; source, citation and the derived files: "
+            "[tests/data/rtt_lab/README.md](../../tests/data/rtt_lab/README.md)")
+LAB_PROTOCOLS = (("random", None, "random 20 % of phone positions"),
+                 ("area", "block-tx:6", "held-out area"),
+                 ("anchors", "holdout-rx:2", "unseen access points"))
+
+
+def _lab_rows(r: Plan, t: Table) -> None:
+    """The lab-hall survey's rows (quick: every measured_lab_every_tx-th phone position) and notes; ray tracing
+    in the full variant only (its sweep would take the quick variant past its budget)."""
+    every = int(r.sizes.get("measured_lab_every_tx", 1))
+    surveys, scene = _survey_data(r, "measured_lab", LAB / "lab_links.csv", LAB / "lab_walls.csv", every,
+                                  LAB_PROTOCOLS)
+    sweep = None
+    if not r.quick:
+        sweep = M.raytrace_sweep(r, "measured_lab", r.data / "measured_lab" / "room.ply", surveys["random"])
+    sionna = {}
+    for name, _, text in LAB_PROTOCOLS:
+        ours = M.rfir_rssi(r, f"measured_lab_{name}", scene, surveys[name], "random", _measured_fit_sets(r))
+        cells = {"rfir": ours.cell(),
+                 "log-distance": ours.metric("baseline_log_distance_mae_db"),
+                 "multi-wall": ours.metric("baseline_multiwall_mae_db"),
+                 "nearest links": ours.metric("baseline_nearest_links_mae_db")}
+        if sweep is not None:
+            sionna[name] = M.raytrace_gain(r, f"measured_lab_{name}", *sweep, surveys[name])
+            cells["ray tracing (ITU materials)"] = sionna[name].cell("metrics.mae_db")
+            cells["ray tracing (calibrated)"] = sionna[name].cell("metrics.calibrated_mae_db")
+        t.add(_measured_label(surveys[name], name, text, "lab hall (Wi-Fi)", "access points"), cells)
+    t.notes += [f"lab hall data: {LAB_CITE}",
+                "lab hall: an open hall of about 25 x 9 m around a block of rooms, 6 Google Wifi access points "
+                "(anchors), two phones walked five times along a line on either side of the block; Wi-Fi RTT RSS "
+                "averaged in 0.25 m cells (168 positions, 1,008 links, median 48 samples per link); channel, "
+                "heights and transmit power not given (assumed 5.2 GHz, 1.0 / 1.2 m, 20 dBm)"
+                + (f"; quick: one position in {every} ({168 // every + (168 % every > 0)} positions)"
+                   if every > 1 else ""),
+                "lab hall room: 18 walls near the walked lines digitised from the data set's plan (registered by "
+                "its six AP markers; stair core and thick walls concrete 0.2 m, room partitions plasterboard "
+                "0.1 m), walls 3 m high, concrete floor and ceiling; the hall's south part, furniture and people "
+                "not modelled; protocols and rfir's settings as above (held-out area `--split block-tx:6`, unseen "
+                "access points `--split holdout-rx:2`)",
+                "lab hall ray tracing: " + ("as above, the 6 access points solved as sources" if not r.quick else
+                                            "not run in the quick variant (the sweep takes minutes)")]
+    if sionna:
+        note = _raytrace_note(sionna)
+        t.notes.append(lambda: "lab hall " + note())
 
 
 def _raytrace_note(results: dict) -> Callable[[], str]:
@@ -684,8 +746,9 @@ ABOUT = {
             "MAE, the ratio to it and the rank correlation of the predicted with the simulated change.",
     "ablation": "The physical model with one term turned off at a time (residual, double bounces, a material per "
                 "object, the diffuse term), refitted on the same rows.",
-    "measured": "A measured BLE survey (one lab, 12 receivers, 125 beacon positions): random positions, a held-out "
-                "area and unseen receivers, against log-distance, multi-wall and nearest links.",
+    "measured": "Two measured surveys (a BLE lab: 12 receivers, 125 beacon positions; a Wi-Fi lab hall: 6 access "
+                "points, 168 phone positions): random positions, a held-out area and unseen receivers, against "
+                "log-distance, multi-wall and nearest links.",
     DIAGNOSE: "`rfir diagnose` on copies of simulated data with a hidden effect each: whether it names the effect "
               "(or says none is in its catalogue), and the held-out MAE before and after the named correction.",
     FULLWAVE: "The physical-optics backend of `rfir simulate` against a boundary-element (full-wave) solution on a "

@@ -131,3 +131,24 @@ def test_shipped_files_match_the_source():
         assert (int(r["n_packets"]), float(r["power_db"]), float(r["rssi_std_db"]), float(r["tx_x"])) == (n, mean, std, x)
     walls = _rows(DATA / "lab_walls.csv")
     assert len(walls) == 18 and {w["material"] for w in walls} == {"concrete", "plasterboard"}
+
+
+def test_the_measured_target_runs_the_lab_hall_under_three_protocols():
+    from rfir_stages.reproduce.targets import LAB_PROTOCOLS, declare
+
+    for quick, every in ((True, "3"), (False, "1")):
+        plan, tables = declare(["measured"], quick)
+        steps = plan.steps
+        thin = steps["data__measured_lab_links"].command
+        assert "tests/data/rtt_lab/lab_links.csv" in thin and f"--every-tx {every}" in thin
+        assert "tests/data/rtt_lab/lab_walls.csv" in steps["data__measured_lab_room"].command
+        for name, protocol, _ in LAB_PROTOCOLS:
+            imp = steps[f"data__measured_lab_survey_{name}"].command
+            assert (f"--split {protocol}" in imp) if protocol else "--split" not in imp
+            fit = steps[f"measured_lab_{name}__rfir_fit"]
+            assert any(i.endswith(f"measured_lab/survey_{name}.h5") for i in fit.inputs)
+            assert any(i.endswith("measured_lab/scene.h5") for i in fit.inputs)
+        # ray tracing of the lab hall in the full variant only
+        assert ("measured_lab__raytrace_sweep" in steps) is (not quick)
+        table, _ = tables["measured"]
+        assert len(table.rows) == 6

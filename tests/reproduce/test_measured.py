@@ -52,5 +52,5 @@ def test_the_measured_target_imports_each_protocol_and_fits_the_floor_plan():
         assert "--preset room" in steps["data__measured_surfels"].command
         assert steps["measured_random__diagnose"].inputs[0].endswith("fits/measured_random.h5")
         table, labels = tables["measured"]
-        assert len(table.rows) == 3 and "data__measured_room" in labels
+        assert len(table.rows) == 6 and "data__measured_room" in labels  # TETAM, then the lab hall
         assert any("tests/data/public_survey/README.md" in n for n in table.notes if isinstance(n, str))
