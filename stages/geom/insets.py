@@ -40,7 +40,8 @@ from .room_shell import Surface
 MIN_CELL_GAUSSIANS = 4            # a median of fewer Gaussians is one Gaussian's colour: such cells count as unseen
 MIN_SPREAD = np.array([0.01, 0.01, 0.01, 0.002])  # spread floors (RGB, offset m): below photo noise, a flat synthetic
 #                                                 # colour must not make every rounding error an inset
-EDGE_SEARCH_CELLS = 1.5           # an edge is searched this many cells either side of the cell boundary found
+EDGE_SEARCH_CELLS = 1.5           # an edge is searched this many cells either side of where it stands ...
+REFINE_ROUNDS = 4                 # ... and searched again from where it moved, at most this many times
 
 
 @dataclass
@@ -190,7 +191,12 @@ def surface_insets(x: np.ndarray, normals: np.ndarray, colors: np.ndarray, surfa
         appearance = np.median(feats[inside_cells[i, j]], axis=0)
         z = (feats - dominant) / spread
         z_inset = (appearance - dominant) / spread
-        rect = _refined(ab, z, z_inset, rect, cell)
+        for _ in range(REFINE_ROUNDS):     # an edge the cells left short moves on while the Gaussians beyond look inset
+            moved = _refined(ab, z, z_inset, rect, cell)
+            done = np.abs(np.subtract(moved, rect)).max() < 0.01
+            rect = moved
+            if done:
+                break
         if not _sharp_edges(ab, z, z_inset, rect, cell, surface.size_m):
             continue
         cells = _host_cells(surface, rect, ab, idx) & ~taken

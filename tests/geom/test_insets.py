@@ -32,13 +32,12 @@ def _texture(rng, size, std, corr_m, step=0.025):
 
 
 def textured_wall(rng, insets=(), size=WALL, base=PLASTER, origin=(0.0, 0.0, 0.0), u=(1.0, 0.0, 0.0),
-                  normal=(0.0, 1.0, 0.0)):
-    """Gaussians of a vertical wall (corner origin, along u and up, facing normal) with a cloud texture, colour and
+                  normal=(0.0, 1.0, 0.0), v=(0.0, 0.0, 1.0), name="wall_00"):
+    """Gaussians of a wall (corner origin, along u and v, up by default, facing normal) with a cloud texture, colour and
     offset noise, and insets: (u0, u1, v0, v1) m, colour [3] or None (the wall's), offset [m] along the normal
     (negative: recessed), each with a texture of its own. Returns (x [N, 3], normals [N, 3], colors [N, 3], wall
     Surface)."""
-    origin, u, normal = (np.asarray(v, float) for v in (origin, u, normal))
-    up = np.array([0.0, 0.0, 1.0])
+    origin, u, v, normal = (np.asarray(w, float) for w in (origin, u, v, normal))
     n = int(DENSITY * size[0] * size[1])
     a, b = rng.random(n) * size[0], rng.random(n) * size[1]
     colors = base + _texture(rng, size, TEXTURE_STD, TEXTURE_CORR_M)(a, b)
@@ -49,11 +48,11 @@ def textured_wall(rng, insets=(), size=WALL, base=PLASTER, origin=(0.0, 0.0, 0.0
         colors[inside] = own[inside]
         offset[inside] = depth
     colors = (colors + rng.normal(0, GAUSSIAN_COLOUR_STD, (n, 3))).clip(0, 1)
-    x = origin + np.outer(a, u) + np.outer(b, up) + np.outer(offset + rng.normal(0, OFFSET_NOISE_M, n), normal)
+    x = origin + np.outer(a, u) + np.outer(b, v) + np.outer(offset + rng.normal(0, OFFSET_NOISE_M, n), normal)
     normals = normal + rng.normal(0, np.radians(TILT_NOISE_DEG) / np.sqrt(2), (n, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     cell = 0.1
-    wall = Surface("wall_00", "wall", normal, float(origin @ normal), np.arange(n), 0.0, origin=origin, u=u, v=up.copy(),
+    wall = Surface(name, name.split("_")[0], normal, float(origin @ normal), np.arange(n), 0.0, origin=origin, u=u, v=v,
                    occupied=np.ones((int(round(size[0] / cell)), int(round(size[1] / cell))), bool), cell_m=cell)
     return x, normals, colors, wall
 
@@ -101,3 +100,12 @@ def test_one_appearance_on_two_walls_is_one_class():
     # the two doors share the class, the recessed window has its own
     door_names = [s.name for s in insets if abs(_rect_of(s)[0] - 1.0) <= TOLERANCE_M]
     assert len(door_names) == 2 and door_names[0].rsplit("_", 1)[0] == door_names[1].rsplit("_", 1)[0]
+
+
+def test_floor_rug_is_an_inset():
+    rug = (1.2, 3.4, 0.8, 2.3)
+    x, normals, colors, floor = textured_wall(np.random.default_rng(11), insets=[(rug, np.array([0.25, 0.3, 0.55]), 0.0)],
+                                              size=(5.0, 4.0), base=np.array([0.55, 0.52, 0.48]), u=(1.0, 0.0, 0.0),
+                                              v=(0.0, 1.0, 0.0), normal=(0.0, 0.0, 1.0), name="floor")
+    insets = find_insets(x, normals, colors, [floor], InsetSettings())
+    assert len(insets) == 1 and np.abs(np.subtract(_rect_of(insets[0]), rug)).max() <= TOLERANCE_M
