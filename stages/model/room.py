@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import math
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -36,7 +37,7 @@ from .plane_merge import SCATTER_FACTOR
 from .radio_model_base import FLOOR_DB
 from .room_diffuse import CROSSING_NODES, MAX_LEG_CROSSINGS, SMALL_PATCH_SHARE, CellCrossings, DiffuseCells, DiffuseTerms
 from .room_diffuse import NODES as DIFFUSE_NODES
-from .room_diffuse import diffuse_cells, diffuse_terms
+from .room_diffuse import diffuse_cells, diffuse_reflectance, diffuse_terms, diffuse_transmittance
 from .room_paths import (CELL_PER_TILE, FOOTPRINT_REACH, HIGHER_ORDER_MIN_AREA_M2, MAX_INTERACTIONS, MAX_ORDER,
                          THIRD_ORDER_MIN_AREA_M2, THIRD_ORDER_SMALL_REFLECTIONS, TILE_CLOSING, PatchSet, RoomPaths,
                          build_patch_set, trace_room_paths)
@@ -267,6 +268,67 @@ def _distinct_rows(rows: torch.Tensor, base: int) -> tuple[torch.Tensor, torch.T
     return rows[first], inverse
 
 
+class DiffuseMatrix:
+    """DiffuseTerms.power of links at one frequency as matrix products, for links evaluated many times (a fit's
+    steps; equal to rounding, tested). With R = N x NODES the materials' |Gamma|^2 S^2 nodes g2 [R] and the
+    products of |T|^2 over each combination of surfaces crossed, through [U] (ObstructedCells.crossings),
+
+        P_diff = (W + A through) g2,
+
+    W [M, R] the unobstructed weights and A [M R, U] sparse (CSR) the obstructed terms' weights at row
+    link x R + refl, column combo, lambda^2 in both. A step then touches each obstructed term twice (A through,
+    and A^T times the gradient on the way back) where the gathers, products and scatters of DiffuseTerms.power
+    touch it a dozen times: twice as fast a fit step on the rooms of measured surveys, where each link has a
+    thousand such terms. Memory: A and A^T, 32 bytes a term (DiffuseTerms holds 32)."""
+
+    def __init__(self, diffuse: DiffuseTerms):
+        ob, m = diffuse.obstructed, diffuse.num_links
+        self.freq_hz, self.crossings = diffuse.freq_hz, ob.crossings
+        lam2 = diffuse.lambda2()
+        self.shape = (m, int(diffuse.weight.shape[1]) * int(diffuse.weight.shape[2]))
+        self.unobstructed = (diffuse.weight * lam2[:, None, None]).reshape(self.shape)
+        rows, cols = ob.link * self.shape[1] + ob.refl, ob.combo
+        vals = ob.weight * lam2[ob.link]
+        u = int(ob.crossings.shape[0])
+        self.matrix = _csr(rows, cols, vals, (m * self.shape[1], u))
+        self.transposed = _csr(cols, rows, vals, (u, m * self.shape[1]))
+
+    def power(self, eta_of_material: torch.Tensor, thickness_m: torch.Tensor | None,
+              scattering: torch.Tensor) -> torch.Tensor:
+        """P_diff [M] W (P_T = 1 W) for materials' eta [N, 1] (the one frequency), thickness [N] m, S [N]."""
+        g2 = diffuse_reflectance(eta_of_material, thickness_m, scattering, self.freq_hz).reshape(-1)
+        weight = self.unobstructed
+        if self.matrix.values().numel():
+            t2 = diffuse_transmittance(eta_of_material, thickness_m, self.freq_hz)
+            t2 = torch.cat([t2, torch.ones_like(t2[:1])]).reshape(-1)          # the row of "no crossing"
+            through = t2.index_select(0, self.crossings.reshape(-1)).view(self.crossings.shape).prod(1)
+            weight = weight + _SparseProduct.apply(through, self.matrix, self.transposed).view(self.shape)
+        return weight @ g2
+
+
+def _csr(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, shape: tuple) -> torch.Tensor:
+    """Sparse CSR [shape] float64 of entries (rows, cols, vals) [K] (summed where repeated)."""
+    order = torch.argsort(rows * shape[1] + cols)
+    crow = torch.zeros(shape[0] + 1, dtype=torch.int64)
+    crow[1:] = torch.cumsum(torch.bincount(rows, minlength=shape[0]), 0)
+    with warnings.catch_warnings():   # torch calls its CSR support beta; products and their gradients are tested here
+        warnings.simplefilter("ignore", UserWarning)
+        return torch.sparse_csr_tensor(crow, cols[order], vals[order].to(torch.float64), shape)
+
+
+class _SparseProduct(torch.autograd.Function):
+    """A x for a sparse A [R, U] (CSR) with its transpose given (A^T g is the gradient of x)."""
+
+    @staticmethod
+    def forward(ctx, x, matrix, transposed):
+        ctx.transposed = transposed
+        return (matrix @ x[:, None])[:, 0]
+
+    @staticmethod
+    def backward(ctx, grad):
+        return (ctx.transposed @ grad[:, None])[:, 0], None, None
+
+
 class RoomLinks:
     """Traced paths and diffuse weights of M links; material_of_patch [P] int64.
 
@@ -302,6 +364,9 @@ class RoomLinks:
         # distinct rows (refl_rows [U, I]; refl_row_of_path [Q]), whose products a step takes once each
         self._refl_rows, self._refl_row_of_path = _distinct_rows(torch.where(refl, mat, torch.full_like(mat, num_materials)),
                                                                  num_materials + 1)
+        # the diffuse power as matrix products (DiffuseMatrix), built at the second evaluation: a fit evaluates the
+        # same links hundreds of times, a prediction once
+        self._diffuse_matrix, self._evaluations = None, 0
 
     @property
     def num_links(self) -> int:
@@ -309,8 +374,10 @@ class RoomLinks:
 
     def select_paths(self, keep: torch.Tensor) -> "RoomLinks":
         """The same links with the specular paths where keep [Q] bool is true (the diffuse terms unchanged)."""
-        return RoomLinks(self.paths.select_paths(keep), self.diffuse, self.material_of_patch, self.num_materials,
-                         self.incoherent)
+        out = RoomLinks(self.paths.select_paths(keep), self.diffuse, self.material_of_patch, self.num_materials,
+                        self.incoherent)
+        out._diffuse_matrix = self._diffuse_matrix     # the same diffuse terms
+        return out
 
     def select_links(self, rows) -> "RoomLinks":
         return RoomLinks(self.paths.select_links(rows), None if self.diffuse is None else self.diffuse.select_links(rows),
@@ -370,7 +437,13 @@ class RoomLinks:
         f = self.paths.freq_hz
         if len(f) == 0:       # no link (a material no link depends on, RoomLinks.material_split)
             return field, power
-        eta = mats.eta(f[:1]) if bool((f == f[0]).all()) else mats.eta(f)
+        one_freq = bool((f == f[0]).all())
+        eta = mats.eta(f[:1]) if one_freq else mats.eta(f)
+        self._evaluations += 1
+        if one_freq and self._diffuse_matrix is None and self._evaluations > 1:
+            self._diffuse_matrix = DiffuseMatrix(self.diffuse)
+        if one_freq and self._diffuse_matrix is not None:
+            return field, power + self._diffuse_matrix.power(eta, mats.thickness_m, mats.scattering)
         return field, power + self.diffuse.power(eta, mats.thickness_m, mats.scattering)
 
     def material_part(self, i: int, mats: MaterialValues) -> "MaterialPart":

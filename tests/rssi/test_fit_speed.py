@@ -198,3 +198,23 @@ def test_rf_fit_takes_whole_devices_and_says_so(walk_file):
     err = _centred(got) - _centred(offset[pos[train]])
     # the room model against the closed form's levels adds its own error per position (test_device_gains: < 1 dB)
     assert np.abs(err).mean() < 0.8, np.abs(err).mean()
+
+
+def test_the_diffuse_matrix_form_equals_the_diffuse_terms_with_gradients(survey):
+    """RoomLinks evaluates its diffuse power as matrix products (room.DiffuseMatrix) from its second evaluation on:
+    the power and its gradient with respect to every material property equal DiffuseTerms.power's to rounding."""
+    room, links, tx, rx, *_ = survey
+    assert len(links.diffuse.obstructed.link) > 0           # terms through surfaces, the sparse part, are exercised
+    params = MaterialParams(room.num_materials, eps_r=4.0, sigma_1ghz=0.02, scattering=0.4, thickness_m=0.08)
+    raw = (params.t_eps, params.t_sig, params.t_s, params.t_th)
+    out = []
+    fresh = links.select_links(torch.arange(links.num_links))      # no matrix built yet
+    for _ in range(2):
+        diff = fresh.components(params.values())[1]
+        grads = torch.autograd.grad(torch.log(diff).sum(), raw)
+        out.append((diff.detach(), grads))
+    assert fresh._diffuse_matrix is not None
+    (d0, g0), (d1, g1) = out
+    np.testing.assert_allclose(d1.numpy(), d0.numpy(), rtol=1e-12)
+    for a, b in zip(g0, g1):
+        np.testing.assert_allclose(b.numpy(), a.numpy(), rtol=1e-9, atol=1e-12 * float(a.abs().max()))
