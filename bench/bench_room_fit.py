@@ -6,9 +6,17 @@ number of Gaussians and with the number of links it fits (issue 23's speed targe
     .venv/bin/python bench/bench_room_fit.py --measurements M.h5  # the simulated classroom's links instead
     .venv/bin/python bench/bench_room_fit.py --quick              # two geometries, two link counts
     .venv/bin/python bench/bench_room_fit.py --survey M.h5 --scene S.h5 [--links 1000,2000,5000] [--repeat 3]
-                                                                  # a survey's fit against its training links
+                                                                  # a survey's fit against its training links, with a
+                                                                  # gain per anchor and a gain per position too
     .venv/bin/python bench/bench_room_fit.py --survey M.h5 --scene S.h5 --bounded 50000
                                                                   # and a 50,000-link survey: fit, then predict
+
+The survey of the figures is the measured-like flat (docs/simulate.md), every row a training link (--all-rows):
+
+    rfir simulate flat SIM --no-photos
+    python scripts/measured_like.py SIM ML --seed 0
+    rfir mesh-gaussians ML/floorplan/flat_floorplan.ply -o ML/plan_scene.h5 --spacing 0.8
+    .venv/bin/python bench/bench_room_fit.py --survey ML/measurements_random.h5 --scene ML/plan_scene.h5 --all-rows
 
 Needs no simulator: the classroom's meshes are built by code and tiled as `rfir mesh-gaussians
 classroom_gt.ply --spacing S [--object-cells N --rectangles --drop-contact-faces]` tiles them, at five tilings
@@ -99,16 +107,33 @@ def run_cli(args: list[str]) -> dict:
             "load_average_1min": os.getloadavg()[0], "log": text}
 
 
-def survey_fit(scene: Path, meas: Path, out: Path, links: int) -> dict:
-    """`rfir --seed 0 --set rf_fit.max_links=LINKS rf-fit SCENE MEAS` (every setting else at its default: device
-    gains and band chosen by validation on measured data): the training links evenly thinned to `links`."""
-    row = run_cli(["--seed", "0", "--set", f"rf_fit.max_links={links}", "rf-fit", str(scene), str(meas), "-o",
-                   str(out)])
+# the links the materials were fitted on, as rf-fit prints them (evenly spaced links, or whole devices)
+FITTED = re.compile(r"(?:fitting|fitted) on (?:all )?(\d+)")
+
+
+def survey_fit(scene: Path, meas: Path, out: Path, links: int, device_gains: str = "auto") -> dict:
+    """`rfir --seed 0 --set rf_fit.max_links=LINKS --set rf_fit.room.device_gains=GAINS rf-fit SCENE MEAS` (every
+    setting else at its default: the band chosen by validation on measured data, the device gains too where GAINS
+    is auto): the training links evenly thinned to `links`."""
+    row = run_cli(["--seed", "0", "--set", f"rf_fit.max_links={links}", "--set",
+                   f"rf_fit.room.device_gains={device_gains}", "rf-fit", str(scene), str(meas), "-o", str(out)])
     attrs = read_artifact(out, "rf").free["training@attrs"]
-    fitted = re.search(r"fitting on (?:all )?(\d+)", row.pop("log"))
-    return {**row, "links": links, "links_fitted": int(fitted.group(1)) if fitted else links,
+    fitted = FITTED.search(row.pop("log"))
+    return {**row, "links": links, "device_gains": device_gains,
+            "links_fitted": int(fitted.group(1)) if fitted else links,
             "trace_s": float(attrs["trace_time_s"]), "fit_s": float(attrs["fit_time_s"]),
             "train_mae_db": float(attrs["train_mae_db"])}
+
+
+def gain_settings(meas: Path) -> dict:
+    """{label: rf_fit.room.device_gains} of the survey in `meas`: a gain per anchor (the side with fewer distinct
+    positions) and a gain per surveyed position beside them ("both": what a walk survey whose roaming side the
+    validation gives gains is fitted with)."""
+    m = read_artifact(meas, "measurements")
+    count = {s: len(np.unique(np.asarray(m[f"{s}_pos"]), axis=0)) for s in ("tx", "rx")}
+    anchor = min(count, key=count.get)
+    return {f"a gain per anchor ({anchor}, {count[anchor]})": anchor,
+            f"and per position ({max(count, key=count.get)}, {max(count.values())})": "both"}
 
 
 def synthetic_survey(meas: Path, out: Path, num_links: int, seed: int = 0) -> None:
@@ -133,29 +158,52 @@ def synthetic_survey(meas: Path, out: Path, num_links: int, seed: int = 0) -> No
     write_artifact(out, "measurements", data, attrs={"task": "rssi", "scene": str(m.attrs.get("scene", ""))})
 
 
+def all_rows(meas: Path, out: Path) -> Path:
+    """A copy of the measurements `meas` at `out` whose every row is a training link (split 0), the simulator's
+    record kept (rf-fit reads the interactions per path and the measured-like transform from it)."""
+    m = read_artifact(meas, "measurements")
+    free = {"simulator": {**m.free.get("simulator", {}), "@attrs": m.free.get("simulator@attrs", {})}} \
+        if "simulator@attrs" in m.free else None
+    write_artifact(out, "measurements", {**m.data, "split": np.zeros(len(m["tx_pos"]), np.int64)}, attrs=m.attrs,
+                   free=free)
+    return out
+
+
 def survey_main(args) -> None:
-    """--survey: rf-fit's time and peak memory against the training links of a survey (medians of --repeat runs),
-    their growth exponent, and with --bounded N a synthetic N-link survey fitted and predicted (chunked)."""
+    """--survey: rf-fit's time and peak memory against the training links of a survey (medians of --repeat runs)
+    with a gain per anchor and with a gain per position beside it (gain_settings), the growth exponent of each,
+    and with --bounded N a synthetic N-link survey fitted and predicted (chunked)."""
     links = [int(x) for x in args.links.split(",")]
-    fmt = "{:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>5}"
-    print(fmt.format("links", "fitted", "wall s", "CPU s", "trace s", "fit s", "peak MB", "load"), flush=True)
-    rows = []
+    source = args.survey
+    fmt = "{:<34} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>5}"
+    print(fmt.format("device gains", "links", "fitted", "wall s", "CPU s", "trace s", "fit s", "peak MB", "load"),
+          flush=True)
+    rows, growth = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        for n in links:
-            runs = [survey_fit(args.scene, args.survey, d / "rf.h5", n) for _ in range(args.repeat)]
-            row = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
-            row["runs"] = runs
-            rows.append(row)
-            print(fmt.format(n, int(row["links_fitted"]), f"{row['wall_s']:.1f}", f"{row['cpu_s']:.1f}",
-                             f"{row['trace_s']:.1f}", f"{row['fit_s']:.1f}", f"{row['peak_rss_mb']:.0f}",
-                             f"{row['load_average_1min']:.1f}"), flush=True)
+        if args.all_rows:
+            args.survey = all_rows(args.survey, d / "all_rows.h5")
+        for label, gains in gain_settings(args.survey).items():
+            these = []
+            for n in links:
+                runs = [survey_fit(args.scene, args.survey, d / "rf.h5", n, gains) for _ in range(args.repeat)]
+                row = {k: float(np.median([r[k] for r in runs])) for k in runs[0] if k != "device_gains"}
+                row.update(device_gains=gains, runs=runs)
+                these.append(row)
+                print(fmt.format(label, n, int(row["links_fitted"]), f"{row['wall_s']:.1f}", f"{row['cpu_s']:.1f}",
+                                 f"{row['trace_s']:.1f}", f"{row['fit_s']:.1f}", f"{row['peak_rss_mb']:.0f}",
+                                 f"{row['load_average_1min']:.1f}"), flush=True)
+            rows += these
+            if len(these) > 1:
+                growth[gains] = slope(these, "links")
+                print(f"growth ({label}): CPU seconds ~ links^{growth[gains]:.2f} (log-log slope, "
+                      f"{links[0]}..{links[-1]} links)", flush=True)
         bounded = None
         if args.bounded:
             meas = d / "bounded.h5"
             synthetic_survey(args.survey, meas, args.bounded)
             fit = run_cli(["--seed", "0", "rf-fit", str(args.scene), str(meas), "-o", str(d / "rf_b.h5")])
-            fitted = re.search(r"fitting on (?:all )?(\d+)", fit.pop("log"))
+            fitted = FITTED.search(fit.pop("log"))
             pred = run_cli(["predict", "rssi", str(d / "rf_b.h5"), "--measurements", str(meas), "-o",
                             str(d / "p_b.h5")])
             pred.pop("log")
@@ -164,13 +212,13 @@ def survey_main(args) -> None:
             for what, r in (("rf-fit", fit), ("predict rssi (every link, in blocks)", pred)):
                 print(f"{args.bounded} links, {what}: {r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU, "
                       f"peak {r['peak_rss_mb']:.0f} MB (load {r['load_average_1min']:.1f})", flush=True)
-    growth = slope(rows, "links") if len(rows) > 1 else None
-    if growth is not None:
-        print(f"growth: CPU seconds ~ links^{growth:.2f} (log-log slope, {links[0]}..{links[-1]} links)")
-    out = {"survey": str(args.survey), "scene": str(args.scene), "repeat": args.repeat, "rows": rows,
+    out = {"survey": str(source), "all_rows": bool(args.all_rows), "scene": str(args.scene), "repeat": args.repeat,
+           "rows": rows,
            "cpu_vs_links": growth, "bounded": bounded,
-           "note": "medians of `repeat` runs; cpu_s: user + sys of the rf-fit process; links_fitted: what rf-fit "
-                   "fitted (rf_fit.room.fit_links, all links where a device would keep too few)"}
+           "note": "medians of `repeat` runs per device-gain setting (rf_fit.room.device_gains); cpu_s: user + sys of "
+                   "the rf-fit process; links_fitted: the links the materials were fitted on (rf_fit.room.fit_links: "
+                   "evenly spaced, or whole devices where a gain per position would keep too few); cpu_vs_links: "
+                   "log-log slope of CPU seconds against links per setting"}
     args.out.write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {args.out}")
 
@@ -189,6 +237,8 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, help="the survey's scene (with --survey)")
     ap.add_argument("--links", default="1000,2000,5000", help="training links to fit (with --survey)")
     ap.add_argument("--repeat", type=int, default=1, help="runs per link count, medians printed (with --survey)")
+    ap.add_argument("--all-rows", action="store_true", help="every row of the survey a training link (its split "
+                                                             "column set to train in a copy; with --survey)")
     ap.add_argument("--bounded", type=int, default=0, help="also a synthetic survey of this many links over the "
                                                            "survey's extent, fitted and predicted (with --survey)")
     args = ap.parse_args()
