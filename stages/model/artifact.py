@@ -20,6 +20,9 @@ Datasets (schema: rfir_core.schema, kind "rf"; N materials, G Gaussians, F fitte
 Attributes of group model: family = "physical", sigma_exponent, polarisation, gain_db,
 material_names, the PairSettings (pairs.*) and the residual's residual.form ("off", "smooth",
 "blend", "gaussian"), residual.chosen, residual.weight, residual.length_deg, residual.range_length.
+The room model (rf_fit.room_stage) adds to group model its device gains (device_<side>_*), and its residual terms
+in dB where rf-fit kept some (residual_terms.ResidualTerms.table / attrs: residual_terms_* fields, the attribute
+residual_terms naming them, "off" or absent: none), which RoomRadioModel applies.
 """
 from __future__ import annotations
 

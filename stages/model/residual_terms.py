@@ -22,7 +22,7 @@ smoothness), fit_kriging; which terms and their hyper-parameters: rfir_stages.rf
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -130,7 +130,6 @@ class ResidualTerms:
     kriging_pos_m: np.ndarray | None = None
     kriging_weight_db: np.ndarray | None = None
     kriging_length_m: float | None = None
-    notes: dict = field(default_factory=dict)
 
     @property
     def which(self) -> list[str]:
@@ -259,7 +258,7 @@ def fit_linear(residual_db: np.ndarray, pattern_rows=None, lengths=None, grid: F
     residual_db r [M]; pattern_rows P [M, 5 D] (pattern_design; None: no patterns); lengths W [M, C] (grid.lengths;
     None: no field); the priors pa (dB), px and ps (dB/m, the deviation of a cell and of the difference of two
     adjacent cells), L the active cells' Laplacian. Cells no link crosses are no unknowns and stay 0."""
-    from scipy.sparse import diags, hstack
+    from scipy.sparse import block_diag, diags, hstack
     from scipy.sparse.linalg import spsolve
 
     r = np.asarray(residual_db, np.float64)
@@ -275,8 +274,6 @@ def fit_linear(residual_db: np.ndarray, pattern_rows=None, lengths=None, grid: F
                    + laplacian(grid, active) * (s2 / smooth_prior_db_per_m ** 2))
     if not blocks:
         return None, None
-    from scipy.sparse import block_diag
-
     a = hstack(blocks).tocsr()
     theta = spsolve((a.T @ a + block_diag(reg)).tocsc(), a.T @ r)
     theta = np.atleast_1d(theta)

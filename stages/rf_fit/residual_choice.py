@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rfir_stages.model.device_gains import SIDES, device_index
-from rfir_stages.model.residual_terms import (TERMS, FloorGrid, ResidualTerms, fit_kriging, fit_linear,
-                                              pattern_design, pattern_features)
+from rfir_stages.model.residual_terms import (TERMS, FloorGrid, ResidualTerms, exponential_kernel, fit_kriging,
+                                              fit_linear, pattern_design, pattern_features)
 
 FOLDS = 5
 MARGIN_DB = 0.05               # a candidate must lower the held-out MAE by this over the one chosen before it
@@ -140,8 +140,6 @@ class _Survey:
 
     def kriged(self, at, fitted, length_m: float) -> np.ndarray:
         """The kriged residual [K] dB at links `at` from krige's (device, points, weights)."""
-        from rfir_stages.model.residual_terms import exponential_kernel
-
         dev, pts, wts = fitted
         out = np.zeros(len(at))
         for d in np.unique(dev):
