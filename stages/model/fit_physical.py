@@ -213,12 +213,14 @@ def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | N
 
 
 def gains_from_all_links(devices: DeviceGains, params: MaterialParams, fit_links, fit_rows: np.ndarray, links_of,
-                         target_db: np.ndarray, weights: np.ndarray | None = None, chunk_links: int = 2000) -> None:
-    """Every device's gain from all its links (DeviceGains.fit_all) for the fitted materials `params`: the links
-    the fit evaluated (fit_links, rows fit_rows [R] of the M training links) are predicted as traced, the others
-    traced chunk_links at a time (links_of(rows) -> their links) and dropped, so memory stays that of one chunk.
-    target_db [M] or [M, 1] dB; weights [M] or [M, 1] (link_weights; None: all alike). The power floor is the
-    fit's (FLOOR_BELOW_DB under the weakest fitted measurement)."""
+                         target_db: np.ndarray, weights: np.ndarray | None = None, chunk_links: int = 2000
+                         ) -> np.ndarray:
+    """Every device's gain from all its links (DeviceGains.fit_all) for the fitted materials `params`; returns the
+    physical prediction [M] dB of every link (without the gains) they were taken from. The links the fit evaluated
+    (fit_links, rows fit_rows [R] of the M training links) are predicted as traced, the others traced chunk_links
+    at a time (links_of(rows) -> their links) and dropped, so memory stays that of one chunk. target_db [M] or
+    [M, 1] dB; weights [M] or [M, 1] (link_weights; None: all alike). The power floor is the fit's (FLOOR_BELOW_DB
+    under the weakest fitted measurement)."""
     target = np.asarray(target_db, np.float64).reshape(-1)
     floor = _floor_power(target[fit_rows])
     pred = np.empty(len(target))
@@ -230,6 +232,7 @@ def gains_from_all_links(devices: DeviceGains, params: MaterialParams, fit_links
             pred[rows] = predict_db(links_of(rows), params, floor)[:, 0].numpy()
     devices.fit_all(torch.as_tensor(target - pred), None if weights is None else
                     torch.as_tensor(np.asarray(weights, np.float64).reshape(-1)))
+    return pred
 
 
 def reflection_ranges(agg: AggregatedPairs, params: MaterialParams, target_db: np.ndarray, freq_hz: float,

@@ -156,9 +156,12 @@ def test_a_fit_on_whole_devices_gives_every_device_its_gain_from_all_links(surve
     def links_of(rows):
         traced.append(len(rows))
         return room.links(tx[rows], rx[rows], np.full(len(rows), 2.4e9))
-    gains_from_all_links(devices, res.params, links.select_links(torch.as_tensor(fit)), fit, links_of, target,
-                         chunk_links=50)
+    physical = gains_from_all_links(devices, res.params, links.select_links(torch.as_tensor(fit)), fit, links_of,
+                                    target, chunk_links=50)
     assert traced == [50, 50, 20]                                 # the 120 links the fit did not use, in chunks
+    with torch.no_grad():                                         # every link's prediction, in the training order
+        whole = predict_db(links, res.params, 10 ** ((target[fit].min() - 30) / 10))[:, 0].numpy()
+    np.testing.assert_allclose(physical, whole, atol=1e-9)
     err = _centred(_link_gains(devices)) - _centred(offset[pos])
     assert np.abs(err[unseen]).mean() < 0.4 and np.abs(err).max() < 1.5, (np.abs(err).mean(), np.abs(err).max())
 
