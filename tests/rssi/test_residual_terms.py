@@ -156,3 +156,19 @@ def test_predict_applies_the_stored_terms_and_a_saved_model_predicts_the_same(mo
     np.testing.assert_allclose(load_model(read_artifact(saved, "rf")).predict(tx, rx), full, atol=1e-9)
     # the hand-made terms differ from zero on each link kind: a device's pattern + field + kriging, field alone
     assert np.all(np.abs(terms.apply_db(tx, rx)) > 1e-3)
+
+
+def test_a_bad_residual_terms_setting_is_one_line_before_any_work(tmp_path):
+    from typer.testing import CliRunner
+
+    from rfir_cli.main import app
+
+    from .helpers import write_measurements, write_scene
+
+    write_scene(tmp_path / "scene.h5")
+    write_measurements(tmp_path / "meas.h5")
+    r = CliRunner().invoke(app, ["--set", "rf_fit.room.residual_terms=field+furniture", "rf-fit",
+                                 str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"), "-o", str(tmp_path / "rf.h5")])
+    assert r.exit_code == 4, r.output
+    assert "rf_fit.room.residual_terms" in r.output and "furniture" in r.output and "Traceback" not in r.output
+    assert "traced" not in r.output and not (tmp_path / "rf.h5").exists()
