@@ -136,7 +136,7 @@ def test_shipped_files_match_the_source():
 def test_the_measured_target_runs_the_lab_hall_under_three_protocols():
     from rfir_stages.reproduce.targets import LAB_PROTOCOLS, declare
 
-    for quick, every in ((True, "3"), (False, "1")):
+    for quick, every in ((True, "6"), (False, "1")):
         plan, tables = declare(["measured"], quick)
         steps = plan.steps
         thin = steps["data__measured_lab_links"].command
