@@ -6,9 +6,13 @@ split into FOLDS folds drawn with the seed; each fold in turn is held out, the t
 residuals and scored on it, so every training link is scored once, at a position the terms did not see (the
 fixed devices, the anchors, are shared, as at prediction). Candidates in a fixed order, each hyper-parameter
 (pattern prior, cell size, field smoothness, kriging length and nugget) taken at its lowest held-out MAE:
-off, patterns, field, patterns + field (fitted jointly, with their own best settings), then kriging of what
-the best of those leaves. A candidate replaces the one chosen so far only where it lowers the held-out MAE by
-MARGIN_DB. A list ("field+kriging") takes those terms, their settings still chosen by validation.
+off, patterns, field, patterns + field (fitted jointly, with their own best settings), scored on held-out areas
+(whole k-means blocks of roaming positions: these terms must carry where the survey did not reach), then kriging of
+what the best of those leaves, scored on held-out positions. A candidate replaces the one chosen so far only where
+it lowers the held-out MAE by MARGIN_DB; a field must also be no worse on held-out fixed devices (all links of a
+fifth of the anchors held out; patterns and kriging do not apply to them), since a field that stands for the
+fitted anchors' own structure does not carry to another one. A list ("field+kriging") takes those terms, their
+settings still chosen by validation.
 The physical fit saw the held-out links too: it has a few material parameters, the terms hundreds, so the
 scores rank the terms; they are not a test error.
 """
@@ -88,6 +92,9 @@ class _Survey:
         self.num_positions = len(positions)
         self.folds = {"positions": rng.permutation(self.num_positions)[where] % FOLDS,
                       "areas": spatial_blocks(positions[:, :2], rng)[where]}
+        if len(keep) >= 2:   # whole fixed devices held out (-1: a link without one, never held out)
+            groups = np.append(rng.permutation(len(keep)) % min(FOLDS, len(keep)), -1)
+            self.folds["devices"] = groups[self.device]
         ends_xy = np.concatenate([tx[:, :2], rx[:, :2]])
         self.lo = np.minimum(np.asarray(floor_lo_xy, np.float64), ends_xy.min(0))
         self.hi = np.maximum(np.asarray(floor_hi_xy, np.float64), ends_xy.max(0))
@@ -117,6 +124,9 @@ class _Survey:
         fold = self.folds[folds]
         for k in range(FOLDS):
             train, held = np.flatnonzero(fold != k), np.flatnonzero(fold == k)
+            if not len(held):
+                fits.append(None)
+                continue
             f = self.linear(train, settings)
             out[held] = f(held)
             fits.append(f)
@@ -186,6 +196,13 @@ def choose_residual_terms(tx_m, rx_m, ids: dict, residual_db, floor_lo_xy, floor
     def best_of(name: str, grid: list[dict]):
         results = [(cfg, _mae(s.r - s.cross_validate(cfg, "areas")[0])) for cfg in grid]
         settings[name], scores[name] = min(results, key=lambda t: t[1])
+        if "devices" in s.folds:
+            held = s.folds["devices"] >= 0
+            devices[name] = _mae((s.r - s.cross_validate(settings[name], "devices")[0])[held])
+
+    devices = {}
+    if "devices" in s.folds:
+        devices["off"] = _mae(s.r[s.folds["devices"] >= 0])
 
     # the terms that must carry to places the survey did not reach: scored on held-out areas
     if "patterns" in allowed:
@@ -197,7 +214,10 @@ def choose_residual_terms(tx_m, rx_m, ids: dict, residual_db, floor_lo_xy, floor
     if wanted is None:
         base = "off"
         for name in ("patterns", "field", "patterns + field"):
-            if name in scores and scores[name] < scores[base] - MARGIN_DB:
+            # better on held-out areas, and no worse on held-out fixed devices (where only the field applies):
+            # a field that stands for the fitted devices' own structure does not carry to another device
+            if name in scores and scores[name] < scores[base] - MARGIN_DB and \
+                    devices.get(name, 0.0) <= devices.get(base, 0.0):
                 base = name
     else:
         base = " + ".join(n for n in ("patterns", "field") if n in allowed) or "off"
@@ -228,6 +248,8 @@ def choose_residual_terms(tx_m, rx_m, ids: dict, residual_db, floor_lo_xy, floor
         ([f"field cells {cfg['cell']:g} m, smoothness prior {cfg['smooth']:g} dB/m"] if cfg.get("cell") else []) + \
         ([f"kriging length {cfg['length']:g} m, nugget {cfg['nugget']:.0%}"] if cfg.get("length") else [])
     shown = ", ".join(f"{k} {v:.2f}" for k, v in scores.items())
+    if devices:
+        shown += "; on held-out fixed devices: " + ", ".join(f"{k} {v:.2f}" for k, v in devices.items())
     if near:
         shown += "; on held-out positions: " + ", ".join(f"{k} {v:.2f}" for k, v in near.items())
     reason = ((f"auto: validated on {len(s.r)} training links in {FOLDS} folds of their {s.num_positions} {s.roam} "
