@@ -528,13 +528,13 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
               if settings.reflection_ranges else None)
     ranges_s = time.time() - t_ranges
     # residual terms in dB on the fitted physics, chosen on the training links (residual_choice; physics.md 8.15)
-    means = geom.means.numpy()
+    means, t_terms = geom.means.numpy(), time.time()
     terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
                                                                   target_db, freq_hz, band),
                                   means.min(0)[:2], means.max(0)[:2], seed,
                                   str((config.get("room", {}) or {}).get("residual_terms", "auto")))
     progress.log(f"residual terms: {terms.which} ({terms.reason})"
-                 + ("" if terms.terms is None else f": {terms.terms.describe()}"))
+                 + ("" if terms.terms is None else f": {terms.terms.describe()}") + f"; {time.time() - t_terms:.1f} s")
     with torch.no_grad():
         vals = res.params.values()
     data, model_attrs = physical_fields(vals, torch.as_tensor(material), room.areas, np.asarray([freq_hz]),
