@@ -213,14 +213,14 @@ def training_predictor(agg: AggregatedPairs, target_db, devices: DeviceGains | N
 
 
 def gains_from_all_links(devices: DeviceGains, params: MaterialParams, fit_links, fit_rows: np.ndarray, links_of,
-                         target_db: np.ndarray, weights: np.ndarray | None = None, chunk_links: int = 2000
+                         target_db: np.ndarray, weights: np.ndarray | None = None, chunk_links: int = 512
                          ) -> np.ndarray:
     """Every device's gain from all its links (DeviceGains.fit_all) for the fitted materials `params`; returns the
     physical prediction [M] dB of every link (without the gains) they were taken from. The links the fit evaluated
     (fit_links, rows fit_rows [R] of the M training links) are predicted as traced, the others traced chunk_links
-    at a time (links_of(rows) -> their links) and dropped, so memory stays that of one chunk. target_db [M] or
-    [M, 1] dB; weights [M] or [M, 1] (link_weights; None: all alike). The power floor is the fit's (FLOOR_BELOW_DB
-    under the weakest fitted measurement)."""
+    at a time (links_of(rows) -> their links; as many as predict rssi traces at once) and dropped, so memory stays
+    that of one chunk. target_db [M] or [M, 1] dB; weights [M] or [M, 1] (link_weights; None: all alike). The
+    power floor is the fit's (FLOOR_BELOW_DB under the weakest fitted measurement)."""
     target = np.asarray(target_db, np.float64).reshape(-1)
     floor = _floor_power(target[fit_rows])
     pred = np.empty(len(target))
