@@ -489,13 +489,15 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      f"weights {weights.min():.2f} .. {weights.max():.2f} about a mean of 1)")
     res = fit_room_materials(links, room, settings, len(names), target_db[fit, None], fit_cfg, progress, priors,
                              devices, weights)
-    if devices is not None:
+    if devices is not None and len(fit) < len(tx) and not devices_kept(settings.device_gains, fit, tx, rx, ids):
+        # whole devices fitted (a gain per position): the devices left out get their gains from all their links
         t_gains = time.time()
         gains_from_all_links(devices, res.params, links, fit, lambda r: room.band_links(tx[r], rx[r], freq_hz, band),
                              target_db, link_weights(None if count is None else np.asarray(count)[rows],
                                                      None if spread is None else np.asarray(spread)[rows]))
         progress.log(f"device gains: each from all its links ({len(tx)} training links, {len(tx) - len(fit)} of "
                      f"them traced for it) with the fitted materials in {time.time() - t_gains:.1f} s")
+    if devices is not None:
         with torch.no_grad():
             res.params.gain_db += devices.centre()
     tabulated = [""] * len(names)
