@@ -29,8 +29,9 @@ from .room_shell import ShellSettings, Surface, build_shell, surface_quads
 
 
 @dataclass
-class StructureSettings(ShellSettings):
-    """[geom.structure] (configs/geom.toml): the shell's thresholds and the plane search, object and tiling ones."""
+class StructureSettings(ShellSettings, InsetSettings):
+    """[geom.structure] (configs/geom.toml): the shell's and the insets' thresholds (their own dataclasses hold
+    their defaults) and the plane search, object and tiling ones."""
     normal_deg: float = 25.0
     min_points: int = 40
     min_area_m2: float = 2.0
@@ -43,11 +44,6 @@ class StructureSettings(ShellSettings):
     keep_free: bool = True
     object_planes_only: bool = False
     insets: bool = True
-    inset_cell_m: float = 0.25
-    inset_depth_m: float = 0.15
-    inset_spread: float = 2.5
-    inset_fill: float = 0.7
-    inset_min_m2: float = 0.5
 
 
 @dataclass
