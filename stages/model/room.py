@@ -106,6 +106,9 @@ class RoomSettings:
     map_visibility: bool = True
     # how a link's paths add up (BANDS); a fitted model stores the one it was fitted with
     band: str = "auto"
+    # the terms in dB fitted on the physics' training residuals (rf_fit.residual_choice.parse_request: "auto", "off"
+    # or e.g. "field+kriging"; docs/physics.md 8.15)
+    residual_terms: str = "auto"
 
 
 class RoomGeometry:

@@ -85,7 +85,7 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
         table["max_interactions"] = interactions
     sharing = str(table.pop("sharing", "auto"))
     try:   # run_room's residual terms, checked before any work
-        parse_request(table.pop("residual_terms", "auto"))
+        parse_request(table.get("residual_terms", "auto"))
     except ValueError as e:
         raise ConfigError(f"rf_fit.room.residual_terms: {e}") from None
     if sharing not in SHARINGS:
@@ -534,7 +534,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
                                                                   target_db, freq_hz, band),
                                   means.min(0)[:2], means.max(0)[:2], seed,
-                                  str((config.get("room", {}) or {}).get("residual_terms", "auto")))
+                                  settings.residual_terms)
     progress.log(f"residual terms: {terms.which} ({terms.reason})"
                  + ("" if terms.terms is None else f": {terms.terms.describe()}") + f"; {time.time() - t_terms:.1f} s")
     with torch.no_grad():
