@@ -488,9 +488,10 @@ def target_measured(r: Plan) -> Table:
                 "their links); held-out area: `--split block-tx:6` (the beacon positions binned in 6 m squares, "
                 "whole squares test until 20 % of the links); unseen anchors: `--split holdout-rx:2` (every link of "
                 "2 of the 12 receivers test)",
-                "rfir: the physical room model (docs/physics.md), rf-fit's defaults (device gains chosen by validation, "
-                "links weighted by their packet count and spread; no radio-map cache: rf_fit.room.map_visibility = "
-                "false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else ""),
+                "rfir: the physical room model (docs/physics.md), rf-fit's defaults (device gains and residual terms "
+                "(device patterns, clutter field, kriging; docs/physics.md 8.15) chosen by validation on the training "
+                "links, each fit's log says which; links weighted by their packet count and spread; no radio-map "
+                "cache: rf_fit.room.map_visibility = false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else ""),
                 "log-distance, multi-wall, nearest links: fitted on the same training links (rfir's predict JSON)",
                 "ray tracing (ITU materials): Sionna RT (`scripts/baseline_raytrace.py`, `rfir simulate`'s rssi physics, "
                 "configs/simulate.toml; the 12 receivers solved as sources, reciprocity) on the floor plan's mesh with "
