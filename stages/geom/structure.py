@@ -130,7 +130,15 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     colors = art.data.get("gaussians/colors")
     if colors is not None and np.asarray(colors).shape[1] == 3 and settings.insets:
         inset_settings = InsetSettings(**{f.name: getattr(settings, f.name) for f in fields(InsetSettings)})
-        surfaces += find_insets(x, normals, np.asarray(colors, float), list(surfaces), inset_settings)
+        insets = find_insets(x, normals, np.asarray(colors, float), list(surfaces), inset_settings)
+        surfaces += insets
+        # each inset class becomes a material of its own in rf-fit: say how many, also when none
+        classes = sorted({s.name.rsplit("_", 1)[0] for s in insets})
+        progress.log(f"insets (parts of a surface of another colour or depth): {len(insets)} in {len(classes)} "
+                     f"class(es){': ' + ', '.join(classes) if classes else ''} (geom.structure.insets)")
+    else:
+        progress.log("insets: none searched (" + ("geom.structure.insets = false" if not settings.insets else
+                                                  "the Gaussians carry no colours") + ")")
     on_shell, behind = _shell_sides(x, surfaces, settings.distance_m)
     inside = ~on_shell & ~behind
     piece = np.full(len(x), -1)

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rfir_stages.model.device_gains import SIDES, device_index
+from rfir_stages.model.device_gains import SIDES, device_index, gains_at
+from rfir_stages.model.fit_physical import training_predictor
 from rfir_stages.model.residual_terms import (TERMS, FloorGrid, ResidualTerms, exponential_kernel, fit_kriging,
                                               fit_linear, pattern_design, pattern_features)
 
@@ -290,9 +291,6 @@ def training_residuals(links, room, params, devices, tx_m, rx_m, fit, target_db,
     materials `params` and device gains `devices` (centred, as stored): the fit links `fit` [K] from their traced
     `links`, the others traced here, chunk_links at a time."""
     import torch
-
-    from rfir_stages.model.device_gains import gains_at
-    from rfir_stages.model.fit_physical import training_predictor
 
     target = np.asarray(target_db, np.float64)
     pred = np.empty(len(target))
