@@ -72,7 +72,10 @@ class Surface:
 
     @property
     def size_m(self) -> tuple[float, float]:
-        """Extent along u and v [m]."""
+        """Extent along u and v [m]: the grid's; an inset's, which lives on its host's grid, that of its own cells."""
+        if self.kind == "inset" and self.occupied.any():
+            iu, iv = np.nonzero(self.occupied)
+            return (np.ptp(iu) + 1) * self.cell_m, (np.ptp(iv) + 1) * self.cell_m
         return self.occupied.shape[0] * self.cell_m, self.occupied.shape[1] * self.cell_m
 
     inset_cells: np.ndarray | None = None

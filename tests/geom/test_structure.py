@@ -178,6 +178,8 @@ def test_board_is_an_inset_of_its_wall(room_result):
     board_m2 = (BOARD[1] - BOARD[0]) * (BOARD[3] - BOARD[2])
     area = board.occupied.sum() * board.cell_m ** 2
     assert abs(area - board_m2) < 0.15 * board_m2
+    # its size is its own (2 x 1 m along the wall and up), not its host wall's
+    assert sorted(board.size_m) == pytest.approx(sorted((BOARD[1] - BOARD[0], BOARD[3] - BOARD[2])), abs=0.15)
     assert not (board.occupied & wall.occupied).any()          # cut out of the wall: no surface twice
     names = [str(n) for n in art.attrs["label_names"]]
     x = art.data["gaussians/means"][art.data["gaussians/labels"] == names.index(board.name)]
