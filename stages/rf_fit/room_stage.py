@@ -31,7 +31,8 @@ from rfir_stages.model.fit_physical import training_predictor
 from rfir_stages.model.material_checks import check_materials
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.residual import SE_MARGIN
-from rfir_stages.model.room import BANDS, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings, band_of
+from rfir_stages.model.room import (BANDS, BLE_CHANNELS_HZ, SCATTERING_CHOICES, RoomGeometry, RoomLinks, RoomSettings,
+                                   band_of)
 from rfir_stages.model.room_paths import PATCH_EXTENTS, extent_grids
 from rfir_stages.predict.rssi import rssi_defaults
 from rfir_stages.predict.rssi_checks import floor_grid
@@ -53,6 +54,13 @@ def simulated_depth(meas) -> int | None:
     free = getattr(meas, "free", None) or {}
     depth = (free.get("simulator@attrs") or {}).get("physics.max_depth")
     return None if depth is None else int(depth)
+
+
+def simulated_channels(meas) -> tuple[float, ...]:
+    """The channels [Hz] whose powers the simulator averaged per link (its `channels_hz` attribute; rfir simulate's
+    simulate.rssi.channels_hz), () for one frequency or data that record none."""
+    text = str(((getattr(meas, "free", None) or {}).get("simulator@attrs") or {}).get("channels_hz", "")).strip()
+    return tuple(float(v) for v in text.split(",")) if text else ()
 
 
 def ideal_devices(meas) -> bool:
@@ -442,9 +450,12 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                      + (f"; every device keeps at least {MIN_DEVICE_LINKS} links)"
                         if settings.device_gains not in ("off", "validate") else ")"))
     band, band_reason = settings.band, "rf_fit.room.band"
-    if band == "auto" and ideal:
-        # rfir simulate's data are coherent sums at one frequency
+    channels = simulated_channels(meas)
+    if band == "auto" and ideal and not channels:
+        # rfir simulate's data are coherent sums at one frequency unless it averaged channels
         band, band_reason = "coherent", "auto: simulated at one frequency"
+    elif band == "auto" and ideal and np.allclose(channels, BLE_CHANNELS_HZ, rtol=0, atol=1e3):
+        band, band_reason = "ble", "auto: simulated as the mean over BLE's three advertising channels"
     links = room.band_links(tx[fit], rx[fit], freq_hz, "coherent" if band == "auto" else band)
     trace_s = time.time() - t0
     progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(fit), 1):.1f} per link) "

@@ -4,6 +4,11 @@ Layout (the paper's design, 24 Tx x 440 Rx): transmitters on a 6 x 4 grid at `tx
 receivers on a 22 x 20 grid at `rx_height_m`, both inset `margin_m` from the walls; grid points
 within `clearance_m` of an object's bounding box (inside a fridge, against a wardrobe) are dropped. One
 Sionna solve per transmitter with every receiver as a target, at each frequency.
+
+A survey over several channels (`channels_hz`, e.g. BLE's three advertising channels) reports each link's power
+averaged over them: the paths solved at the one frequency are evaluated at every channel (the delay phase
+exact, the materials those of the solve frequency, a few percent away) and their powers averaged, so the deep
+fades of one frequency's coherent sum fill in as they do in a measurement (docs/simulate.md).
 """
 from __future__ import annotations
 
@@ -34,10 +39,12 @@ def clear_of_objects(spec, points_m: np.ndarray, clearance_m: float) -> np.ndarr
 
 
 def simulate_rssi(scene, tx_pos, rx_pos, freqs_hz, physics: PhysicsEffects, progress, label: str,
-                  loop_mode: str = "evaluated"):
+                  loop_mode: str = "evaluated", channels_hz=()):
     """Returns channel (T*R, F), power (T*R, F), tx_id, rx_id, num_paths (T*R, F), cap_hits; rows Tx-major.
 
     cap_hits counts solves whose path buffer reached max_num_paths_per_src (paths may be lost).
+    channels_hz [C] Hz (optional): power is the mean over these channels of the paths solved at each
+    freqs_hz value (module docstring); channel then keeps the first channel's phase with |channel|^2 = power.
     """
     import sionna.rt as rt
 
@@ -60,12 +67,15 @@ def simulate_rssi(scene, tx_pos, rx_pos, freqs_hz, physics: PhysicsEffects, prog
             for t in range(n_t):
                 tx_dev.position = [float(v) for v in tx_pos[t]]
                 paths = solver(scene, **kwargs)
-                out = combine_paths(paths, [f], float(f), omni, [omni] * n_r, physics.combine,
+                at = list(channels_hz) or [f]
+                out = combine_paths(paths, at, float(f), omni, [omni] * n_r, physics.combine,
                                     max_paths=physics.max_num_paths_per_src)
                 cap_hits += int(out.hit_cap)
                 rows = slice(t * n_r, (t + 1) * n_r)
-                channel[rows, k] = out.channel[:, 0]
-                power[rows, k] = out.power[:, 0]
+                power[rows, k] = out.power.mean(axis=1)
+                mag = np.abs(out.channel[:, 0])
+                channel[rows, k] = np.where(mag > 0, out.channel[:, 0] / np.maximum(mag, 1e-300), 1.0) \
+                    * np.sqrt(power[rows, k])
                 n_paths[rows, k] = out.num_paths
                 bar.advance(1)
     tx_id = np.repeat(np.arange(n_t), n_r)

@@ -77,6 +77,8 @@ class SimulateSettings:
     wideband_range_m: float = 3.0
     wideband_aspect_step_deg: float = 1.0
     rssi_freqs_hz: list[float] = field(default_factory=lambda: [2.4e9])
+    # channels whose powers each rssi link averages (a survey over several channels); empty: one frequency
+    rssi_channels_hz: list[float] = field(default_factory=list)
     tx_grid: list[int] = field(default_factory=lambda: [6, 4])
     rx_grid: list[int] = field(default_factory=lambda: [22, 20])
     tx_height_m: float = 2.2
@@ -130,7 +132,7 @@ def _defaults() -> dict:
     return load_defaults().get("simulate", {})
 
 
-RSSI_KEYS = {"freqs_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m", "clearance_m",
+RSSI_KEYS = {"freqs_hz", "channels_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m", "clearance_m",
              "test_fraction", "samples_per_src", "max_num_paths_per_src"}
 
 
@@ -181,6 +183,7 @@ def parse_settings(config: dict | None, quick: bool | None = None, scene: str | 
             wideband_range_m=float(wb.get("range_m", 3.0)),
             wideband_aspect_step_deg=float(wb.get("aspect_step_deg", 1.0)),
             rssi_freqs_hz=[float(f) for f in rs.get("freqs_hz", [2.4e9])],
+            rssi_channels_hz=[float(f) for f in rs.get("channels_hz", [])],
             tx_grid=[int(v) for v in rs.get("tx_grid", [6, 4])], rx_grid=[int(v) for v in rs.get("rx_grid", [22, 20])],
             tx_height_m=float(rs.get("tx_height_m", 2.2)), rx_height_m=float(rs.get("rx_height_m", 1.0)),
             tx_margin_m=float(rs.get("tx_margin_m", 1.0)), rx_margin_m=float(rs.get("rx_margin_m", 0.4)),
@@ -244,6 +247,8 @@ def _validate(s: SimulateSettings) -> None:
         bad("rssi.test_fraction must be in [0, 1)")
     if s.clearance_m < 0:
         bad("rssi.clearance_m must be >= 0")
+    if s.rssi_channels_hz and (len(s.rssi_freqs_hz) != 1 or min(s.rssi_channels_hz) <= 0):
+        bad("rssi.channels_hz: positive frequencies, averaged about the one rssi.freqs_hz they are solved at")
     if s.wideband_num_freqs < 1 or s.wideband_num_anchors < 1:
         bad("wideband.num_freqs and num_anchors must be >= 1")
     if s.measurement.noise_db < 0:

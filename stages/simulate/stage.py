@@ -222,7 +222,12 @@ def _rssi(spec, radio, s: SimulateSettings, progress, notes: list[str]):
     tx, rx, tx_clear, rx_clear = rssi_grids(spec, s)
     freqs = np.asarray(s.rssi_freqs_hz, float)
     channel, power, tx_id, rx_id, n_paths, cap_hits = simulate_rssi(radio, tx, rx, freqs, s.physics_for("rssi"), progress,
-                                                          f"RSSI {len(tx)} Tx x {len(rx)} Rx")
+                                                          f"RSSI {len(tx)} Tx x {len(rx)} Rx",
+                                                          channels_hz=s.rssi_channels_hz)
+    if s.rssi_channels_hz:
+        notes.append(f"each link's power is the mean over {len(s.rssi_channels_hz)} channels ("
+                     + ", ".join(f"{c / 1e9:.3f}" for c in s.rssi_channels_hz)
+                     + f" GHz) of the paths solved at {freqs[0] / 1e9:.3f} GHz")
     rng = np.random.default_rng(s.seed)
     n = len(tx_id)
     split = np.zeros(n, np.int64)
@@ -244,6 +249,8 @@ def _rssi(spec, radio, s: SimulateSettings, progress, notes: list[str]):
              "split_seed": int(s.seed), "num_tx": len(tx), "num_rx": len(rx), "clearance_m": float(s.clearance_m),
              "num_paths": n_paths,
              "paths_cap_hits": int(cap_hits), "num_solves": int(len(tx) * len(freqs))}
+    if s.rssi_channels_hz:   # rf-fit reads it: a sum over channels is not one frequency's coherent sum
+        attrs["channels_hz"] = ",".join(f"{c:.9g}" for c in s.rssi_channels_hz)
     return data, attrs
 
 

@@ -227,3 +227,28 @@ def test_the_rssi_path_buffer_keeps_every_path_of_a_full_grid(tmp_path):
     configured = int(rssi["max_num_paths_per_src"])
     d = np.abs(solve(configured) - solve(2 * configured))
     assert np.median(d) < 0.05 and d.mean() < 0.3, (np.median(d), d.mean())
+
+
+def test_a_survey_over_channels_is_the_mean_power_of_the_two_ray_sum_over_them(tmp_path):
+    """simulate.rssi.channels_hz: the paths solved at the centre, each link's power the mean over BLE's three
+    advertising channels, against the two-ray closed form evaluated at each channel and averaged."""
+    from rfir_stages.simulate.rssi import simulate_rssi
+
+    centre, channels = 2.44e9, (2.402e9, 2.426e9, 2.480e9)
+    scene = load_radio_scene(ground_plate(40.0), tmp_path, centre)
+    h_t, h_r = 2.0, 1.5
+    x = np.linspace(1.0, 15.0, 97)
+    rx = np.stack([x, np.zeros_like(x), np.full_like(x, h_r)], 1)
+    _, power, *_ = simulate_rssi(scene, np.array([[0.0, 0.0, h_t]]), rx, [centre], SPECULAR_ONLY, NullProgress(),
+                                 "two-ray", channels_hz=channels)
+    d1, d2 = np.hypot(x, h_t - h_r), np.hypot(x, h_t + h_r)
+    expected = np.zeros_like(x)
+    for f in channels:
+        lam, k = C0 / f, 2 * math.pi * f / C0
+        gamma = fresnel_tm(metal_eta(f), (h_t + h_r) / d2)
+        expected += np.abs(lam / (4 * math.pi) * (np.exp(-1j * k * d1) / d1 + gamma * np.exp(-1j * k * d2) / d2)) ** 2
+    expected /= len(channels)
+    np.testing.assert_allclose(db(power[:, 0]), db(expected), atol=0.1)
+    lam, k = C0 / centre, 2 * math.pi * centre / C0
+    one = np.abs(lam / (4 * math.pi) * (np.exp(-1j * k * d1) / d1 - np.exp(-1j * k * d2) / d2)) ** 2
+    assert db(expected).min() > db(one).min() + 5, "averaging over channels must fill the deepest fade"

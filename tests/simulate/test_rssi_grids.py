@@ -2,11 +2,14 @@
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from rfir_core.errors import ConfigError
+from rfir_stages.model.room import BLE_CHANNELS_HZ
+from rfir_stages.rf_fit.room_stage import simulated_channels
 from rfir_stages.simulate.rssi import clear_of_objects
 from rfir_stages.simulate.scenes import build_scene
 from rfir_stages.simulate.settings import parse_settings
@@ -62,3 +65,17 @@ def test_a_grid_wholly_inside_an_object_is_refused():
 def test_negative_clearance_is_refused():
     with pytest.raises(ConfigError, match="clearance_m"):
         parse_settings({"rssi": {"clearance_m": -0.1}})
+
+
+def test_the_flat_is_a_survey_over_bles_channels_and_says_so():
+    """The flat's table averages BLE's three advertising channels about the one frequency it solves at; channels
+    about several solve frequencies are refused; rf-fit reads the channels from the file's simulator attributes."""
+    s = parse_settings(None, scene="flat")
+    assert s.rssi_freqs_hz == [2.44e9] and tuple(s.rssi_channels_hz) == BLE_CHANNELS_HZ
+    assert parse_settings(None, scene="classroom").rssi_channels_hz == []
+    table = {"rssi": {"freqs_hz": [2.4e9, 5.8e9], "channels_hz": [2.402e9]}}
+    with pytest.raises(ConfigError, match="channels_hz"):
+        parse_settings(table)
+    meas = SimpleNamespace(free={"simulator@attrs": {"channels_hz": "2402000000,2426000000,2480000000"}})
+    assert simulated_channels(meas) == BLE_CHANNELS_HZ
+    assert simulated_channels(SimpleNamespace(free={})) == ()
