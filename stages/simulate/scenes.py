@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOM_SCENES = ("classroom", "flat", "empty")
+ROOM_SCENES = ("classroom", "flat", "office", "empty")
 OBJECT_SCENES = ("lego", "car", "h-target", "plate", "trio")
 SCENES = ROOM_SCENES + OBJECT_SCENES
 
@@ -311,6 +311,87 @@ def flat() -> SceneSpec:
                            "floorplan": plan, "interior_walls": ["brick_wall", "partition_west", "partition_east"]})
 
 
+OFFICE_SIZE_M = (10.0, 8.0, 3.0)
+# The office's L-shaped floor as (x0, x1, y0, y1) boxes in metres: the main room along y = 0 (an open office
+# and, behind the glass partition at x = OFFICE_GLASS_X_M, a meeting room) and a wing to the north-west; the
+# north-east corner (x > 5.5, y > 4.5) is a concrete core outside the room.
+OFFICE_AREAS = {"main": (0.0, 10.0, 0.0, 4.5), "wing": (0.0, 5.5, 4.5, 8.0)}
+OFFICE_GLASS_X_M = 7.5
+
+
+def _metal_shelving(x0, y0, x1, y1, h=2.0, shelves=4, post=0.04, board=0.02):
+    """Open steel shelving on the floor over [x0, x1] x [y0, y1]: four corner posts and `shelves` boards."""
+    parts = [((px, py, 0.0), (px + post, py + post, h)) for px in (x0, x1 - post) for py in (y0, y1 - post)]
+    for k in range(shelves):
+        z = 0.1 + k * (h - 0.15) / max(shelves - 1, 1)
+        parts.append(((x0, y0, z - board), (x1, y1, z)))
+    return boxes(parts)
+
+
+def office() -> SceneSpec:
+    """An L-shaped office of 10 x 8 x 3 m (OFFICE_AREAS) in a concrete shell, with a glass partition.
+
+    The main room (x 0..10, y 0..4.5) holds an open office and, behind a floor-to-ceiling glass wall at
+    x = OFFICE_GLASS_X_M with a door gap, a meeting room; the wing (x 0..5.5, y 4.5..8) holds more desks and
+    the wooden entrance door (y = 8). The two walls of the inner corner are one object, "wall_core", whose
+    bounding box covers the concrete core outside the room (so grids and cameras keep out of it). Glass
+    windows in the outer walls; metal furniture: two filing cabinets, a tall cupboard and open shelving.
+    """
+    lx, ly, lz = OFFICE_SIZE_M
+    mx0, mx1, my0, my1 = OFFICE_AREAS["main"]
+    wx0, wx1, wy0, wy1 = OFFICE_AREAS["wing"]
+    gx = OFFICE_GLASS_X_M
+    b = _Builder()
+    win_s = [(1.0, 2.8, 0.9, 2.3), (4.2, 6.0, 0.9, 2.3), (8.0, 9.6, 0.9, 2.3)]  # y = 0 wall, along +x
+    win_e = [(1.2, 3.2, 0.9, 2.3)]                                           # x = 10 wall, along +y
+    win_w = [(5.0, 6.5, 0.9, 2.3)]                                           # x = 0 wall, along -y from y = 8
+    door = (1.0, 2.0, 0.0, 2.1)                                              # y = 8 wall, along +x from x = 0
+    glass_door = (3.2, 4.1, 0.0, 2.1)                                        # gap in the glass wall, along +y
+    shell = (0.85, 0.84, 0.80)
+    b.add("floor", _merge([rect_xy(*OFFICE_AREAS[k], 0.0, up=True) for k in ("main", "wing")]), "concrete", "carpet",
+          (0.40, 0.42, 0.45), 0.2)
+    b.add("ceiling", _merge([rect_xy(*OFFICE_AREAS[k], lz, up=False) for k in ("main", "wing")]), "concrete",
+          "plaster", (0.93, 0.92, 0.90), 0.2)
+    b.add("wall_south", wall((mx0, my0, 0), (1, 0, 0), (0, 1, 0), mx1 - mx0, lz, win_s), "concrete", "plaster",
+          shell, 0.2)
+    b.add("wall_east", wall((mx1, my0, 0), (0, 1, 0), (-1, 0, 0), my1 - my0, lz, win_e), "concrete", "brick",
+          (0.62, 0.33, 0.25), 0.2)
+    b.add("wall_core", _merge([wall((wx1, my1, 0), (1, 0, 0), (0, -1, 0), mx1 - wx1, lz),
+                               wall((wx1, wy0, 0), (0, 1, 0), (-1, 0, 0), wy1 - wy0, lz)]),
+          "concrete", "plaster", (0.78, 0.80, 0.84), 0.2)
+    b.add("wall_north", wall((wx0, wy1, 0), (1, 0, 0), (0, -1, 0), wx1 - wx0, lz, [door]), "concrete", "plaster",
+          shell, 0.2)
+    b.add("wall_west", wall((mx0, wy1, 0), (0, -1, 0), (1, 0, 0), wy1 - my0, lz, win_w), "concrete", "plaster",
+          (0.80, 0.82, 0.76), 0.2)
+    panes = [((u0, my0, z0), (1, 0, 0), (0, 1, 0), u1 - u0, z1 - z0) for u0, u1, z0, z1 in win_s]
+    panes += [((mx1, my0 + u0, z0), (0, 1, 0), (-1, 0, 0), u1 - u0, z1 - z0) for u0, u1, z0, z1 in win_e]
+    panes += [((mx0, wy1 - u0, z0), (0, -1, 0), (1, 0, 0), u1 - u0, z1 - z0) for u0, u1, z0, z1 in win_w]
+    for i, args in enumerate(panes):
+        b.add(f"window_{i:02d}", wall(*args), "glass", "glass", (0.70, 0.82, 0.88), 0.006)
+    b.add("door", wall((door[0], wy1, 0.0), (1, 0, 0), (0, -1, 0), door[1] - door[0], door[3]), "wood", "wood",
+          (0.55, 0.36, 0.20), 0.04)
+    # the glass partition: one two-sided pane from the south wall to the core, floor to ceiling
+    b.add("glass_partition", wall((gx, my0, 0), (0, 1, 0), (-1, 0, 0), my1 - my0, lz, [glass_door]), "glass", "glass",
+          (0.75, 0.86, 0.90), 0.012)
+    steel, wood = (0.80, 0.81, 0.83), (0.62, 0.45, 0.28)
+    b.add("cabinet_00", box((0.02, 0.4, 0.0), (0.5, 0.9, 1.3)), "metal", "metal", steel, 0.002)
+    b.add("cabinet_01", box((0.02, 0.95, 0.0), (0.5, 1.45, 1.3)), "metal", "metal", steel, 0.002)
+    b.add("cupboard", box((wx1 - 0.5, 6.6, 0.0), (wx1 - 0.02, 7.8, 2.0)), "metal", "metal", (0.55, 0.58, 0.62), 0.002)
+    b.add("shelving", _metal_shelving(0.02, 4.8, 0.42, 6.2), "metal", "metal", steel, 0.002)
+    desks = [(2.2, 1.6), (3.6, 1.6), (2.2, 3.2), (3.6, 3.2), (5.6, 2.4), (2.0, 6.4), (3.5, 6.4)]
+    for k, (x, y) in enumerate(desks):
+        b.add(f"desk_{k:02d}", _desk(x, y), "wood", "wood", wood, 0.03)
+        b.add(f"chair_{k:02d}", _chair(x, y + (0.55 if y in (3.2, 6.4) else -0.55), facing=-np.pi / 2 if y in (3.2, 6.4)
+                                        else np.pi / 2), "wood", "plastic", (0.2, 0.3, 0.6), 0.02)
+    # meeting room (x gx..10, y 0..4.5): a long table and two chairs
+    b.add("meeting_table", _desk(8.8, 2.2, w=1.0, d=2.2), "wood", "wood", (0.45, 0.30, 0.18), 0.03)
+    for k, y in enumerate((1.6, 2.8)):
+        b.add(f"meeting_chair_{k:02d}", _chair(9.65, y, facing=np.pi), "wood", "plastic", (0.15, 0.20, 0.45), 0.02)
+    return SceneSpec("office", "room", b.objects, np.array([[0.0, 0.0, 0.0], [lx, ly, lz]]),
+                     info={"size_m": [lx, ly, lz], "areas": {k: list(v) for k, v in OFFICE_AREAS.items()},
+                           "glass_partition_x_m": gx})
+
+
 def empty() -> SceneSpec:
     """No objects at all: free space (Friis checks). Bounds are nominal."""
     return SceneSpec("empty", "room", [], np.array([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]]))
@@ -486,7 +567,7 @@ def car(length_m: float = CAR_LENGTH_M) -> SceneSpec:
                                                                    "length_m": length_m})
 
 
-_BUILDERS = {"classroom": classroom, "flat": flat, "lego": lego, "car": car, "h-target": h_target, "plate": plate, "trio": trio,
+_BUILDERS = {"classroom": classroom, "flat": flat, "office": office, "lego": lego, "car": car, "h-target": h_target, "plate": plate, "trio": trio,
              "empty": empty, "ground-plate": ground_plate}
 
 

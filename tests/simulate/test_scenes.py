@@ -175,3 +175,59 @@ def test_lego_bricks_never_share_volume():
     for n, (i, j, k, nx, ny, _) in enumerate(LEGO_LAYOUT):
         if k:
             assert any((a, b, k - 1) in cells for a in range(i, i + nx) for b in range(j, j + ny)), n
+
+
+def _signed_volume(objects, apex):
+    """m^3: the summed signed volumes of the tetrahedra from `apex` (3,) to the triangles of `objects`: the
+    enclosed volume (negative when the normals point in) whatever the apex when the triangles close a surface."""
+    tri = np.concatenate([o.vertices[o.faces] for o in objects]) - np.asarray(apex, float)
+    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6)
+
+
+def test_office_layout():
+    """The office: an L-shaped shell closed by its walls, windows and door, normals into the room; a glass
+    partition from wall to core, floor to ceiling, with a door gap; metal furniture; antennas only inside the L."""
+    from rfir_stages.simulate.scenes import OFFICE_AREAS, OFFICE_GLASS_X_M
+    from rfir_stages.simulate.stage import rssi_grids
+
+    spec = build_scene("office")
+    by_name = {o.name: o for o in spec.objects}
+    lz = spec.bounds[1, 2]
+    np.testing.assert_allclose(spec.bounds, [[0, 0, 0], [10, 8, 3]])
+    areas = list(OFFICE_AREAS.values())
+    footprint = sum((x1 - x0) * (y1 - y0) for x0, x1, y0, y1 in areas)
+    assert footprint < 0.85 * 10 * 8  # not the bounding rectangle: an L
+    shell = [o for n, o in by_name.items() if n in ("floor", "ceiling", "door") or n.startswith(("wall_", "window_"))]
+    # closed: a hole (a missing window pane) or a face turned the wrong way changes the enclosed volume
+    for apex in ([0.0, 0.0, 0.0], [2.3, 1.7, 1.1], [13.0, -4.0, 6.0]):  # a hole changes the volume with the apex
+        assert _signed_volume(shell, apex) == pytest.approx(-footprint * lz, rel=1e-9)
+    for o in shell:
+        assert o.radio_material == ("wood" if o.name == "door" else "glass" if o.name.startswith("window_") else "concrete")
+    assert sum(n.startswith("window_") for n in by_name) >= 3
+
+    glass = by_name["glass_partition"]
+    assert glass.radio_material == "glass" and glass.visual == "glass" and glass.thickness_m < 0.02
+    np.testing.assert_allclose(glass.vertices[:, 0], OFFICE_GLASS_X_M)
+    main = OFFICE_AREAS["main"]
+    np.testing.assert_allclose([glass.vertices[:, 1].min(), glass.vertices[:, 1].max()], main[2:])
+    np.testing.assert_allclose([glass.vertices[:, 2].min(), glass.vertices[:, 2].max()], [0.0, lz])
+    height = main[3] - main[2]
+    assert 0.6 * height * lz < glass.area_m2() < height * lz  # a door gap, most of the wall glass
+
+    metal = [o for o in spec.objects if o.radio_material == "metal"]
+    assert len(metal) >= 3 and all(o.visual == "metal" for o in metal)
+    assert any(o.vertices[:, 2].max() >= 1.9 for o in metal)  # a tall one (cupboard, shelving)
+    assert sum(n.startswith("desk_") for n in by_name) >= 4
+
+    def inside_l(p):
+        return np.any([(x0 < p[:, 0]) & (p[:, 0] < x1) & (y0 < p[:, 1]) & (p[:, 1] < y1) for x0, x1, y0, y1 in areas], 0)
+
+    for o in spec.objects:  # every object stands inside the L (walls on its edge)
+        centre = 0.5 * (o.vertices.min(0) + o.vertices.max(0))
+        if not o.name.startswith(("wall_", "window_", "floor", "ceiling", "door")):
+            assert inside_l(centre[None])[0], o.name
+    s = parse_settings(None, scene="office")
+    tx, rx, tx_clear, rx_clear = rssi_grids(spec, s)
+    assert (~inside_l(tx) <= ~tx_clear).all() and (~inside_l(rx) <= ~rx_clear).all()  # outside the L: dropped
+    assert (~inside_l(rx)).sum() > 0.1 * len(rx)  # the grid does reach the core, and those points go
+    assert 10 <= tx_clear.sum() <= 20 and 200 <= rx_clear.sum() <= 600
