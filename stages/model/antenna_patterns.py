@@ -180,3 +180,129 @@ def resolve_antenna(kind: str, hpbw_deg: float, table: str, simulator_attrs: dic
     if kind == "table":
         return from_table_file(table)
     return AntennaPattern(kind, hpbw_deg=hpbw_deg)
+
+
+# ---------------------------------------------------------------------------------------------------
+# antennas of the room model (RSSI links): one pattern per end, in the room's frame
+# ---------------------------------------------------------------------------------------------------
+VERTICAL = (0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class EndAntenna:
+    """The antenna at one end of the room model's links (every transmitter, or every receiver): a pattern and the
+    unit axis [3] it is symmetric about, in the room's frame. A dipole's axis is the one stated (dipole:AX,AY,AZ);
+    horns and tables are taken about the vertical +z (a measurement file states no boresight: a table's theta_deg
+    is then the angle from the zenith)."""
+
+    pattern: AntennaPattern = field(default_factory=AntennaPattern)
+    axis: tuple = VERTICAL
+
+    @property
+    def isotropic(self) -> bool:
+        return self.pattern.kind == "isotropic"
+
+    def gain(self, directions: np.ndarray) -> np.ndarray:
+        """Linear power gain [N] toward unit directions [N, 3] leaving the antenna (AntennaPattern.gain about axis)."""
+        d = torch.as_tensor(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
+        return self.pattern.gain(d, torch.tensor(self.axis, dtype=torch.float64).expand_as(d)).numpy()
+
+    def field_direction(self, directions: np.ndarray, polarisation: str) -> np.ndarray:
+        """Unit field direction [N, 3] of the wave the antenna sends or receives along unit directions [N, 3]: a
+        dipole's is its axis across the direction, unit(k (k . a) - a) (for the vertical dipole exactly the V
+        direction of rfir_core.physics.polarisation); any other pattern's is `polarisation`'s ("V" or "H")."""
+        from rfir_core.physics.polarisation import antenna_polarisation
+
+        k = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        room = antenna_polarisation(k, "V" if self.pattern.kind == "dipole" else polarisation)
+        if self.pattern.kind != "dipole" or self.axis == VERTICAL:
+            return room
+        a = np.asarray(self.axis, dtype=np.float64)
+        across = k * (k @ a)[:, None] - a
+        norm = np.linalg.norm(across, axis=1, keepdims=True)
+        # along the axis the dipole sends nothing (gain 0): any direction across k serves
+        return np.where(norm > 1e-9, across / np.maximum(norm, 1e-300), room)
+
+    def text(self) -> str:
+        """The measurement set-up's spelling: isotropic, dipole:AX,AY,AZ, horn:HPBW or table."""
+        if self.pattern.kind == "dipole":
+            return "dipole:" + ",".join(f"{a:g}" for a in self.axis)
+        return self.pattern.text()
+
+    def attrs(self, side: str) -> dict:
+        """{side: text} and, for a table, its angles and gains in dBi (the measurements' attributes, docs/artifacts.md)."""
+        out = {side: self.text()}
+        if self.pattern.kind == "table":
+            out[f"{side}_table_deg"] = np.asarray(self.pattern.table_deg, float)
+            out[f"{side}_table_gain_dbi"] = 10 * np.log10(np.maximum(np.asarray(self.pattern.table_gain, float), 1e-30))
+        return out
+
+
+def end_antenna(attrs: dict, side: str, where: str) -> EndAntenna | None:
+    """The antenna `attrs` (a measurements artifact's, or a room model's) state for `side` ("antenna_tx" /
+    "antenna_rx"), None when they state none; a one-line ConfigError naming `where` for one the room cannot take."""
+    text = attrs.get(side)
+    if text is None:
+        return None
+    kind, _, arg = str(text).partition(":")
+    if kind == "dipole" and arg:
+        try:
+            axis = np.array([float(a) for a in arg.split(",")])
+        except ValueError:
+            axis = np.zeros(0)
+        if axis.shape != (3,) or not np.isfinite(axis).all() or np.linalg.norm(axis) == 0:
+            raise ConfigError(f"{where}: {side} = {text}: a dipole's axis is three numbers, not all zero")
+        axis = axis / np.linalg.norm(axis)
+        return EndAntenna(AntennaPattern("dipole"), tuple(float(a) for a in axis))
+    if kind == "table" and f"{side}_table_deg" not in attrs:
+        raise ConfigError(f"{where}: {side} = {text} but no {side}_table_deg / {side}_table_gain_dbi: re-import it")
+    return EndAntenna(recorded_antenna(attrs, side, where))
+
+
+@dataclass(frozen=True)
+class RoomAntennas:
+    """The room model's antennas: tx at every transmitter, rx at every receiver; source: why (printed, recorded).
+    A specular path's field is weighted by sqrt(G_tx(departure)) sqrt(G_rx(arrival)), a diffuse cell's power by
+    G_tx toward the cell and G_rx toward it from the receiver (docs/physics.md 8.10)."""
+
+    tx: EndAntenna = field(default_factory=EndAntenna)
+    rx: EndAntenna = field(default_factory=EndAntenna)
+    source: str = field(default="", compare=False)
+
+    @property
+    def isotropic(self) -> bool:
+        return self.tx.isotropic and self.rx.isotropic
+
+    def words(self) -> str:
+        """As rf-fit prints it: 'antennas tx dipole:0,0,1, rx isotropic (stated by the measurements)'."""
+        what = "isotropic antennas" if self.isotropic else f"antennas tx {self.tx.text()}, rx {self.rx.text()}"
+        return what + (f" ({self.source})" if self.source else "")
+
+    def attrs(self) -> dict:
+        """The model attributes that record them (read back by from_attrs)."""
+        return {**self.tx.attrs("antenna_tx"), **self.rx.attrs("antenna_rx"), "antenna_source": self.source}
+
+    @classmethod
+    def from_attrs(cls, attrs: dict, where: str = "the model") -> "RoomAntennas":
+        """The antennas a room model records (attrs); isotropic where it records none (models fitted before)."""
+        ends = [end_antenna(attrs, side, where) or EndAntenna() for side in ("antenna_tx", "antenna_rx")]
+        return cls(*ends, source=str(attrs.get("antenna_source", "")))
+
+
+def room_antennas(config: dict, meas, where: str) -> RoomAntennas:
+    """The antennas an RSSI fit's room model uses, source saying why. rf_fit.antenna other than "auto": that pattern
+    at both ends (a dipole vertical); "auto": each side as the measurements state it (one side unstated:
+    isotropic there, said), else isotropic (said so)."""
+    kind = str(config.get("antenna", "auto"))
+    if kind != "auto":
+        end = EndAntenna(resolve_antenna(kind, float(config.get("horn_hpbw_deg", 40.0)),
+                                         str(config.get("antenna_table", "")), None, "rssi"))
+        return RoomAntennas(end, end, source="rf_fit.antenna")
+    tx, rx = (end_antenna(meas.attrs, side, where) for side in ("antenna_tx", "antenna_rx"))
+    if tx is None and rx is None:
+        return RoomAntennas(source="assumed: the measurements state no antenna; state it on import "
+                                   "(docs/artifacts.md) or set rf_fit.antenna")
+    unstated = [side for side, end in (("antenna_tx", tx), ("antenna_rx", rx)) if end is None]
+    return RoomAntennas(tx or EndAntenna(), rx or EndAntenna(),
+                        source="stated by the measurements" + (f"; {unstated[0]} not stated: isotropic assumed"
+                                                               if unstated else ""))

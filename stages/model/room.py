@@ -29,6 +29,7 @@ from rfir_core.threads import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
 from rfir_core.physics.materials import C0, ITU_MATERIALS, abs2, fresnel, slab_transmission, specular_share
+from .antenna_patterns import RoomAntennas
 from .artifact import load_physical
 from .device_gains import gains_at
 from .links import geometry_from_artifact
@@ -116,12 +117,15 @@ class RoomGeometry:
 
     def __init__(self, geom: FrozenGeometry, labels: torch.Tensor | None, material_of_gaussian: np.ndarray,
                  settings: RoomSettings, alpha_min: float = 1e-3, occlusion: str = "auto",
-                 areas_m2: torch.Tensor | None = None, extents: dict | None = None):
+                 areas_m2: torch.Tensor | None = None, extents: dict | None = None,
+                 antennas: RoomAntennas | None = None):
         """areas_m2 [G]: the surfels' areas when already known for exactly these Gaussians (a model's stored
         areas, geometry_key matching); None: computed (surfels.surfel_areas). extents: the patches' occupancy
         grids when already known for these Gaussians, labels and settings (room_paths.extent_grids of a model,
-        extents_key matching); None: rasterised."""
+        extents_key matching); None: rasterised. antennas: the links' antennas (None: isotropic), which weight
+        every path and diffuse cell (links)."""
         self.geom, self.settings, self.alpha_min = geom, settings, float(alpha_min)
+        self.antennas = antennas or RoomAntennas()
         self.labels = labels
         self.areas = surfel_areas(geom.means, geom.log_scales, geom.rotations, geom.normals) if areas_m2 is None \
             else torch.as_tensor(areas_m2, dtype=torch.float64)
@@ -163,15 +167,23 @@ class RoomGeometry:
         return h.hexdigest()
 
     def links(self, tx_m, rx_m, freq_hz, progress=None) -> "RoomLinks":
-        """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]."""
-        s = self.settings
+        """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]. The antennas'
+        patterns enter here, the one place for fitting and prediction alike: each path's amplitude carries
+        sqrt(G_tx(departure) G_rx(arrival)) and its end field directions (a dipole's own), each diffuse cell's
+        power G_tx toward the cell times G_rx toward it (antenna_patterns.RoomAntennas)."""
+        s, ant = self.settings, self.antennas
+        tx_gain = None if ant.tx.isotropic else ant.tx.gain
+        rx_gain = None if ant.rx.isotropic else ant.rx.gain
+        tx_field = None if ant.tx.pattern.kind != "dipole" else lambda k: ant.tx.field_direction(k, s.polarisation)
+        rx_field = None if ant.rx.pattern.kind != "dipole" else lambda k: ant.rx.field_direction(k, s.polarisation)
 
         def paths() -> RoomPaths:
             return trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
                                     max_order=s.max_order, higher_order_min_area_m2=s.higher_order_min_area_m2,
                                     third_order_min_area_m2=s.third_order_min_area_m2,
                                     third_order_small_reflections=s.third_order_small_reflections,
-                                    max_interactions=s.max_interactions)
+                                    max_interactions=s.max_interactions, tx_gain=tx_gain, rx_gain=rx_gain,
+                                    tx_field=tx_field, rx_field=rx_field)
 
         def specular(p: RoomPaths, diffuse: DiffuseTerms | None = None) -> RoomLinks:
             with single_thread_torch():   # small tensor ops: on a shared CPU thread hand-offs cost more than the work
@@ -185,7 +197,7 @@ class RoomGeometry:
         with ThreadPoolExecutor(1) as pool:
             pending = pool.submit(paths)
             diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.material_of_patch, self.num_materials,
-                                    self.cell_crossings)
+                                    self.cell_crossings, tx_gain=tx_gain, rx_gain=rx_gain)
             return specular(pending.result(), diffuse)
 
 
@@ -625,7 +637,8 @@ class RoomPredictor:
         self.room = RoomGeometry(self.geom, label_tensor, model.material_of_gaussian.numpy(), settings,
                                  float(attrs.get("render.alpha_min", 1e-3)), occlusion,
                                  areas_m2=model.areas_m2 if same else None,
-                                 extents=grids if key and attrs.get("patch_extents_key") == key else None)
+                                 extents=grids if key and attrs.get("patch_extents_key") == key else None,
+                                 antennas=RoomAntennas.from_attrs(attrs))
         self.provider = self.room.provider
         if attrs.get("map_crossings_key") == self.room.crossings_key() and "map_rx_m" in stored:
             self.room.cell_crossings.keep(np.asarray(stored["map_rx_m"]), np.asarray(stored["map_cell_crossings"]))

@@ -643,7 +643,7 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
                      first_order_min_area_m2: float = 0.0, third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2,
                      max_interactions: int = MAX_INTERACTIONS,
                      third_order_small_reflections: int = THIRD_ORDER_SMALL_REFLECTIONS,
-                     tx_gain=None, rx_gain=None) -> RoomPaths:
+                     tx_gain=None, rx_gain=None, tx_field=None, rx_field=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m, to be evaluated at freq_hz
     [M] Hz (the tracing does not depend on it: RoomPaths.at_frequency evaluates the paths at any other).
 
@@ -652,7 +652,9 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
     higher orders those of at least third_order_min_area_m2 (the surfaces that bound a room), of which up to
     third_order_small_reflections reflections may be off patches of at least higher_order_min_area_m2 (a desk
     top between the room's surfaces).
-    tx_gain / rx_gain: callables (unit directions [N, 3]) -> linear power gain [N]; None: isotropic.
+    tx_gain / rx_gain: callables (unit directions [N, 3] leaving the antenna: the first leg's, the last leg's
+    reversed) -> linear power gain [N]; None: isotropic. tx_field / rx_field: callables (unit directions [N, 3] of
+    travel) -> unit field directions [N, 3] of the antenna (a tilted dipole's); None: `polarisation`'s.
     Paths with more than max_interactions interactions (reflections plus surfaces crossed) are dropped."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
@@ -729,8 +731,8 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
         gain = gain * np.asarray(tx_gain(k_dep), dtype=np.float64)
     if rx_gain is not None:
         gain = gain * np.asarray(rx_gain(-k_arr), dtype=np.float64)
-    e_tx = antenna_polarisation(k_dep, polarisation)
-    e_rx = antenna_polarisation(k_arr, polarisation)
+    e_tx = antenna_polarisation(k_dep, polarisation) if tx_field is None else np.asarray(tx_field(k_dep), np.float64)
+    e_rx = antenna_polarisation(k_arr, polarisation) if rx_field is None else np.asarray(rx_field(k_arr), np.float64)
     # paths sorted by interaction count, most first: slot i is then used by a prefix of the paths
     order_q = np.flatnonzero(keep_path)[np.argsort(-counts[keep_path], kind="stable")]
     t = lambda x: torch.as_tensor(np.ascontiguousarray(x[order_q]))  # noqa: E731

@@ -404,8 +404,8 @@ def _choose_band(links, room, tx, rx, freq_hz: float, target_db: np.ndarray, fit
 
 def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,
              measurements_path, out_path, config: dict, render_cfg, cfg: dict, *, seed: int, config_toml: str,
-             progress, t_start: float):
-    """Trace, fit and write; returns stage.RfFitResult."""
+             progress, t_start: float, antennas=None):
+    """Trace, fit and write; returns stage.RfFitResult. antennas: antenna_patterns.RoomAntennas (None: isotropic)."""
 
     depth, ideal = simulated_depth(meas), ideal_devices(meas)
     settings, fit_cfg, sharing = room_config(config, depth, ideal)
@@ -418,7 +418,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     labels = scene.get("gaussians/labels")
     t0 = time.time()
     room = RoomGeometry(geom, None if labels is None else torch.as_tensor(np.asarray(labels, dtype=np.int64)),
-                        material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")))
+                        material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")),
+                        antennas=antennas)
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches "
                  f"({patch_grouping(settings, room.patches.merge_tol_m)}), "
                  f"{plural(len(rows), 'training link')}, materials per {sharing} ({len(names)}; scattering S "
@@ -427,7 +428,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                  f"{settings.max_order} ({_higher_orders(settings)}), at most {settings.max_interactions} "
                  f"interactions per path (reflections and surfaces crossed; {interactions_words(config, depth)}), "
                  f"diffuse {diffuse_words(settings, room.cells.area.size)}, polarisation "
-                 f"{settings.polarisation}, isotropic antennas, system gain "
+                 f"{settings.polarisation}, {room.antennas.words()}, system gain "
                  f"{'fitted' if fit_cfg.fit_gain else '0 dB'}, device gains "
                  + ("off" if settings.device_gains == "off" else
                     "chosen by validation" if settings.device_gains == "validate" else
@@ -560,6 +561,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                         "model_doc": "room paths (images over planar patches) + diffuse, physical materials "
                                      "(docs/physics.md section 8.10)"})
     model_attrs.update({f"room.{f.name}": getattr(settings, f.name) for f in fields(RoomSettings)})
+    model_attrs.update(room.antennas.attrs())     # RoomPredictor weights its paths with them too
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
     model_attrs["geometry_key"] = room.geometry_key()     # the stored surfel areas are these Gaussians'
     data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})

@@ -1,8 +1,9 @@
 """`rfir rf-fit` for RSSI measurements (task "rssi"): the physical room model (room_stage.py).
 
 Called by stage.run when the measurement file's task is "rssi". Checks the request, picks the
-training rows (`[rf_fit.rssi] split`, rssi_split.py), the frequency column and the training targets,
-then fits the room model (docs/physics.md section 8.10) and writes its `rf` artifact.
+training rows (`[rf_fit.rssi] split`, rssi_split.py), the frequency column, the training targets and the
+antennas (as the measurements state them per side, antenna_patterns.room_antennas), then fits the room model
+(docs/physics.md section 8.10) and writes its `rf` artifact.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import numpy as np
 from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 
+from rfir_stages.model.antenna_patterns import room_antennas
 from rfir_stages.model.links import check_overlap, geometry_from_artifact, inside_words, positions_inside
 from .room_stage import run_room
 from .rssi_split import rssi_settings, training_rows
@@ -31,11 +33,10 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
     if str(config.get("split", "data")) != "data":
         raise ConfigError(f"rf_fit.split = {config['split']!r} is for rcs data; RSSI data uses rf_fit.rssi.split "
                           "('file' or 'holdout_tx')")
-    kind = str(config.get("antenna", "auto"))
-    if kind not in ("auto", "isotropic"):
-        raise ConfigError(f"rf_fit.antenna = {kind!r}: the room model takes isotropic antennas")
-    geom = geometry_from_artifact(scene)
     where = str(measurements_path)
+    antennas = room_antennas(config, meas, where)   # each end's pattern, weighting every path (RoomGeometry.links)
+    progress.log(f"rf-fit: {antennas.words()}")
+    geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, where)
     check_positions_in_extent(geom, meas, where)
     if cfg["split"] == "file" and meas.get("split") is None:
@@ -62,7 +63,7 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
         raise InputFileError("path_gain_db has non-finite training values", path=measurements_path)
     return run_room(scene, meas, geom, rows, held, tx, rx, float(freqs[col]), target_db, scene_path,
                     measurements_path, out_path, config, render_cfg, cfg, seed=seed, config_toml=config_toml,
-                    progress=progress, t_start=t_start)
+                    progress=progress, t_start=t_start, antennas=antennas)
 
 
 MIN_LINK_M = 1e-3   # a transmitter and a receiver closer than this are one point: no direction, no path

@@ -87,8 +87,9 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
     scene = read_artifact(scene_path, ("scene", "rf"))
     meas = read_artifact(measurements_path, "measurements")
     task = str(meas.attrs.get("task", ""))
-    ant = antenna_choice(config, meas, task, str(measurements_path))
-    progress.log(f"rf-fit: {ant.note()}")
+    if task != "rssi":   # the room model takes each end's antenna itself (rssi_fit: antenna_patterns.room_antennas)
+        ant = antenna_choice(config, meas, task, str(measurements_path))
+        progress.log(f"rf-fit: {ant.note()}")
     if "polarisation" in meas.attrs:   # the physical model uses what the measurements state
         phys = dict(config.get("physical") or {})
         if str(phys.get("polarisation", "V")).upper() != meas.attrs["polarisation"]:
@@ -101,7 +102,6 @@ def run(scene_path, measurements_path, out_path, config: dict, *, seed: int = 0,
             raise ConfigError("--resume: RSSI fits write no checkpoints yet")
         if select:
             raise ConfigError("--range / --aspects select rows of rcs or wideband measurements, not of rssi ones")
-        config = dict(config, antenna=ant.kind)   # what the measurements state (or isotropic, said above)
         return run_rssi(scene, meas, scene_path, measurements_path, out_path, config, render_cfg, fit_cfg, seed=seed,
                         config_toml=config_toml, progress=progress)
     geom = geometry_from_artifact(scene)

@@ -79,6 +79,11 @@ def _show_materials(path: str) -> None:
     console.print(table)
     for line in (str(c) for c in art.free.get("model@attrs", {}).get("material_check", []) if str(c)):
         console.print(f"implausible for its surface (rf-fit's check): {line}", highlight=False, markup=False)
+    model = art.free.get("model@attrs", {})
+    if "antenna_tx" in model:   # the room model's antennas, which weight every path (docs/physics.md 8.10)
+        source = str(model.get("antenna_source", ""))
+        console.print(f"antennas: tx {model['antenna_tx']}, rx {model.get('antenna_rx', 'isotropic')}"
+                      + (f" ({source})" if source else ""), highlight=False, markup=False)
     terms = str(art.free.get("model@attrs", {}).get("residual_terms", "off"))
     if terms != "off":   # the room model's residual terms in dB (docs/physics.md 8.15)
         console.print(f"residual terms on the physics (rf-fit's choice): {terms}", highlight=False, markup=False)
