@@ -5,13 +5,15 @@ The shell (floor, ceiling, walls) is tiled anew with flat square surfels over ea
 left out (from_mesh.gaussians_from_mesh on the extent's rectangles, at `spacing_m` as `mesh-gaussians --preset
 room` tiles a mesh), so that the room model's patches are its planes with their edges (`tile_shell = false`:
 the shell's own Gaussians projected onto their surfaces instead). The Gaussians off the shell inside it are
-joined into object segments (DBSCAN); those on one of the object planes (levelled or plumbed within snap_deg,
-as the shell's) are projected onto it, with the plane's normal and their footprint flattened into it. Rectangles
-of the shell of another colour or depth (a door, window panes, a board) become insets, grouped across the room
-into classes by appearance (insets.py; `insets = false`: none). Gaussians in no segment, and those behind the
-shell, stay as they were, unlabelled (-1; `keep_free = false`: left out): the free Gaussians. Labels are named by
-class (floor, ceiling, wall_NN, inset_A_NN, object_NN), so rf-fit's class sharing gives one material to the
-walls, one to each class of insets, one to the objects.
+joined into object segments (DBSCAN), each cut into boxes whose faces are tiled as the shell is (object_boxes.py;
+`tile_shell = false`: the boxes' Gaussians projected onto their nearest faces); a segment that is not box-like
+stays free Gaussians. With `objects = "keep"` the segments stay Gaussians instead, those on one of the object
+planes (levelled or plumbed within snap_deg, as the shell's) projected onto it, with the plane's normal and their
+footprint flattened into it. Rectangles of the shell of another colour or depth (a door, window panes, a board)
+become insets, grouped across the room into classes by appearance (insets.py; `insets = false`: none). Gaussians
+in no segment or box, and those behind the shell, stay as they were, unlabelled (-1; `keep_free = false`: left
+out): the free Gaussians. Labels are named by class (floor, ceiling, wall_NN, inset_A_NN, object_NN), so rf-fit's
+class sharing gives one material to the walls, one to each class of insets, one to the objects.
 """
 from __future__ import annotations
 
@@ -23,15 +25,16 @@ import numpy as np
 
 from rfir_core.errors import ConfigError, InputFileError, StageError
 
-from .planes import Plane, connected_pieces, find_planes, footprint_areas_m2
+from .planes import Plane, connected_pieces, find_planes, footprint_areas_m2, votes_and_radii
 from .insets import InsetSettings, find_insets
+from .object_boxes import BoxSettings, box_fields, box_record, find_boxes, settings_errors
 from .room_shell import ShellSettings, Surface, build_shell, surface_quads
 
 
 @dataclass
-class StructureSettings(ShellSettings, InsetSettings):
-    """[geom.structure] (configs/geom.toml): the shell's and the insets' thresholds (their own dataclasses hold
-    their defaults) and the plane search, object and tiling ones."""
+class StructureSettings(ShellSettings, InsetSettings, BoxSettings):
+    """[geom.structure] (configs/geom.toml): the shell's, the insets' and the object boxes' thresholds (their own
+    dataclasses hold their defaults) and the plane search, object and tiling ones."""
     normal_deg: float = 25.0
     min_points: int = 40
     min_area_m2: float = 2.0
@@ -50,7 +53,7 @@ class StructureSettings(ShellSettings, InsetSettings):
 class StructureResult:
     """What `run` wrote: the artifact's path, its surfaces, Gaussian counts (shell surfels written, photo
     Gaussians on the shell, in objects, free), object segments, wall-clock seconds, and the scale check
-    (known, measured [m], or None)."""
+    (known, measured [m], or None), the object boxes (object_boxes.Box; none with objects = "keep")."""
     path: Path
     surfaces: list[Surface]
     num_in: int
@@ -63,6 +66,7 @@ class StructureResult:
     seconds: float
     scale: tuple[str, str, float, float] | None = None
     warnings: list[str] = field(default_factory=list)
+    boxes: list = field(default_factory=list)
 
 
 def settings_from(table: dict) -> StructureSettings:
@@ -76,6 +80,9 @@ def settings_from(table: dict) -> StructureSettings:
                  "inset_spread"):
         if not getattr(s, name) > 0:
             raise ConfigError(f"geom.structure.{name} must be positive, got {getattr(s, name)}")
+    errors = settings_errors(s)
+    if errors:
+        raise ConfigError(errors[0])
     return s
 
 
@@ -144,24 +151,51 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     piece = np.full(len(x), -1)
     piece[inside] = connected_pieces(x[inside], settings.object_eps_m, settings.object_min_points)
     in_object = piece >= 0
-    shell_planes = {id(p) for p in planes if _used_by_shell(p, on_shell)}
-    object_planes = [_levelled(p, x, settings.snap_deg) for p in planes
-                     if id(p) not in shell_planes and in_object[p.members].mean() > 0.5]
+    boxes = []
+    if settings.objects == "boxes":      # the segments as boxes (object_boxes.py); what no box explains is free
+        votes, radii = votes_and_radii(areas, len(x))
+        floor = next(s for s in surfaces if s.kind == "floor")
+        boxes = find_boxes(x, normals, votes, radii / np.sqrt(2.0), piece, float(floor.offset * np.sign(floor.normal[2])),
+                           [s.normal for s in surfaces if s.kind == "wall"], settings, distance_m=settings.distance_m,
+                           normal_deg=settings.normal_deg, min_points=settings.object_min_points)
+        in_object = np.zeros(len(x), bool)
+        for b in boxes:
+            in_object[b.members] = True
+        object_planes = []
+    else:
+        shell_planes = {id(p) for p in planes if _used_by_shell(p, on_shell)}
+        object_planes = [_levelled(p, x, settings.snap_deg) for p in planes
+                         if id(p) not in shell_planes and in_object[p.members].mean() > 0.5]
 
     if settings.tile_shell:
         fields_out, names = _shell_fields(surfaces, settings.spacing_m, art.data.get("gaussians/colors"))
     else:
         fields_out, names = _shell_projected(art.data, x, on_shell, surfaces)
-    objects = _object_fields(art.data, piece, in_object, object_planes, first_label=len(names))
-    uniq = np.unique(piece[in_object])
-    names += [f"object_{k:02d}" for k in range(len(uniq))]
-    if settings.object_planes_only:     # the objects as their planar parts alone
+    num_segments = len(np.unique(piece[piece >= 0]))
+    if settings.objects == "boxes":
+        dropped = 0
+        if settings.tile_shell:
+            objects, dropped = box_fields(boxes, [s for s in surfaces if s.kind != "inset"], settings.spacing_m,
+                                          settings.box_cells, settings.distance_m, len(names),
+                                          None if colors is None else np.asarray(colors, float))
+            objects = objects or {k: v[:0] for k, v in fields_out.items()}
+        else:       # as the shell: the boxes' own Gaussians projected onto their nearest faces
+            objects = _box_projected(art.data, x, boxes, in_object, first_label=len(names))
+        names += [b.name for b in boxes]
+        _log_boxes(progress, boxes, piece, in_object, dropped)
+        num_objects = len(boxes)
+    else:
+        objects = _object_fields(art.data, piece, in_object, object_planes, first_label=len(names))
+        names += [f"object_{k:02d}" for k in range(num_segments)]
+        num_objects = num_segments
+    if settings.object_planes_only and settings.objects == "keep":     # the objects as their planar parts alone
         on_plane = np.zeros(len(x), bool)
         for p in object_planes:
             on_plane[p.members] = True
         objects = {k: v[on_plane[in_object]] for k, v in objects.items()}
     free = _subset(art.data, (~on_shell & ~in_object) if settings.keep_free else np.zeros(len(x), bool), label=-1)
-    out = {k: np.concatenate([fields_out[k], objects[k], free[k]]) for k in fields_out}
+    # the fields every part has (box surfels carry no fields of photo Gaussians beyond a tiling's and colours)
+    out = {k: np.concatenate([fields_out[k], objects[k], free[k]]) for k in fields_out if k in objects}
 
     warnings = [f"{s.name} is {s.tilt_deg:.2f} deg from {'vertical' if s.kind == 'wall' else 'horizontal'} "
                 f"(over 1 deg: is the frame's z up?)" for s in surfaces
@@ -174,12 +208,26 @@ def run(scene_path: str | Path, out_path: str | Path, table: dict, *, seed: int 
     prov.add_input(scene_path)
     prov.wall_time_s = time.time() - t0
     prov.extra = {"surfaces": [surface_record(s) for s in surfaces], "free_gaussians": int((~on_shell & ~in_object).sum()),
-                  "object_segments": len(uniq), "settings": {f.name: getattr(settings, f.name) for f in fields(settings)}}
+                  "object_segments": num_segments, "object_boxes": [box_record(b) for b in boxes],
+                  "settings": {f.name: getattr(settings, f.name) for f in fields(settings)}}
     attrs = {"source": str(scene_path), "label_names": np.asarray(names, dtype=object)}
     path = write_artifact(out_path, "scene", out, attrs=attrs, provenance=prov)
     return StructureResult(Path(path), surfaces, len(x), len(fields_out["gaussians/means"]), int(on_shell.sum()),
-                           int(in_object.sum()), int((~on_shell & ~in_object).sum()), len(uniq), len(object_planes),
-                           time.time() - t0, scale, warnings)
+                           int(in_object.sum()), int((~on_shell & ~in_object).sum()), num_objects, len(object_planes),
+                           time.time() - t0, scale, warnings, boxes)
+
+
+def _log_boxes(progress, boxes, piece: np.ndarray, in_box: np.ndarray, dropped: int) -> None:
+    """Say how many boxes the object segments (piece [N], -1: none) gave, their sizes, and what was left free
+    (in_box [N] bool: explained by a box)."""
+    segments = np.unique(piece[piece >= 0])
+    left = (piece >= 0) & ~in_box
+    none = [k for k in segments if not in_box[piece == k].any()]
+    sizes = ", ".join(f"{b.size_m[0]:.2f}x{b.size_m[1]:.2f}x{b.size_m[2]:.2f}" for b in boxes)
+    progress.log(f"objects as boxes: {len(boxes)} from {len(segments)} segment(s)"
+                 f"{' (u x v x height [m]: ' + sizes + ')' if boxes else ''}, {dropped} face(s) on the shell left out; "
+                 f"left free: {int(left.sum())} of their {int((piece >= 0).sum())} Gaussians, {len(none)} segment(s) with "
+                 f"no box (geom.structure.objects)")
 
 
 def surface_record(s: Surface) -> dict:
@@ -275,6 +323,26 @@ def _shell_projected(data: dict, x: np.ndarray, on_shell: np.ndarray, surfaces: 
     labels = np.full(len(x), -1)
     labels[idx] = which
     return _projected(data, on_shell, labels, planes), [s.name for s in surfaces]
+
+
+def _box_projected(data: dict, x: np.ndarray, boxes: list, in_box: np.ndarray, first_label: int) -> dict:
+    """The fields of the boxes' Gaussians (in_box [N] bool), each projected onto its box's nearest face and labelled
+    first_label + the box's index (tile_shell = false)."""
+    labels = np.full(len(x), -1)
+    planes = []
+    for k, box in enumerate(boxes):
+        labels[box.members] = first_label + k
+        axes, half = box.axes, 0.5 * box.size_m
+        local = (x[box.members] - box.centre) @ axes.T                     # [M, 3] in the box's frame
+        axis = np.argmin(np.abs(np.abs(local) - half), axis=1)              # the nearest face's axis ...
+        side = np.sign(local[np.arange(len(local)), axis])                  # ... and side
+        side[side == 0] = 1.0
+        for a in range(3):
+            for sign in (-1.0, 1.0):
+                normal = sign * axes[a]
+                planes.append(Plane(normal, float(normal @ box.centre + half[a]),
+                                    box.members[(axis == a) & (side == sign)], 0.0))
+    return _projected(data, in_box, labels, planes)
 
 
 def _subset(data: dict, keep: np.ndarray, label) -> dict:
