@@ -184,3 +184,25 @@ def test_keep_leaves_the_segments_as_gaussians_and_bad_settings_are_refused(tmp_
         run(scene, tmp_path / "bad.h5", {"objects": "cubes"})
     with pytest.raises(ConfigError, match="box_fill"):
         run(scene, tmp_path / "bad.h5", {"box_fill": 1.5})
+
+
+def test_without_tiling_the_boxes_gaussians_are_projected_onto_their_faces(tmp_path):
+    from rfir_core.artifacts import read_artifact
+    from rfir_stages.geom.structure import run
+
+    rects = [f for centre, size, yaw in BOXES for f in _box_faces(centre, size, yaw)]
+    fields, _ = _fields(np.random.default_rng(7), rects, blob=False)
+    result = run(_write(tmp_path / "room.h5", fields), tmp_path / "proj.h5", {"insets": False, "tile_shell": False})
+    art = read_artifact(tmp_path / "proj.h5", "scene")
+    names = [str(n) for n in art.attrs["label_names"]]
+    labels, x, n = art.data["gaussians/labels"], art.data["gaussians/means"], art.data["gaussians/normals"]
+    assert len(labels) == len(fields["gaussians/means"]) and len(result.boxes) == 2
+    for box in result.boxes:
+        on = labels == names.index(box.name)
+        assert on.sum() == len(box.members) > 100
+        local = (x[on] - box.centre) @ box.axes.T
+        face = np.isclose(np.abs(local), 0.5 * box.size_m, atol=1e-9)
+        assert face.any(1).all()
+        # each Gaussian's normal is its face's: along the one axis it lies on the face of
+        along = np.abs(n[on] @ box.axes.T)
+        assert np.allclose(along[face], 1.0, atol=1e-9)
