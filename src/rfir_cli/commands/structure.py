@@ -26,8 +26,8 @@ def structure(
              "=9.0): the scale error is reported.")] = None,
 ) -> None:
     """Find the room's planes in its Gaussians: floor, ceiling and walls meeting at their edges (tiled as flat
-    surfels, openings left out), object segments (Gaussians on their planes projected onto them) and the free
-    Gaussians left; check that the floor is horizontal and the walls vertical ([geom.structure] settings)."""
+    surfels, openings left out), objects as boxes (their faces tiled) and the free Gaussians left; check that the
+    floor is horizontal and the walls vertical ([geom.structure] settings)."""
     opts = options(ctx)
 
     def work():
@@ -57,6 +57,7 @@ def structure(
         console.print(f"scale: {a} to {b} measures {measured:.3f} m against {known:.3f} m known "
                       f"({100 * (measured / known - 1):+.2f} %)", highlight=False)
     console.print(f"[green]wrote[/green] {r.path}: {r.num_shell_surfels} shell surfels on {len(r.surfaces)} surfaces "
-                  f"(from {r.num_on_shell} Gaussians), {r.num_in_objects} Gaussians in {r.num_objects} object segments "
-                  f"({r.num_object_planes} object planes), {r.num_free} free Gaussians of {r.num_in} "
+                  f"(from {r.num_on_shell} Gaussians), {r.num_in_objects} Gaussians in {r.num_objects} "
+                  f"{'boxes' if r.boxes else f'object segments ({r.num_object_planes} object planes)'}, "
+                  f"{r.num_free} free Gaussians of {r.num_in} "
                   f"in {r.seconds:.1f} s", highlight=False, soft_wrap=True)
