@@ -79,6 +79,8 @@ class SimulateSettings:
     rssi_freqs_hz: list[float] = field(default_factory=lambda: [2.4e9])
     # channels whose powers each rssi link averages (a survey over several channels); empty: one frequency
     rssi_channels_hz: list[float] = field(default_factory=list)
+    # Sionna RT's pattern of every rssi antenna, V-polarised (RSSI_ANTENNAS); the measurements state it
+    rssi_antenna: str = "iso"
     tx_grid: list[int] = field(default_factory=lambda: [6, 4])
     rx_grid: list[int] = field(default_factory=lambda: [22, 20])
     tx_height_m: float = 2.2
@@ -132,7 +134,9 @@ def _defaults() -> dict:
     return load_defaults().get("simulate", {})
 
 
-RSSI_KEYS = {"freqs_hz", "channels_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m", "clearance_m",
+# simulate.rssi.antenna: Sionna RT's pattern name -> how the measurements state it (docs/artifacts.md)
+RSSI_ANTENNAS = {"iso": "isotropic", "dipole": "dipole:0,0,1"}
+RSSI_KEYS = {"antenna", "freqs_hz", "channels_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m", "clearance_m",
              "test_fraction", "samples_per_src", "max_num_paths_per_src"}
 
 
@@ -184,6 +188,7 @@ def parse_settings(config: dict | None, quick: bool | None = None, scene: str | 
             wideband_aspect_step_deg=float(wb.get("aspect_step_deg", 1.0)),
             rssi_freqs_hz=[float(f) for f in rs.get("freqs_hz", [2.4e9])],
             rssi_channels_hz=[float(f) for f in rs.get("channels_hz", [])],
+            rssi_antenna=str(rs.get("antenna", "iso")),
             tx_grid=[int(v) for v in rs.get("tx_grid", [6, 4])], rx_grid=[int(v) for v in rs.get("rx_grid", [22, 20])],
             tx_height_m=float(rs.get("tx_height_m", 2.2)), rx_height_m=float(rs.get("rx_height_m", 1.0)),
             tx_margin_m=float(rs.get("tx_margin_m", 1.0)), rx_margin_m=float(rs.get("rx_margin_m", 0.4)),
@@ -241,6 +246,8 @@ def _validate(s: SimulateSettings) -> None:
         bad("frequencies must be positive")
     if not 0.0 < s.horn_hpbw_deg < 180.0:
         bad("rcs.horn_hpbw_deg must be in (0, 180)")
+    if s.rssi_antenna not in RSSI_ANTENNAS:
+        bad(f"rssi.antenna = {s.rssi_antenna!r}: expected one of {', '.join(RSSI_ANTENNAS)}")
     if len(s.tx_grid) != 2 or len(s.rx_grid) != 2 or min(s.tx_grid + s.rx_grid) < 1:
         bad("rssi.tx_grid and rssi.rx_grid must be two positive integers")
     if not 0.0 <= s.test_fraction < 1.0:

@@ -15,7 +15,7 @@ from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
 from .measurement import MeasurementEffects, apply_measurement_effects
 from .scene_edits import RECORD_SEPARATOR, apply_scene_edits
 from .scenes import SceneSpec, build_scene, write_meshes
-from .settings import SimulateSettings, parse_settings
+from .settings import RSSI_ANTENNAS, SimulateSettings, parse_settings
 from .solve import rcs_dbsm_from_gain
 
 TASKS = ("rssi", "rcs", "wideband")
@@ -159,8 +159,11 @@ def _radio_task(task, spec, radio, settings: SimulateSettings, path: Path, confi
     sim_group = {"@attrs": {**_flat_attrs(effects), **{k: v for k, v in sim_attrs.items()
                                                         if not isinstance(v, np.ndarray)}}}
     sim_group.update({k: v for k, v in sim_attrs.items() if isinstance(v, np.ndarray)})
-    write_artifact(path, "measurements", data, attrs={"task": "wideband" if task == "wideband" else task,
-                                                      "scene": spec.name},
+    root = {"task": "wideband" if task == "wideband" else task, "scene": spec.name}
+    if task == "rssi":   # the antennas simulated, as a measurement file states them (docs/artifacts.md)
+        root.update(antenna_tx=RSSI_ANTENNAS[settings.rssi_antenna], antenna_rx=RSSI_ANTENNAS[settings.rssi_antenna],
+                    polarisation="V")
+    write_artifact(path, "measurements", data, attrs=root,
                    provenance=prov, free={"simulator": sim_group})
     return len(data["tx_pos"]), len(data["freq_hz"])
 
@@ -221,9 +224,18 @@ def _rssi(spec, radio, s: SimulateSettings, progress, notes: list[str]):
 
     tx, rx, tx_clear, rx_clear = rssi_grids(spec, s)
     freqs = np.asarray(s.rssi_freqs_hz, float)
-    channel, power, tx_id, rx_id, n_paths, cap_hits = simulate_rssi(radio, tx, rx, freqs, s.physics_for("rssi"), progress,
-                                                          f"RSSI {len(tx)} Tx x {len(rx)} Rx",
-                                                          channels_hz=s.rssi_channels_hz)
+    import sionna.rt as rt
+
+    # every antenna Sionna RT's simulate.rssi.antenna pattern, V-polarised (the other tasks' stay isotropic)
+    arrays = radio.tx_array, radio.rx_array
+    radio.tx_array, radio.rx_array = (rt.PlanarArray(num_rows=1, num_cols=1, pattern=s.rssi_antenna, polarization="V")
+                                      for _ in range(2))
+    try:
+        channel, power, tx_id, rx_id, n_paths, cap_hits = simulate_rssi(radio, tx, rx, freqs, s.physics_for("rssi"),
+                                                                        progress, f"RSSI {len(tx)} Tx x {len(rx)} Rx",
+                                                                        channels_hz=s.rssi_channels_hz)
+    finally:
+        radio.tx_array, radio.rx_array = arrays
     if s.rssi_channels_hz:
         notes.append(f"each link's power is the mean over {len(s.rssi_channels_hz)} channels ("
                      + ", ".join(f"{c / 1e9:.3f}" for c in s.rssi_channels_hz)
@@ -244,7 +256,8 @@ def _rssi(spec, radio, s: SimulateSettings, progress, notes: list[str]):
     tx, rx = tx[tx_clear], rx[rx_clear]
     data = {"tx_pos": tx[tx_id], "rx_pos": rx[rx_id], "freq_hz": freqs, "channel": channel, "_power": power,
             "tx_id": tx_id.astype(np.int64), "rx_id": rx_id.astype(np.int64), "split": split}
-    attrs = {"backend": "sionna-rt", "antenna_tx": "omni (isotropic, V-pol)", "antenna_rx": "omni (isotropic, V-pol)",
+    pattern = f"{RSSI_ANTENNAS[s.rssi_antenna]} (Sionna RT pattern {s.rssi_antenna!r}, V-pol)"
+    attrs = {"backend": "sionna-rt", "antenna_tx": pattern, "antenna_rx": pattern,
              "split_protocol": f"random {1 - s.test_fraction:.0%}/{s.test_fraction:.0%}, seed {s.seed}",
              "split_seed": int(s.seed), "num_tx": len(tx), "num_rx": len(rx), "clearance_m": float(s.clearance_m),
              "num_paths": n_paths,
