@@ -35,7 +35,6 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
                           "('file' or 'holdout_tx')")
     where = str(measurements_path)
     antennas = room_antennas(config, meas, where)   # each end's pattern, weighting every path (RoomGeometry.links)
-    progress.log(f"rf-fit: {antennas.words()}")
     geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, where)
     check_positions_in_extent(geom, meas, where)

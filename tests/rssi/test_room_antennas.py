@@ -253,3 +253,23 @@ def test_the_classroom_with_sionna_dipoles_is_fitted_better_with_them_stated(tmp
     friis = (C0 / model.freq_hz / (4 * math.pi * d)) ** 2 * (1.5 * (1 - ((rx - tx)[:, 2] / d) ** 2)) ** 2
     assert seen.sum() > len(tx) // 2
     np.testing.assert_allclose(20 * np.log10(np.abs(field.numpy()[seen])), 10 * np.log10(friis[seen]), atol=0.01)
+
+
+def test_each_side_is_taken_as_stated_and_a_broken_statement_is_one_line_naming_the_file():
+    from types import SimpleNamespace
+
+    from rfir_core.errors import ConfigError
+    from rfir_stages.model.antenna_patterns import room_antennas
+
+    meas = SimpleNamespace(attrs={"antenna_tx": "dipole:0,1,1"})
+    ant = room_antennas({"antenna": "auto"}, meas, "m.h5")
+    assert ant.tx.text() == f"dipole:0,{1 / math.sqrt(2):g},{1 / math.sqrt(2):g}" and ant.rx.isotropic
+    assert "antenna_rx not stated: isotropic assumed" in ant.words()
+    assert RoomAntennas.from_attrs(ant.attrs()) == ant                    # what a model records reads back
+    forced = room_antennas({"antenna": "dipole"}, meas, "m.h5")           # rf_fit.antenna: both ends, vertical
+    assert forced.tx.text() == forced.rx.text() == "dipole:0,0,1" and forced.source == "rf_fit.antenna"
+    assert room_antennas({}, SimpleNamespace(attrs={}), "m.h5").isotropic
+    for attrs in ({"antenna_rx": "table:ant.csv"}, {"antenna_tx": "dipole:0,0,x"}):
+        with pytest.raises(ConfigError) as err:
+            room_antennas({"antenna": "auto"}, SimpleNamespace(attrs=attrs), "m.h5")
+        assert str(err.value).startswith("m.h5: ") and "\n" not in str(err.value)
