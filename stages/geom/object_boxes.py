@@ -297,16 +297,12 @@ def _extent(q: np.ndarray, ext: np.ndarray, along: np.ndarray, votes: np.ndarray
             lo[a], hi[a] = mid - 0.5 * distance_m, mid + 0.5 * distance_m
             continue
         mid = 0.5 * (lo0 + hi0)
-        lo[a], hi[a] = lo0, hi0
         facing = along[:, a] >= facing_cos
+        ends = []
         for end, side in ((lo0, q[:, a] < mid), (hi0, q[:, a] > mid)):
             face = facing & side & (np.abs(q[:, a] - end) <= 2 * distance_m)
-            if face.sum() >= 3:
-                value = float(weighted_quantile(q[face, a], votes[face], 0.5))
-                if end == lo0:
-                    lo[a] = value
-                else:
-                    hi[a] = value
+            ends.append(float(weighted_quantile(q[face, a], votes[face], 0.5)) if face.sum() >= 3 else end)
+        lo[a], hi[a] = ends
     return lo, hi
 
 
