@@ -52,6 +52,8 @@ CODE: dict[str, tuple[str, ...]] = {
     "import": (*_CORE, "stages/importers"),
     "diagnose": (*_CORE, *_MODEL, "stages/diagnose", "stages/rf_fit", "stages/predict", "configs/rf_fit.toml",
                  "configs/predict.toml"),
+    "scripts/measured_like.py": ("scripts/measured_like.py", "stages/simulate/measured_like.py",
+                                 "stages/simulate/scenes.py", "stages/model/split_protocols.py", "configs/simulate.toml"),
     "scripts/survey_thin.py": ("scripts/survey_thin.py", "stages/reproduce/survey.py"),
     "scripts/baseline_nerf2.py": (*_CORE, "scripts/baseline_nerf2.py", "stages/baselines"),
     "scripts/baseline_wrfgs.py": (*_CORE, "scripts/baseline_wrfgs.py", "stages/baselines"),

@@ -52,5 +52,12 @@ def test_the_measured_target_imports_each_protocol_and_fits_the_floor_plan():
         assert "--preset room" in steps["data__measured_surfels"].command
         assert steps["measured_random__diagnose"].inputs[0].endswith("fits/measured_random.h5")
         table, labels = tables["measured"]
-        assert len(table.rows) == 6 and "data__measured_room" in labels  # TETAM, then the lab hall
+        assert len(table.rows) == 9 and "data__measured_room" in labels  # TETAM, the lab hall, the measured-like flat
+        sim = steps["data__measured_flat_sim"].command
+        assert "simulate flat" in sim and ("rx_grid=[19,15]" in sim) == quick
+        assert any(i.rstrip("/").endswith("measured_flat/sim") for i in steps["data__measured_flat"].inputs)
+        for name in ("random", "room", "rx"):
+            fit = steps[f"measured_flat_{name}__rfir_fit"]
+            assert any(i.rstrip("/").endswith("measured_flat/ml") for i in fit.inputs)
+            assert any(i.endswith("measured_flat/plan_scene.h5") for i in fit.inputs)
         assert any("tests/data/public_survey/README.md" in n for n in table.notes if isinstance(n, str))
