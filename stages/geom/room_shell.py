@@ -120,15 +120,21 @@ def _within_extent(plane: Plane, x: np.ndarray, margin_m: float, points: np.ndar
     return within
 
 
-def _inward(plane: Plane, x: np.ndarray, settings: ShellSettings) -> tuple[np.ndarray, float, float] | None:
+def _inward(plane: Plane, x: np.ndarray, votes: np.ndarray, settings: ShellSettings
+            ) -> tuple[np.ndarray, float, float] | None:
     """(normal, offset) of the plane turned to the side that holds the scene's Gaussians x [N, 3], and the share
-    of them on the other side, both among the Gaussians that lie within the plane's own extent: its members' 1st
-    to 99th percentile along its two in-plane axes, less 2 distance_m at each edge (the Gaussians of a surface
-    meeting it there scatter across it). None when both sides hold more than boundary_share (not a boundary).
-    With nothing off the plane within its extent, the side of the scene's median Gaussian is inside."""
+    of their votes [N] (footprint areas, planes.votes_and_radii) on the other side, both among the Gaussians that
+    lie within the plane's own extent: its members' 1st to 99th percentile along its two in-plane axes, less 2
+    distance_m at each edge (the Gaussians of a surface meeting it there scatter across it). None when both sides
+    hold more than boundary_share (not a boundary). Shares of area, not of count: photos leave many small floaters
+    a few cm behind a surface, which must not unmake it. With nothing off the plane within its extent, the side of
+    the scene's median Gaussian is inside."""
     d = plane.distance(x)
     within = _within_extent(plane, x, 2 * settings.distance_m)
-    above, below = float(np.mean(d[within] > settings.distance_m)), float(np.mean(d[within] < -settings.distance_m))
+    w, dw = votes[within], d[within]
+    total = max(float(w.sum()), 1e-300)
+    above = float(w[dw > settings.distance_m].sum()) / total
+    below = float(w[dw < -settings.distance_m].sum()) / total
     if min(above, below) > settings.boundary_share:
         return None
     if above == below == 0.0:
@@ -146,7 +152,7 @@ def build_shell(x: np.ndarray, planes: list[Plane], settings: ShellSettings,
     cos_class = np.cos(np.radians(settings.class_deg))
     floors, ceilings, walls = [], [], []
     z_lo, z_hi = weighted_quantile(x[:, 2], votes, [0.01, 0.99])
-    boundaries = [(plane, *turned[:2]) for plane in planes if (turned := _inward(plane, x, settings)) is not None]
+    boundaries = [(plane, *turned[:2]) for plane in planes if (turned := _inward(plane, x, votes, settings)) is not None]
     for plane, normal, offset in _innermost(x, votes, boundaries, settings):
         vertical_share = abs(normal @ UP)
         if vertical_share >= cos_class:

@@ -239,3 +239,27 @@ def test_outline_across_a_missing_wall():
     walls = [_wall("wall_00", box[0], box[1]), _wall("wall_01", box[1], box[2]), _wall("wall_02", box[2], box[3])]
     corners = [Corner(0, 1, 1, 0, box[1]), Corner(1, 1, 2, 0, box[2])]
     assert _cyclic_match(room_outline(walls, corners), box, 1e-6)
+
+
+def test_small_floaters_behind_the_floor_and_an_inner_wall_do_not_unmake_them(tmp_path):
+    """Photo Gaussians float a few cm behind real surfaces, smaller than the surface's own. A plane is a boundary
+    when at most boundary_share of the footprint area within its extent lies behind it, not of the count: floaters
+    8-12 cm under the floor and behind the L's inner walls, 12 % of those surfaces' Gaussians but a ninth of
+    their size each, leave the floor at z = 0 and the inner corner's walls in place."""
+    from rfir_stages.geom.structure import run
+
+    rng = np.random.default_rng(12)
+    room = _sampled(rng, _l_rectangles(), density=120.0)
+    floor = ((0, 0, 0), (6, 0, 0), (0, 3, 0)), ((0, 3, 0), (3, 0, 0), (0, 3, 0))
+    inner = ((6, 3, 0), (-3, 0, 0), (0, 0, HEIGHT)), ((3, 3, 0), (0, 3, 0), (0, 0, HEIGHT))
+    floaters = []
+    for rects, behind in ((floor, np.array([0, 0, -1.0])), (inner[:1], np.array([0, 1.0, 0])),
+                          (inner[1:], np.array([1.0, 0, 0]))):
+        layer = _sampled(rng, rects, density=120.0 * 0.12, scale_m=0.01)
+        layer["gaussians/means"] = layer["gaussians/means"] + np.outer(rng.uniform(0.08, 0.12, len(
+            layer["gaussians/means"])), behind)
+        floaters.append(layer)
+    result = run(_write(tmp_path / "f.h5", _joined(room, *floaters)), tmp_path / "planes.h5", {"insets": False})
+    floor_found = next(s for s in result.surfaces if s.kind == "floor")
+    assert abs(floor_found.offset) < 0.02, floor_found.offset
+    _check_l_shell(result, offset_tol_m=0.03)
