@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .from_mesh import gaussians_from_mesh
 from .planes import weighted_quantile
 
 MAX_REACH_CELLS = 2          # a footprint marks voxels at most this many cells from its centre's: a blurry floater
@@ -311,7 +312,6 @@ def box_fields(boxes: list[Box], shell: list, spacing_m: float, box_cells: int, 
     """(scene fields of the surfels tiling the boxes' faces, labels first_label + box index; number of faces left
     out as lying on a shell surface and facing it). shell: the shell's Surfaces (floor, ceiling, walls); colors
     [N, 3] of the input Gaussians (None: no colours), each box getting its members' median."""
-    from .from_mesh import gaussians_from_mesh
 
     parts, dropped = [], 0
     for k, box in enumerate(boxes):

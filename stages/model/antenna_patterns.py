@@ -17,6 +17,7 @@ import torch
 
 from rfir_core.errors import ConfigError, InputFileError
 from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
+from rfir_core.physics.polarisation import antenna_polarisation
 
 KINDS = ("isotropic", "dipole", "horn", "table")
 
@@ -211,7 +212,6 @@ class EndAntenna:
         """Unit field direction [N, 3] of the wave the antenna sends or receives along unit directions [N, 3]: a
         dipole's is its axis across the direction, unit(k (k . a) - a) (for the vertical dipole exactly the V
         direction of rfir_core.physics.polarisation); any other pattern's is `polarisation`'s ("V" or "H")."""
-        from rfir_core.physics.polarisation import antenna_polarisation
 
         k = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         room = antenna_polarisation(k, "V" if self.pattern.kind == "dipole" else polarisation)
