@@ -151,4 +151,4 @@ def test_the_measured_target_runs_the_lab_hall_under_three_protocols():
         # ray tracing of the lab hall in the full variant only
         assert ("measured_lab__raytrace_sweep" in steps) is (not quick)
         table, _ = tables["measured"]
-        assert len(table.rows) == 6
+        assert len(table.rows) == 9      # TETAM, the lab hall, the measured-like flat: three protocols each
