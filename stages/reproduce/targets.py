@@ -491,7 +491,8 @@ def target_measured(r: Plan) -> Table:
                 "rfir: the physical room model (docs/physics.md), rf-fit's defaults (device gains and residual terms "
                 "(device patterns, clutter field, kriging; docs/physics.md 8.15) chosen by validation on the training "
                 "links, each fit's log says which; links weighted by their packet count and spread; no radio-map "
-                "cache: rf_fit.room.map_visibility = false)" + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else ""),
+                "cache: rf_fit.room.map_visibility = false)"
+                + (f", {_measured_fit_sets(r)['rf_fit.physical.iterations']} steps" if r.quick else ""),
                 "log-distance, multi-wall, nearest links: fitted on the same training links (rfir's predict JSON)",
                 "ray tracing (ITU materials): Sionna RT (`scripts/baseline_raytrace.py`, `rfir simulate`'s rssi physics, "
                 "configs/simulate.toml; the 12 receivers solved as sources, reciprocity) on the floor plan's mesh with "

@@ -73,9 +73,11 @@ def simulate_rssi(scene, tx_pos, rx_pos, freqs_hz, physics: PhysicsEffects, prog
                 cap_hits += int(out.hit_cap)
                 rows = slice(t * n_r, (t + 1) * n_r)
                 power[rows, k] = out.power.mean(axis=1)
-                mag = np.abs(out.channel[:, 0])
-                channel[rows, k] = np.where(mag > 0, out.channel[:, 0] / np.maximum(mag, 1e-300), 1.0) \
-                    * np.sqrt(power[rows, k])
+                channel[rows, k] = out.channel[:, 0]
+                if channels_hz:   # the first channel's phase, |channel|^2 the band's mean power
+                    mag = np.abs(out.channel[:, 0])
+                    channel[rows, k] = np.where(mag > 0, out.channel[:, 0] / np.maximum(mag, 1e-300), 1.0) \
+                        * np.sqrt(power[rows, k])
                 n_paths[rows, k] = out.num_paths
                 bar.advance(1)
     tx_id = np.repeat(np.arange(n_t), n_r)

@@ -567,7 +567,8 @@ def car(length_m: float = CAR_LENGTH_M) -> SceneSpec:
                                                                    "length_m": length_m})
 
 
-_BUILDERS = {"classroom": classroom, "flat": flat, "office": office, "lego": lego, "car": car, "h-target": h_target, "plate": plate, "trio": trio,
+_BUILDERS = {"classroom": classroom, "flat": flat, "office": office, "lego": lego, "car": car, "h-target": h_target,
+             "plate": plate, "trio": trio,
              "empty": empty, "ground-plate": ground_plate}
 
 

@@ -136,7 +136,8 @@ def _defaults() -> dict:
 
 # simulate.rssi.antenna: Sionna RT's pattern name -> how the measurements state it (docs/artifacts.md)
 RSSI_ANTENNAS = {"iso": "isotropic", "dipole": "dipole:0,0,1"}
-RSSI_KEYS = {"antenna", "freqs_hz", "channels_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m", "rx_margin_m", "clearance_m",
+RSSI_KEYS = {"antenna", "freqs_hz", "channels_hz", "tx_grid", "rx_grid", "tx_height_m", "rx_height_m", "tx_margin_m",
+             "rx_margin_m", "clearance_m",
              "test_fraction", "samples_per_src", "max_num_paths_per_src"}
 
 

@@ -16,7 +16,8 @@ def register(app: typer.Typer) -> None:
 
 def simulate(
     ctx: typer.Context,
-    scene: Annotated[str, typer.Argument(help="classroom, flat, office, lego, car, h-target, trio (or the test scenes plate, empty).")],
+    scene: Annotated[str, typer.Argument(
+        help="classroom, flat, office, lego, car, h-target, trio (or the test scenes plate, empty).")],
     out: Annotated[Path, typer.Argument(help="Output folder (created).")],
     quick: Annotated[bool, typer.Option("--quick", help="Reduced sizes (few aspects, receivers, views).")] = False,
     task: Annotated[Optional[list[str]], typer.Option(
