@@ -4,7 +4,8 @@ Each visual name ("wood", "brick", ...) maps to a generator that returns an (S, 
 image in [0, 1], tinted by the object's colour. Every texture carries multi-octave noise and
 random blobs at several sizes, so SIFT finds many distinctive features at any viewing distance
 (a plain colour would leave structure from motion with nothing to match). Feature sizes are set
-in texels, so a texture's world scale (texels per metre) fixes how large its features look.
+in texels, so a texture's world scale (texels per metre) fixes how large its features look. Glass is
+the exception in brightness: a pane shows the daylight behind it, pale and bright (`_pane`).
 """
 from __future__ import annotations
 
@@ -103,7 +104,7 @@ def _pattern(visual: str, rng: np.random.Generator, size: int, texel_m: float) -
         cell = max(int(0.1 / texel_m), 8)
         check = (((xs // cell) + (ys // cell)) % 2) * 2.0 - 1.0
         return 0.6 * check.astype(np.float32) + 0.25 * base
-    if visual in ("glass", "plastic"):
+    if visual == "plastic":
         return 0.3 * base
     return 0.5 * base  # "plaster", "noise" and anything unknown
 
@@ -115,6 +116,8 @@ def make_texture(visual: str, color, size: int = 1024, seed: int = 0, texel_m: f
     arguments always give the same image.
     """
     rng = np.random.default_rng(stable_seed(visual, tuple(np.round(color, 4)), size, seed))
+    if visual == "glass":
+        return _pane(rng, size, color)
     lum = _pattern(visual, rng, size, texel_m) + 0.6 * _detail(rng, size)
     # Hue jitter keeps neighbouring features distinguishable in colour as well as brightness.
     hue = 0.22 * np.stack([fractal_noise(rng, size, cells_px=(256, 64, 16)) for _ in range(3)], axis=-1)
@@ -123,3 +126,18 @@ def make_texture(visual: str, color, size: int = 1024, seed: int = 0, texel_m: f
     color = color * min(1.0, 0.6 / float(color.max()))  # headroom, so bright colours keep their detail
     factor = np.clip(1.0 + 0.45 * lum, 0.15, 2.2)[..., None]
     return np.clip(color[None, None, :] * factor * (1.0 + hue), 0.0, 1.0).astype(np.float32)
+
+
+PANE_BRIGHTNESS = 0.85   # a pane's mean reflectance-equivalent: daylight through it outshines the lit walls
+
+
+def _pane(rng: np.random.Generator, size: int, color) -> np.ndarray:
+    """A glass pane as a photo sees it: the daylight behind it and the reflections on it make it pale and bright,
+    with a faint tint and less contrast (a window in a room photo is its brightest part). Fine detail at two thirds of
+    the other textures' strength keeps features on it (the view through, smears on the glass) for structure from
+    motion, without hiding its brightness."""
+    lum = 0.5 * fractal_noise(rng, size, cells_px=(512, 256, 128)) + 0.6 * _detail(rng, size)
+    tint = np.clip(np.asarray(color, np.float32), 0.01, 1.0)
+    pale = PANE_BRIGHTNESS * (0.8 + 0.2 * tint / float(tint.max()))
+    factor = np.clip(1.0 + 0.3 * lum, 0.5, 1.3)[..., None]
+    return np.clip(pale[None, None, :] * factor, 0.0, 1.0).astype(np.float32)

@@ -7,6 +7,7 @@ import pytest
 from rfir_core.artifacts import read_artifact
 from rfir_stages.render import intrinsics, look_at, object_poses, render_views, room_poses
 from rfir_stages.render.poses import obstacle_boxes
+from rfir_stages.render.textures import make_texture
 from rfir_stages.render.toy_scenes import box_mesh, marker_scene, textured_object_scene
 
 MARKER = np.array([0.1, -0.05, 0.03])
@@ -121,3 +122,15 @@ def test_textured_object_renders_with_detail(tmp_path):
     gray = cv2.imread(str(result.image_paths[0]), cv2.IMREAD_GRAYSCALE)
     assert gray.std() > 10  # textured object in front of the plain background
     assert len(box_mesh((0, 0, 0), (1, 1, 1))[1]) == 12
+
+
+def test_glass_pane_is_bright_and_still_has_features():
+    """A pane shows the daylight behind it: brighter than a wall of the same tint by more than a wall's own
+    texture spread (so photos can tell a window from its wall), yet with enough detail for SIFT to match it."""
+    tint = (0.70, 0.82, 0.88)
+    pane = make_texture("glass", tint, 512)
+    sift = cv2.SIFT_create()
+    for visual in ("plaster", "brick", "wood", "metal", "plastic"):
+        wall = make_texture(visual, tint, 512)
+        assert pane.mean() - wall.mean() > wall.mean(axis=2).std(), visual
+    assert len(sift.detect(cv2.cvtColor((pane * 255).astype(np.uint8), cv2.COLOR_RGB2GRAY), None)) > 500
