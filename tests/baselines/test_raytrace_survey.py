@@ -102,7 +102,8 @@ def test_candidates_vary_the_walls_only_and_drop_repeats(rt):
 
 
 def test_the_measured_target_scores_one_sweep_on_each_protocol():
-    from rfir_stages.reproduce.targets import MEASURED_PROTOCOLS, declare
+    from rfir_stages.reproduce.measured_target import MEASURED_PROTOCOLS
+    from rfir_stages.reproduce.targets import declare
 
     plan, tables = declare(["measured"], False)
     sweep = plan.steps["measured__raytrace_sweep"]

@@ -134,7 +134,8 @@ def test_shipped_files_match_the_source():
 
 
 def test_the_measured_target_runs_the_lab_hall_under_three_protocols():
-    from rfir_stages.reproduce.targets import LAB_PROTOCOLS, declare
+    from rfir_stages.reproduce.measured_target import LAB_PROTOCOLS
+    from rfir_stages.reproduce.targets import declare
 
     for quick, every in ((True, "6"), (False, "1")):
         plan, tables = declare(["measured"], quick)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+from rfir_stages.reproduce.measured_target import MEASURED_PROTOCOLS
 from rfir_stages.reproduce.survey import thin
-from rfir_stages.reproduce.targets import MEASURED_PROTOCOLS, declare
+from rfir_stages.reproduce.targets import declare
 
 ROOT = Path(__file__).resolve().parents[2]
 LINKS = ROOT / "tests" / "data" / "public_survey" / "tetam_links.csv"
