@@ -19,12 +19,14 @@ Change history
   waves of its planar patches; read as off when absent).
 - 1.6.0 (2026-12-07): optional sample_count and sample_std_db of `measurements` (repeated rows of a
   link averaged on import; read as one sample, no spread, when absent).
+- 1.7.0 (2026-12-07): optional tx_axis and rx_axis of `measurements` (each link's antenna axis or boresight;
+  read as the antenna attribute's one axis when absent), and a horn's or table's boresight in its antenna text.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-SCHEMA_VERSION = "1.6.0"
+SCHEMA_VERSION = "1.7.0"
 SCHEMA_MAJOR = int(SCHEMA_VERSION.split(".")[0])
 
 
@@ -65,7 +67,7 @@ class AttrSpec:
 
 
 _NUM = r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?"
-ANTENNA_PATTERN = rf"isotropic|dipole(:{_NUM},{_NUM},{_NUM})?|horn:{_NUM}|table:.+"
+ANTENNA_PATTERN = rf"isotropic|dipole(:{_NUM},{_NUM},{_NUM})?|horn:{_NUM}(@{_NUM},{_NUM},{_NUM})?|table:.+"
 
 
 @dataclass(frozen=True)
@@ -126,6 +128,9 @@ _register(KindSpec(
           "link's frequencies when they differ); absent: one row each", required=False),
         F("sample_std_db", "float", ("L", "F"), "dB", "standard deviation (ddof 1) of the averaged rows' power_db per "
           "link and frequency (import --average; 0 for a single row)", required=False),
+        F("tx_axis", "float", ("L", 3), "1", "transmit antenna's axis per link (a dipole's axis, a horn's or table's "
+          "boresight; unit vector); replaces antenna_tx's axis for that link", required=False, frame="world"),
+        F("rx_axis", "float", ("L", 3), "1", "receive antenna's axis per link, as tx_axis", required=False, frame="world"),
         F("scene_bounds", "float", (2, 3), "m", "axis-aligned bounds (min, max) of the scene", required=False, frame="world"),
     ),
     required_attrs=("task", "scene"),
@@ -134,8 +139,9 @@ _register(KindSpec(
         AttrSpec("task", "str", "rcs (monostatic, one or a few discrete frequencies), wideband (a dense band) "
                  "or rssi (links between placed antennas)", choices=("rcs", "wideband", "rssi")),
         AttrSpec("antenna_tx", "str", "transmit antenna: isotropic, dipole:AX,AY,AZ (unit axis), horn:HPBW_DEG "
-                 "(cos^q horn, half-power beamwidth) or table:NAME (pattern in antenna_tx_table_*); absent: "
-                 "not stated (rf-fit assumes isotropic and says so)", pattern=ANTENNA_PATTERN),
+                 "(cos^q horn, half-power beamwidth) or table:NAME (pattern in antenna_tx_table_*), a horn's or "
+                 "table's boresight after @AX,AY,AZ (absent: +z); absent: not stated (rf-fit assumes isotropic and "
+                 "says so)", pattern=ANTENNA_PATTERN),
         AttrSpec("antenna_rx", "str", "receive antenna, as antenna_tx", pattern=ANTENNA_PATTERN),
         AttrSpec("antenna_tx_table_deg", "float[]", "table pattern: angle off boresight [deg], rising from 0"),
         AttrSpec("antenna_tx_table_gain_dbi", "float[]", "table pattern: gain [dBi] at each angle"),

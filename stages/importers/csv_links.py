@@ -3,7 +3,9 @@
 Columns (header required, any order): tx_x, tx_y, tx_z, rx_x, rx_y, rx_z [m], freq_hz [Hz],
 power_db [dB; its meaning is the set-up's `power`: path gain, RCS in dBsm or RSSI in dBm];
 optional phase_rad [rad], aspect_deg [deg], range_m [m], rcs_dbsm [dBsm], tx_id, rx_id, split
-(train/test/0/1). Rows sharing (tx, rx, aspect, range) form one link; every link needs every
+(train/test/0/1), and each side's antenna axis per link (AXIS_COLUMNS: tx_ax, tx_ay, tx_az, or
+HEADING_COLUMNS: tx_heading_deg; rx_ likewise; stored as tx_axis / rx_axis). Rows sharing (tx, rx,
+aspect, range, axes) form one link; every link needs every
 frequency. Repeated rows of one link and frequency with different values are refused unless an
 average is asked for (AVERAGES: "mean-db" averages the dB values, "mean-power" the linear powers;
 the rows per link and their spread are stored as sample_count and sample_std_db). `# key = value`
@@ -44,7 +46,12 @@ ABSENT_WORDS = ("", "nan", "na", "n/a")
 OPTIONAL_INTS = ("tx_id", "rx_id")
 SAMPLE_COLUMNS = ("sample_count", "sample_std_db")   # a file of links averaged already: samples per link, spread [dB]
 SPLIT_WORDS = {"train": 0, "0": 0, "test": 1, "1": 1, "": -1, "-1": -1}
-COLUMNS = REQUIRED + OPTIONAL_FLOATS + OPTIONAL_INTS + SAMPLE_COLUMNS + ("split",)
+# an antenna's axis per link (a dipole's axis, a horn's or table's boresight) in the room frame, normalised: three
+# components, or a heading h [deg] about +z from +x toward +y, the horizontal axis (cos h, sin h, 0)
+AXIS_COLUMNS = {"tx": ("tx_ax", "tx_ay", "tx_az"), "rx": ("rx_ax", "rx_ay", "rx_az")}
+HEADING_COLUMNS = {"tx": "tx_heading_deg", "rx": "rx_heading_deg"}
+COLUMNS = (REQUIRED + OPTIONAL_FLOATS + OPTIONAL_INTS + SAMPLE_COLUMNS + ("split",) + AXIS_COLUMNS["tx"] + AXIS_COLUMNS["rx"]
+           + tuple(HEADING_COLUMNS.values()))
 AVERAGES = ("mean-db", "mean-power")
 AVERAGE_HINT = "repeated samples of one link: pass --average mean-db or --average mean-power to average them"
 
@@ -123,6 +130,7 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Unit
         raise ConfigError("--average: the file's sample_count / sample_std_db columns say its links are averaged "
                           "already; drop --average")
     ignored = [h for h in header if h and h not in COLUMNS and h not in columns.values()]
+    axis_sources = _axis_sources(named, path)
     id_names = {c: _id_numbers([(r.get(columns.get(c, c)) or "").strip() for r in rows]) for c in OPTIONAL_INTS
                 if c in named}
     records = []
@@ -153,6 +161,8 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Unit
                     problems.add(f"line {line}, column {c}: {row[c]!r} is not an integer")
                     value = math.nan
                 rec[c] = value
+        for side, source in axis_sources.items():
+            rec[f"{side}_axis"] = _axis(row, source, line, problems)
         if "split" in present:
             word = row["split"].lower()
             if word not in SPLIT_WORDS:
@@ -173,9 +183,40 @@ def read_links_csv(path: str | Path, position_scale: float = 1.0, *, units: Unit
     problems.raise_if_any()
     out = _assemble(path, records, present, problems, units.position_scale, average)
     out.update(options=options, present=present, rows=len(records), ignored=ignored,
-               id_names={c: m for c, m in id_names.items() if m})
+               id_names={c: m for c, m in id_names.items() if m}, axes=axis_sources)
     return out
 
+
+def _axis_sources(named: set, path: Path) -> dict:
+    """{side: its axis columns (AXIS_COLUMNS) or heading column (HEADING_COLUMNS)} of the sides the file gives an
+    axis per link; an InputFileError naming the file for a side given only part of the three components, or both."""
+    out = {}
+    for side, trio in AXIS_COLUMNS.items():
+        have = [c for c in trio if c in named]
+        heading = HEADING_COLUMNS[side] in named
+        if have and len(have) < 3:
+            raise InputFileError(f"column(s) {', '.join(have)} without {', '.join(c for c in trio if c not in have)}: "
+                                 f"a {side} axis is the three columns {', '.join(trio)}", path=path)
+        if have and heading:
+            raise InputFileError(f"columns {', '.join(trio)} and {HEADING_COLUMNS[side]} both give the {side} axis: "
+                                 "keep one", path=path)
+        if have or heading:
+            out[side] = trio if have else (HEADING_COLUMNS[side],)
+    return out
+
+
+def _axis(row: dict, source: tuple, line: int, problems: RowProblems) -> tuple:
+    """The unit axis (3 floats) of one row from its axis columns `source` (three components, or one heading
+    [deg] about +z from +x: (cos h, sin h, 0)); a problem naming the line and column for a value that is not a
+    finite number or three components that are all zero."""
+    values = [_number(row[c], line, c, problems) for c in source]
+    if len(source) == 1:
+        h = math.radians(values[0])
+        values = [math.cos(h), math.sin(h), 0.0]
+    norm = math.sqrt(sum(v * v for v in values))
+    if norm == 0:
+        problems.add(f"line {line}, columns {','.join(source)}: a zero vector has no direction")
+    return tuple(v / norm for v in values) if math.isfinite(norm) and norm > 0 else (math.nan,) * 3
 
 def _id_numbers(values: list[str]) -> dict[str, int]:
     """{name: number} for an id column that holds names ("sensor11", "p000"): numbered 0.. in sorted order;
@@ -189,8 +230,9 @@ def _id_numbers(values: list[str]) -> dict[str, int]:
 
 
 def _link_key(rec: dict) -> tuple:
-    """Rows with the same positions, aspect and range belong to one link."""
-    return tuple(rec[c] for c in REQUIRED[:6]) + tuple(rec.get(c, 0.0) for c in ("aspect_deg", "range_m"))
+    """Rows with the same positions, aspect, range and antenna axes belong to one link."""
+    return tuple(rec[c] for c in REQUIRED[:6]) + tuple(rec.get(c, 0.0) for c in ("aspect_deg", "range_m")) + \
+        tuple(rec.get(f"{side}_axis", ()) for side in AXIS_COLUMNS)
 
 
 def _mean(values: np.ndarray, column: str, average: str) -> float:
@@ -277,6 +319,9 @@ def _assemble(path: Path, records: list, present: list, problems: RowProblems, s
             data[c] = np.array([int(r[c]) for r in ordered], dtype=np.int64)
     if "split" in present:
         data["split"] = np.array([r["split"] for r in ordered], dtype=np.int64)
+    for side in AXIS_COLUMNS:
+        if f"{side}_axis" in ordered[0]:
+            data[f"{side}_axis"] = np.array([r[f"{side}_axis"] for r in ordered], dtype=np.float64)
     if "sample_count" in present:
         data["sample_count"] = np.array([int(r["sample_count"]) for r in ordered], dtype=np.int64)
     if "sample_std_db" in present:
@@ -349,6 +394,8 @@ def import_csv(path: str | Path, out: str | Path, *, scene: str = "imported", tx
         shown = ", ".join(f"{k} -> {v}" for k, v in list(names.items())[:3])
         notes.append(f"{c} holds names: numbered 0..{len(names) - 1} in sorted order ({shown}"
                      f"{', ...' if len(names) > 3 else ''})")
+    if parsed["axes"]:
+        notes.append(_axes_note(parsed["axes"], setup))
     if parsed["ignored"]:
         notes.append(f"columns not read by rfir: {', '.join(parsed['ignored'])} (columns: docs/artifacts.md; a "
                      "column named otherwise: --column NAME=COLUMN)")
@@ -380,6 +427,20 @@ def _assumptions(setup: MeasurementSetup, units: Units) -> list[str]:
     if "freq" not in units.given:
         out.append("freq_hz in Hz (--freq-unit kHz|MHz|GHz)")
     return out
+
+
+def _axes_note(sources: dict, setup: MeasurementSetup) -> str:
+    """One line: each side's axis per link, the columns it came from and their convention, and whether the side's
+    antenna has an axis to take it."""
+    parts = []
+    for side, source in sources.items():
+        how = (f"{source[0]}: heading h in degrees about +z from +x toward +y, the horizontal axis (cos h, sin h, 0)"
+               if len(source) == 1 else f"{','.join(source)}: a vector in the room frame (x, y, z), normalised")
+        kind = str(setup.attrs.get(f"antenna_{side}", "not stated")).split(":")[0]
+        use = "" if kind in ("dipole", "horn", "table") else f"; antenna_{side} is {kind}: rf-fit will not use it"
+        parts.append(f"{side} from {how}{use}")
+    return ("antenna axis per link (a dipole's axis, a horn's or table's boresight; replaces the set-up's): "
+            + "; ".join(parts) + " (stored as " + ", ".join(f"{s}_axis" for s in sources) + ")")
 
 
 def _average_note(parsed: dict, average: str) -> str:

@@ -5,7 +5,9 @@ beside it (same stem: links.csv -> links.toml), import flags. Keys:
 
 - antenna (both sides), antenna_tx, antenna_rx: "isotropic", "dipole[:AX,AY,AZ]" (axis, default
   0,0,1), "horn:HPBW_DEG" (cos^q horn of that half-power beamwidth), "table:FILE" (CSV
-  theta_deg,gain_dbi, angle off boresight, read now and stored in the artifact).
+  theta_deg,gain_dbi, angle off boresight, read now and stored in the artifact); a horn's or a
+  table's boresight after "@AX,AY,AZ" (room frame; default +z): "horn:60@1,0,0". A link's own axis
+  (csv_links' axis and heading columns) replaces the one stated here.
 - polarisation: "V" or "H".
 - power: what the power_db column holds: "path_gain" [dB], "rcs" [dBsm, needs range_m],
   "rssi" [dBm, needs tx_power_dbm].
@@ -107,10 +109,21 @@ def _number(text, what: str, where: str) -> float:
     return value
 
 
-def antenna_attrs(side: str, text: str, where: str, base: Path) -> dict:
+def antenna_attrs(side: str, text: str, where: str, base_dir: Path) -> dict:
     """Attributes of one side from an antenna text (see the module docstring); tables are read here."""
-    kind, _, arg = str(text).strip().partition(":")
+    base, at, boresight = str(text).strip().rpartition("@")
+    base = base if at else boresight
+    kind, _, arg = base.partition(":")
     kind = kind.strip().lower()
+    if at:
+        out = antenna_attrs(side, base, where, base_dir) if kind in ("horn", "table") else {}
+        if not out:
+            raise InputFileError(f"{side} {text!r}: a boresight (@AX,AY,AZ) is for horn and table antennas", path=where)
+        axis = np.array([_number(a, f"{side} boresight", where) for a in boresight.split(",")])
+        if axis.shape != (3,) or np.linalg.norm(axis) == 0:
+            raise InputFileError(f"{side} {text!r}: a boresight is three numbers, not all zero", path=where)
+        out[side] += "@" + ",".join(f"{a:g}" for a in axis / np.linalg.norm(axis))
+        return out
     if kind == "isotropic" and not arg:
         return {side: "isotropic"}
     if kind == "dipole":
@@ -126,9 +139,10 @@ def antenna_attrs(side: str, text: str, where: str, base: Path) -> dict:
             raise InputFileError(f"{side} {text!r}: horn half-power beamwidth must be 1..180 deg", path=where)
         return {side: f"horn:{hpbw:g}"}
     if kind == "table" and arg:
-        deg, gain = read_pattern_table(base / arg.strip())
+        deg, gain = read_pattern_table(base_dir / arg.strip())
         return {side: f"table:{Path(arg.strip()).name}", f"{side}_table_deg": deg, f"{side}_table_gain_dbi": gain}
-    raise InputFileError(f"{side} {text!r}: expected isotropic, dipole[:AX,AY,AZ], horn:HPBW_DEG or table:FILE",
+    raise InputFileError(f"{side} {text!r}: expected isotropic, dipole[:AX,AY,AZ], horn:HPBW_DEG[@AX,AY,AZ] or "
+                         "table:FILE[@AX,AY,AZ]",
                          path=where)
 
 
@@ -189,7 +203,7 @@ def boresight_gain(attrs: dict, side: str) -> float:
     1 for isotropic or unstated, 1.5 for a dipole (broadside), G0 = 2 (q + 1) for a horn, the table's
     0-degree value for a table."""
     text = str(attrs.get(side, "isotropic"))
-    kind, _, arg = text.partition(":")
+    kind, _, arg = text.partition("@")[0].partition(":") if text.startswith("horn") else text.partition(":")
     if kind == "dipole":
         return 1.5
     if kind == "horn":

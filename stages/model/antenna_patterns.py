@@ -109,7 +109,8 @@ def recorded_antenna(attrs: dict, side: str, where: str) -> AntennaPattern | Non
     text = attrs.get(side)
     if text is None:
         return None
-    kind, _, arg = str(text).partition(":")
+    # a stated boresight (horn:HPBW@AX,AY,AZ) is the room model's (end_antenna); rcs antennas point at the object
+    kind, _, arg = boresight_split(str(text))[0].partition(":")
     if kind == "horn":
         return AntennaPattern("horn", hpbw_deg=float(arg))
     if kind == "table":
@@ -184,17 +185,37 @@ def resolve_antenna(kind: str, hpbw_deg: float, table: str, simulator_attrs: dic
 
 
 # ---------------------------------------------------------------------------------------------------
-# antennas of the room model (RSSI links): one pattern per end, in the room's frame
+# antennas of the room model (RSSI links): one pattern per end, in the room's frame, its axis stated once or per link
 # ---------------------------------------------------------------------------------------------------
 VERTICAL = (0.0, 0.0, 1.0)
+SIDES = ("tx", "rx")
+
+
+def boresight_split(text: str) -> tuple[str, str]:
+    """(the antenna text without its boresight, the boresight text or ""): "horn:60@0,1,0" -> ("horn:60", "0,1,0").
+    A horn's or a table's boresight is stated after the last "@" (docs/artifacts.md); other kinds have none."""
+    head, at, tail = text.rpartition("@")
+    return (head, tail) if at and head.split(":")[0] in ("horn", "table") else (text, "")
+
+
+def unit_axis(text: str, what: str, where: str) -> tuple:
+    """Three comma-separated numbers, not all zero, as a unit vector (a tuple of 3 floats); a one-line ConfigError
+    naming `where` and `what` otherwise."""
+    try:
+        axis = np.array([float(a) for a in text.split(",")])
+    except ValueError:
+        axis = np.zeros(0)
+    if axis.shape != (3,) or not np.isfinite(axis).all() or np.linalg.norm(axis) == 0:
+        raise ConfigError(f"{where}: {what}: an axis is three numbers, not all zero")
+    return tuple(float(a) for a in axis / np.linalg.norm(axis))
 
 
 @dataclass(frozen=True)
 class EndAntenna:
     """The antenna at one end of the room model's links (every transmitter, or every receiver): a pattern and the
-    unit axis [3] it is symmetric about, in the room's frame. A dipole's axis is the one stated (dipole:AX,AY,AZ);
-    horns and tables are taken about the vertical +z (a measurement file states no boresight: a table's theta_deg
-    is then the angle from the zenith)."""
+    unit axis [3] it is symmetric about, in the room's frame: a dipole's axis (dipole:AX,AY,AZ), a horn's or a
+    table's boresight (horn:HPBW@AX,AY,AZ; +z, the zenith, when none is stated). A link may carry its own axis
+    (LinkAxes), which then replaces this one for that link."""
 
     pattern: AntennaPattern = field(default_factory=AntennaPattern)
     axis: tuple = VERTICAL
@@ -203,31 +224,42 @@ class EndAntenna:
     def isotropic(self) -> bool:
         return self.pattern.kind == "isotropic"
 
-    def gain(self, directions: np.ndarray) -> np.ndarray:
-        """Linear power gain [N] toward unit directions [N, 3] leaving the antenna (AntennaPattern.gain about axis)."""
-        d = torch.as_tensor(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
-        return self.pattern.gain(d, torch.tensor(self.axis, dtype=torch.float64).expand_as(d)).numpy()
+    def _axes(self, count: int, axes) -> np.ndarray:
+        """Unit axes [count, 3]: `axes` (one per direction) or this end's axis for every direction."""
+        if axes is None:
+            return np.broadcast_to(np.asarray(self.axis, np.float64), (count, 3))
+        return np.asarray(axes, np.float64).reshape(count, 3)
 
-    def field_direction(self, directions: np.ndarray, polarisation: str) -> np.ndarray:
+    def gain(self, directions: np.ndarray, axes: np.ndarray | None = None) -> np.ndarray:
+        """Linear power gain [N] toward unit directions [N, 3] leaving the antenna (AntennaPattern.gain), about
+        unit axes [N, 3] (one per direction: its link's) or, when None, about this end's axis."""
+        d = torch.as_tensor(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
+        return self.pattern.gain(d, torch.as_tensor(np.ascontiguousarray(self._axes(len(d), axes)))).numpy()
+
+    def field_direction(self, directions: np.ndarray, polarisation: str, axes: np.ndarray | None = None) -> np.ndarray:
         """Unit field direction [N, 3] of the wave the antenna sends or receives along unit directions [N, 3]: a
-        dipole's is its axis across the direction, unit(k (k . a) - a) (for the vertical dipole exactly the V
-        direction of rfir_core.physics.polarisation); any other pattern's is `polarisation`'s ("V" or "H")."""
+        dipole's is its axis across the direction, unit(k (k . a) - a), for axes a [N, 3] (None: this end's; for the
+        vertical dipole exactly the V direction of rfir_core.physics.polarisation); any other pattern's is
+        `polarisation`'s ("V" or "H")."""
 
         k = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         room = antenna_polarisation(k, "V" if self.pattern.kind == "dipole" else polarisation)
-        if self.pattern.kind != "dipole" or self.axis == VERTICAL:
+        if self.pattern.kind != "dipole" or (axes is None and self.axis == VERTICAL):
             return room
-        a = np.asarray(self.axis, dtype=np.float64)
-        across = k * (k @ a)[:, None] - a
+        a = self._axes(len(k), axes)
+        across = k * (k * a).sum(1, keepdims=True) - a
         norm = np.linalg.norm(across, axis=1, keepdims=True)
         # along the axis the dipole sends nothing (gain 0): any direction across k serves
         return np.where(norm > 1e-9, across / np.maximum(norm, 1e-300), room)
 
     def text(self) -> str:
-        """The measurement set-up's spelling: isotropic, dipole:AX,AY,AZ, horn:HPBW or table."""
+        """The measurement set-up's spelling: isotropic, dipole:AX,AY,AZ, horn:HPBW or table, a horn's or table's
+        boresight other than +z after "@"."""
+        axis = ",".join(f"{a:g}" for a in self.axis)
         if self.pattern.kind == "dipole":
-            return "dipole:" + ",".join(f"{a:g}" for a in self.axis)
-        return self.pattern.text()
+            return "dipole:" + axis
+        turned = self.pattern.kind in ("horn", "table") and self.axis != VERTICAL
+        return self.pattern.text() + (f"@{axis}" if turned else "")
 
     def attrs(self, side: str) -> dict:
         """{side: text} and, for a table, its angles and gains in dBi (the measurements' attributes, docs/artifacts.md)."""
@@ -244,65 +276,125 @@ def end_antenna(attrs: dict, side: str, where: str) -> EndAntenna | None:
     text = attrs.get(side)
     if text is None:
         return None
-    kind, _, arg = str(text).partition(":")
+    base, boresight = boresight_split(str(text))
+    kind, _, arg = base.partition(":")
     if kind == "dipole" and arg:
-        try:
-            axis = np.array([float(a) for a in arg.split(",")])
-        except ValueError:
-            axis = np.zeros(0)
-        if axis.shape != (3,) or not np.isfinite(axis).all() or np.linalg.norm(axis) == 0:
-            raise ConfigError(f"{where}: {side} = {text}: a dipole's axis is three numbers, not all zero")
-        axis = axis / np.linalg.norm(axis)
-        return EndAntenna(AntennaPattern("dipole"), tuple(float(a) for a in axis))
+        return EndAntenna(AntennaPattern("dipole"), unit_axis(arg, f"{side} = {text}", where))
     if kind == "table" and f"{side}_table_deg" not in attrs:
         raise ConfigError(f"{where}: {side} = {text} but no {side}_table_deg / {side}_table_gain_dbi: re-import it")
-    return EndAntenna(recorded_antenna(attrs, side, where))
+    axis = unit_axis(boresight, f"{side} = {text}", where) if boresight else VERTICAL
+    return EndAntenna(recorded_antenna(attrs, side, where), axis)
+
+
+@dataclass(frozen=True, eq=False)
+class LinkAxes:
+    """Antenna axes per link (the measurements' tx_axis / rx_axis): tx, rx [M, 3] unit vectors in the room's frame
+    (a dipole's axis, a horn's or table's boresight), None for a side whose links take its EndAntenna's axis."""
+
+    tx: np.ndarray | None = None
+    rx: np.ndarray | None = None
+
+    @property
+    def sides(self) -> tuple[str, ...]:
+        """The sides ("tx", "rx") with axes per link."""
+        return tuple(s for s in SIDES if getattr(self, s) is not None)
+
+    def rows(self, rows) -> "LinkAxes":
+        """The axes of links `rows` (an index array, a boolean mask or a slice)."""
+        return LinkAxes(*(None if a is None else a[rows] for a in (self.tx, self.rx)))
+
+    def check_count(self, count: int, where: str) -> None:
+        """A one-line ConfigError unless every side given has `count` axes."""
+        for s in self.sides:
+            if len(getattr(self, s)) != count:
+                raise ConfigError(f"{where}: {len(getattr(self, s))} {s} axes for {count} links")
+
+
+def link_axes(meas, where: str) -> LinkAxes:
+    """The axes per link a measurements artifact holds (datasets tx_axis, rx_axis [L, 3]), normalised; a one-line
+    InputFileError naming the dataset for a row that is not finite or is all zero."""
+    out = {}
+    for side in SIDES:
+        raw = meas.get(f"{side}_axis")
+        if raw is None:
+            continue
+        axis = np.asarray(raw, np.float64).reshape(-1, 3)
+        norm = np.linalg.norm(axis, axis=1)
+        bad = np.flatnonzero(~np.isfinite(norm) | (norm == 0))
+        if bad.size:
+            raise InputFileError(f"{side}_axis row {int(bad[0])} is {'zero' if np.isfinite(norm[bad[0]]) else 'not finite'}"
+                                 f" ({bad.size} such rows): an axis is a unit vector", path=where)
+        out[side] = axis / norm[:, None]
+    return LinkAxes(out.get("tx"), out.get("rx"))
 
 
 @dataclass(frozen=True)
 class RoomAntennas:
-    """The room model's antennas: tx at every transmitter, rx at every receiver; source: why (printed, recorded).
-    A specular path's field is weighted by sqrt(G_tx(departure)) sqrt(G_rx(arrival)), a diffuse cell's power by
-    G_tx toward the cell and G_rx toward it from the receiver (docs/physics.md 8.10)."""
+    """The room model's antennas: tx at every transmitter, rx at every receiver; per_link: the sides whose axis is
+    each link's own (LinkAxes, from the measurements); source: why (printed, recorded). A specular path's field is
+    weighted by sqrt(G_tx(departure)) sqrt(G_rx(arrival)), a diffuse cell's power by G_tx toward the cell and G_rx
+    toward it from the receiver (docs/physics.md 8.10)."""
 
     tx: EndAntenna = field(default_factory=EndAntenna)
     rx: EndAntenna = field(default_factory=EndAntenna)
     source: str = field(default="", compare=False)
+    per_link: tuple = ()
 
     @property
     def isotropic(self) -> bool:
         return self.tx.isotropic and self.rx.isotropic
 
     def words(self) -> str:
-        """As rf-fit prints it: 'antennas tx dipole:0,0,1, rx isotropic (stated by the measurements)'."""
-        what = "isotropic antennas" if self.isotropic else f"antennas tx {self.tx.text()}, rx {self.rx.text()}"
+        """As rf-fit prints it: 'antennas tx dipole:0,0,1 (axis per link), rx isotropic (stated by the measurements)'."""
+        ends = [f"{s} {getattr(self, s).text()}" + (" (axis per link)" if s in self.per_link else "") for s in SIDES]
+        what = "isotropic antennas" if self.isotropic else "antennas " + ", ".join(ends)
         return what + (f" ({self.source})" if self.source else "")
 
     def attrs(self) -> dict:
         """The model attributes that record them (read back by from_attrs)."""
-        return {**self.tx.attrs("antenna_tx"), **self.rx.attrs("antenna_rx"), "antenna_source": self.source}
+        return {**self.tx.attrs("antenna_tx"), **self.rx.attrs("antenna_rx"), "antenna_source": self.source,
+                "antenna_axes_per_link": ",".join(self.per_link)}
 
     @classmethod
     def from_attrs(cls, attrs: dict, where: str = "the model") -> "RoomAntennas":
         """The antennas a room model records (attrs); isotropic where it records none (models fitted before)."""
         ends = [end_antenna(attrs, side, where) or EndAntenna() for side in ("antenna_tx", "antenna_rx")]
-        return cls(*ends, source=str(attrs.get("antenna_source", "")))
+        per_link = tuple(s for s in str(attrs.get("antenna_axes_per_link", "")).split(",") if s in SIDES)
+        return cls(*ends, source=str(attrs.get("antenna_source", "")), per_link=per_link)
+
+    def oriented(self, axes: LinkAxes) -> "RoomAntennas":
+        """These antennas with the sides of `axes` oriented per link, where their pattern has an axis (an isotropic
+        end has none: its axes are not used)."""
+        sides = tuple(s for s in axes.sides if not getattr(self, s).isotropic)
+        return replace(self, per_link=sides)
 
 
 def room_antennas(config: dict, meas, where: str) -> RoomAntennas:
     """The antennas an RSSI fit's room model uses, source saying why. rf_fit.antenna other than "auto": that pattern
     at both ends (a dipole vertical); "auto": each side as the measurements state it (one side unstated:
-    isotropic there, said), else isotropic (said so)."""
+    isotropic there, said), else isotropic (said so). A side whose links carry their own axis (the measurements'
+    tx_axis / rx_axis, link_axes) is oriented per link unless its pattern is isotropic (said so)."""
     kind = str(config.get("antenna", "auto"))
+    axes = link_axes(meas, where) if hasattr(meas, "get") else LinkAxes()
     if kind != "auto":
         end = EndAntenna(resolve_antenna(kind, float(config.get("horn_hpbw_deg", 40.0)),
                                          str(config.get("antenna_table", "")), None, "rssi"))
-        return RoomAntennas(end, end, source="rf_fit.antenna")
+        return _with_axes(RoomAntennas(end, end, source="rf_fit.antenna"), axes)
     tx, rx = (end_antenna(meas.attrs, side, where) for side in ("antenna_tx", "antenna_rx"))
     if tx is None and rx is None:
-        return RoomAntennas(source="assumed: the measurements state no antenna; state it on import "
-                                   "(docs/artifacts.md) or set rf_fit.antenna")
+        return _with_axes(RoomAntennas(source="assumed: the measurements state no antenna; state it on import "
+                                              "(docs/artifacts.md) or set rf_fit.antenna"), axes)
     unstated = [side for side, end in (("antenna_tx", tx), ("antenna_rx", rx)) if end is None]
-    return RoomAntennas(tx or EndAntenna(), rx or EndAntenna(),
-                        source="stated by the measurements" + (f"; {unstated[0]} not stated: isotropic assumed"
-                                                               if unstated else ""))
+    return _with_axes(RoomAntennas(tx or EndAntenna(), rx or EndAntenna(),
+                                   source="stated by the measurements" + (f"; {unstated[0]} not stated: isotropic "
+                                                                          "assumed" if unstated else "")), axes)
+
+
+def _with_axes(antennas: RoomAntennas, axes: LinkAxes) -> RoomAntennas:
+    """`antennas` oriented per link by the measurements' axes, the source saying which side's were used or not."""
+    out = antennas.oriented(axes)
+    unused = [s for s in axes.sides if s not in out.per_link]
+    notes = ([f"{', '.join(out.per_link)} axis per link ({', '.join(f'{s}_axis' for s in out.per_link)})"]
+             if out.per_link else []) + ([f"{', '.join(f'{s}_axis' for s in unused)} not used (isotropic)"]
+                                         if unused else [])
+    return replace(out, source="; ".join([out.source] + notes) if notes else out.source)

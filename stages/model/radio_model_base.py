@@ -75,7 +75,7 @@ class RadioModel:
 
     # -- what callers use -------------------------------------------------------------------------------------
     def predict(self, tx_m, rx_m, freqs_hz=None, *, progress=None, advance: Callable[[int], None] | None = None,
-                chunk_links: int | None = None) -> np.ndarray:
+                chunk_links: int | None = None, axes=None) -> np.ndarray:
         """Path gain [N, F] dB (10 log10 P_r / P_t with the fitted antennas, floored at FLOOR_DB) of the links
         tx_m -> rx_m ([N, 3] m each, or one of them [3]) at freqs_hz [F] Hz (default: default_freqs()).
 
@@ -83,19 +83,23 @@ class RadioModel:
         its callers (rfir_stages.diagnose.apply.apply_recorded_effects; `rfir predict` and the Python API do).
         progress: an rfir_core.progress.Progress for log lines (and a bar unless `advance` is given);
         advance(n): called as links are done, for a caller that keeps its own bar; chunk_links: links
-        evaluated at a time (memory)."""
+        evaluated at a time (memory); axes: the links' antenna axes (antenna_patterns.LinkAxes of the N links; the
+        room model's, None: each end's own)."""
         return self.predict_with_physics_only(tx_m, rx_m, freqs_hz, progress=progress, advance=advance,
-                                              chunk_links=chunk_links, physics_only=False)[0]
+                                              chunk_links=chunk_links, physics_only=False, axes=axes)[0]
 
     def predict_with_physics_only(self, tx_m, rx_m, freqs_hz=None, *, progress=None, advance=None,
-                                  chunk_links: int | None = None, physics_only: bool = True):
+                                  chunk_links: int | None = None, physics_only: bool = True, axes=None):
         """(path gain [N, F] dB as `predict`, the same without the fitted residual on top), in one pass over the
         links; the second equals the first for a model without a residual. physics_only=False: (path gain, None)."""
         tx, rx = link_positions(tx_m, rx_m)
         freqs = self.default_freqs() if freqs_hz is None else np.atleast_1d(np.asarray(freqs_hz, np.float64))
         if freqs.ndim != 1 or not freqs.size or not (np.isfinite(freqs).all() and (freqs > 0).all()):
             raise ConfigError(f"frequencies must be positive numbers in hertz, got {np.asarray(freqs_hz).tolist()}")
-        return self._path_gain_db(tx, rx, freqs, progress or NullProgress(), advance, chunk_links, physics_only)
+        # antenna axes per link: the room model's alone takes them (a kind without them is never given any)
+        oriented = {} if axes is None else {"axes": axes}
+        return self._path_gain_db(tx, rx, freqs, progress or NullProgress(), advance, chunk_links, physics_only,
+                                  **oriented)
 
     def default_freqs(self, measured_hz=None) -> np.ndarray:
         """Frequencies [F] Hz predicted when none are asked for: the fitted ones (a band fit: its band); with

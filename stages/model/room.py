@@ -29,7 +29,7 @@ from rfir_core.threads import single_thread_torch
 from .occlusion import FrozenGeometry, make_provider
 
 from rfir_core.physics.materials import C0, ITU_MATERIALS, abs2, fresnel, slab_transmission, specular_share
-from .antenna_patterns import RoomAntennas
+from .antenna_patterns import LinkAxes, RoomAntennas
 from .artifact import load_physical
 from .device_gains import gains_at
 from .links import geometry_from_artifact
@@ -166,16 +166,23 @@ class RoomGeometry:
         h.update(repr((MAX_LEG_CROSSINGS, self.alpha_min, self.provider.name)).encode())
         return h.hexdigest()
 
-    def links(self, tx_m, rx_m, freq_hz, progress=None) -> "RoomLinks":
+    def links(self, tx_m, rx_m, freq_hz, progress=None, axes: LinkAxes | None = None) -> "RoomLinks":
         """Trace the paths and the diffuse weights of links tx_m, rx_m [M, 3] at freq_hz [M]. The antennas'
         patterns enter here, the one place for fitting and prediction alike: each path's amplitude carries
         sqrt(G_tx(departure) G_rx(arrival)) and its end field directions (a dipole's own), each diffuse cell's
-        power G_tx toward the cell times G_rx toward it (antenna_patterns.RoomAntennas)."""
+        power G_tx toward the cell times G_rx toward it (antenna_patterns.RoomAntennas), each end about its
+        link's own axis where `axes` (antenna_patterns.LinkAxes of the M links) has that side's, else its
+        EndAntenna's axis."""
         s, ant = self.settings, self.antennas
+        axes = axes or LinkAxes()
+        axes.check_count(len(tx_m), "the links' antenna axes")
         tx_gain = None if ant.tx.isotropic else ant.tx.gain
         rx_gain = None if ant.rx.isotropic else ant.rx.gain
-        tx_field = None if ant.tx.pattern.kind != "dipole" else lambda k: ant.tx.field_direction(k, s.polarisation)
-        rx_field = None if ant.rx.pattern.kind != "dipole" else lambda k: ant.rx.field_direction(k, s.polarisation)
+        tx_field = None if ant.tx.pattern.kind != "dipole" else \
+            lambda k, a=None: ant.tx.field_direction(k, s.polarisation, a)
+        rx_field = None if ant.rx.pattern.kind != "dipole" else \
+            lambda k, a=None: ant.rx.field_direction(k, s.polarisation, a)
+        oriented = {"tx_axes": None if ant.tx.isotropic else axes.tx, "rx_axes": None if ant.rx.isotropic else axes.rx}
 
         def paths() -> RoomPaths:
             return trace_room_paths(tx_m, rx_m, freq_hz, self.patches, self.provider, polarisation=s.polarisation,
@@ -183,7 +190,7 @@ class RoomGeometry:
                                     third_order_min_area_m2=s.third_order_min_area_m2,
                                     third_order_small_reflections=s.third_order_small_reflections,
                                     max_interactions=s.max_interactions, tx_gain=tx_gain, rx_gain=rx_gain,
-                                    tx_field=tx_field, rx_field=rx_field)
+                                    tx_field=tx_field, rx_field=rx_field, **oriented)
 
         def specular(p: RoomPaths, diffuse: DiffuseTerms | None = None) -> RoomLinks:
             with single_thread_torch():   # small tensor ops: on a shared CPU thread hand-offs cost more than the work
@@ -197,15 +204,16 @@ class RoomGeometry:
         with ThreadPoolExecutor(1) as pool:
             pending = pool.submit(paths)
             diffuse = diffuse_terms(tx_m, rx_m, freq_hz, self.cells, self.material_of_patch, self.num_materials,
-                                    self.cell_crossings, tx_gain=tx_gain, rx_gain=rx_gain)
+                                    self.cell_crossings, tx_gain=tx_gain, rx_gain=rx_gain, **oriented)
             return specular(pending.result(), diffuse)
 
 
-    def band_links(self, tx_m, rx_m, freq_hz: float, band: str, fitted_hz: float | None = None
-                   ) -> "RoomLinks | BandLinks":
-        """The links tx_m, rx_m [M, 3] m as `band` (BANDS; "auto" is taken as "coherent") sums their paths at
-        freq_hz [Hz], traced once (band_of)."""
-        return band_of(self.links(tx_m, rx_m, np.full(len(tx_m), float(freq_hz))), band, freq_hz, fitted_hz)
+    def band_links(self, tx_m, rx_m, freq_hz: float, band: str, fitted_hz: float | None = None,
+                   axes: LinkAxes | None = None) -> "RoomLinks | BandLinks":
+        """The links tx_m, rx_m [M, 3] m (antenna axes `axes`, as links) as `band` (BANDS; "auto" is taken as
+        "coherent") sums their paths at freq_hz [Hz], traced once (band_of)."""
+        return band_of(self.links(tx_m, rx_m, np.full(len(tx_m), float(freq_hz)), axes=axes), band, freq_hz,
+                       fitted_hz)
 
 
 def band_frequencies(band: str, freq_hz: float, fitted_hz: float | None = None) -> tuple[float, ...]:
@@ -672,18 +680,20 @@ class RoomPredictor:
                               f"material laws hold ({why})")
         return f
 
-    def path_gain_db(self, tx_m: np.ndarray, rx_m: np.ndarray, chunk_links: int = 512, progress=None) -> np.ndarray:
+    def path_gain_db(self, tx_m: np.ndarray, rx_m: np.ndarray, chunk_links: int = 512, progress=None,
+                     axes: LinkAxes | None = None) -> np.ndarray:
         """Predicted path gain [N] dB for links tx_m / rx_m [N, 3] m at the frequency the model was fitted at
         (predict_db at freq_hz)."""
-        return self.predict_db(tx_m, rx_m, [self.freq_hz], chunk_links, progress)[:, 0]
+        return self.predict_db(tx_m, rx_m, [self.freq_hz], chunk_links, progress, axes)[:, 0]
 
     def predict_db(self, tx_m: np.ndarray, rx_m: np.ndarray, freqs_hz=None, chunk_links: int = 512,
-                   progress=None) -> np.ndarray:
+                   progress=None, axes: LinkAxes | None = None) -> np.ndarray:
         """Predicted path gain [N, F] dB for links tx_m / rx_m [N, 3] m at freqs_hz [F] Hz (None: the frequency the
         model was fitted at, freq_hz; each inside frequency_range_hz, else a ConfigError), floored at -250 dB: the
         paths summed as the model's band (RoomSettings.band; "ble" averages the three advertising channels, moved
         with the frequency asked, band_frequencies), with the fitted gain of each device the fit saw at that
-        position (device_gains.gains_at). Each block of chunk_links links is traced once, every frequency evaluated
+        position (device_gains.gains_at), the antennas about each link's axis where `axes` (LinkAxes [N]) has
+        its side's (RoomGeometry.links). Each block of chunk_links links is traced once, every frequency evaluated
         on that trace."""
 
         freqs = np.asarray([self.freq_hz]) if freqs_hz is None else self.check_frequencies(freqs_hz)
@@ -693,7 +703,8 @@ class RoomPredictor:
         with torch.no_grad():
             for lo in range(0, len(tx_m), chunk_links):
                 hi = min(len(tx_m), lo + chunk_links)
-                traced = self.room.links(tx_m[lo:hi], rx_m[lo:hi], np.full(hi - lo, self.freq_hz))
+                traced = self.room.links(tx_m[lo:hi], rx_m[lo:hi], np.full(hi - lo, self.freq_hz),
+                                         axes=None if axes is None else axes.rows(slice(lo, hi)))
                 for j, f in enumerate(freqs):
                     # the sum the model was fitted with (room.band), so predict, edit and diagnose agree with the fit
                     links = band_of(traced, self.room.settings.band, float(f), self.freq_hz)

@@ -383,12 +383,14 @@ def _angle_node(cos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return AngleNodes(NODES).position(np.abs(cos))
 
 
-def _cell_factors(tx: np.ndarray, rx: np.ndarray, cells: DiffuseCells, tx_gain=None, rx_gain=None):
+def _cell_factors(tx: np.ndarray, rx: np.ndarray, cells: DiffuseCells, tx_gain=None, rx_gain=None, tx_axes=None,
+                  rx_axes=None):
     """Per (link, cell) of links tx, rx [B, 3] m: (g [B, C] m^-2 the Lambertian factor
     G_T G_R A cos(theta_i) cos(theta_o) / (16 pi^3 d_i^2 d_o^2) of section 8.8 without V and lambda^2 (applied at
     evaluation), 0 where the ends lie on opposite sides of the cell; node [B, C] int64 and frac [B, C]: theta_i
     between angle nodes node and node + 1). tx_gain / rx_gain: callables (unit directions [N, 3] from the antenna
-    toward the cells' centres) -> linear power gain [N]; None: isotropic (1)."""
+    toward the cells' centres[, their links' antenna axes [N, 3] when tx_axes / rx_axes [B, 3] are given]) -> linear
+    power gain [N]; None: isotropic (1)."""
     wi = tx[:, None, :] - cells.centre[None]                        # [B, C, 3]
     wo = rx[:, None, :] - cells.centre[None]
     n = cells.normal[None]
@@ -399,9 +401,11 @@ def _cell_factors(tx: np.ndarray, rx: np.ndarray, cells: DiffuseCells, tx_gain=N
     lit = ci * co > 0                                                  # both ends on one side
     ci, co = np.abs(ci), np.abs(co)
     g = (cells.area[None] * ci * co / (16 * math.pi ** 3 * di ** 2 * do ** 2)) * lit
-    for gain, w, d in ((tx_gain, wi, di), (rx_gain, wo, do)):
+    for gain, w, d, axes in ((tx_gain, wi, di, tx_axes), (rx_gain, wo, do, rx_axes)):
         if gain is not None:   # w points from the cell to the antenna: the antenna sends (or hears) along -w
-            g = g * np.asarray(gain((-w / np.maximum(d, 1e-300)[..., None]).reshape(-1, 3)), np.float64).reshape(g.shape)
+            per_link = () if axes is None else (np.repeat(np.asarray(axes, np.float64), g.shape[1], axis=0),)
+            g = g * np.asarray(gain((-w / np.maximum(d, 1e-300)[..., None]).reshape(-1, 3), *per_link),
+                               np.float64).reshape(g.shape)
     node, frac = _angle_node(ci)
     return g, node, frac
 
@@ -421,10 +425,11 @@ def _crossing_slots(points: np.ndarray, rows: np.ndarray, cells: np.ndarray, dc:
 
 def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells: DiffuseCells,
                   material_of_patch: np.ndarray, num_materials: int, crossings: CellCrossings, link_chunk: int = 256,
-                  progress_task=None, tx_gain=None, rx_gain=None) -> DiffuseTerms:
+                  progress_task=None, tx_gain=None, rx_gain=None, tx_axes=None, rx_axes=None) -> DiffuseTerms:
     """The DiffuseTerms of links tx_m, rx_m [M, 3], evaluated at freq_hz [M] Hz (the terms themselves do not
     depend on it: DiffuseTerms.at_frequency); crossings: a CellCrossings of these cells (its kept rows are reused,
-    new ones kept); tx_gain / rx_gain: the antennas' power gains toward each cell (_cell_factors; None: isotropic)."""
+    new ones kept); tx_gain / rx_gain: the antennas' power gains toward each cell (_cell_factors; None: isotropic),
+    tx_axes / rx_axes [M, 3]: each link's antenna axis for them (None: the callables' own)."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
     m = len(tx)
@@ -442,7 +447,8 @@ def diffuse_terms(tx_m: np.ndarray, rx_m: np.ndarray, freq_hz: np.ndarray, cells
     links, shares, refls, crosses = [], [], [], []
     for lo in range(0, m, link_chunk):
         hi = min(m, lo + link_chunk)
-        g, node, frac = _cell_factors(tx[lo:hi], rx[lo:hi], cells, tx_gain, rx_gain)
+        g, node, frac = _cell_factors(tx[lo:hi], rx[lo:hi], cells, tx_gain, rx_gain,
+                                      *(None if a is None else np.asarray(a)[lo:hi] for a in (tx_axes, rx_axes)))
         first_t, first_r = x_tx[i_tx[lo:hi], :, 0], x_rx[i_rx[lo:hi], :, 0]
         clear = (first_t == NO_CROSSING) & (first_r == NO_CROSSING)
         # BLOCKED (and UNTRACED, never lit) legs carry nothing

@@ -643,7 +643,7 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
                      first_order_min_area_m2: float = 0.0, third_order_min_area_m2: float = THIRD_ORDER_MIN_AREA_M2,
                      max_interactions: int = MAX_INTERACTIONS,
                      third_order_small_reflections: int = THIRD_ORDER_SMALL_REFLECTIONS,
-                     tx_gain=None, rx_gain=None, tx_field=None, rx_field=None) -> RoomPaths:
+                     tx_gain=None, rx_gain=None, tx_field=None, rx_field=None, tx_axes=None, rx_axes=None) -> RoomPaths:
     """Every specular path up to `max_order` reflections of links tx_m, rx_m [M, 3] m, to be evaluated at freq_hz
     [M] Hz (the tracing does not depend on it: RoomPaths.at_frequency evaluates the paths at any other).
 
@@ -654,7 +654,8 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
     top between the room's surfaces).
     tx_gain / rx_gain: callables (unit directions [N, 3] leaving the antenna: the first leg's, the last leg's
     reversed) -> linear power gain [N]; None: isotropic. tx_field / rx_field: callables (unit directions [N, 3] of
-    travel) -> unit field directions [N, 3] of the antenna (a tilted dipole's); None: `polarisation`'s.
+    travel) -> unit field directions [N, 3] of the antenna (a tilted dipole's); None: `polarisation`'s. tx_axes /
+    rx_axes [M, 3]: each link's antenna axis, passed to that end's callables as a second argument (one per direction).
     Paths with more than max_interactions interactions (reflections plus surfaces crossed) are dropped."""
     tx = np.asarray(tx_m, dtype=np.float64)
     rx = np.asarray(rx_m, dtype=np.float64)
@@ -727,12 +728,13 @@ def trace_room_paths(tx_m, rx_m, freq_hz, patches: PatchSet, provider, *, polari
     kind[at], patch[at], cosm[at] = ikind[ok], ipatch[ok], cos[ok]
     sm[at], pim[at], pom[at] = s[ok], pin[ok], pout[ok]
     gain = np.ones(q_n)
+    at_tx, at_rx = (() if a is None else (np.asarray(a, np.float64)[link],) for a in (tx_axes, rx_axes))  # per path
     if tx_gain is not None:
-        gain = gain * np.asarray(tx_gain(k_dep), dtype=np.float64)
+        gain = gain * np.asarray(tx_gain(k_dep, *at_tx), dtype=np.float64)
     if rx_gain is not None:
-        gain = gain * np.asarray(rx_gain(-k_arr), dtype=np.float64)
-    e_tx = antenna_polarisation(k_dep, polarisation) if tx_field is None else np.asarray(tx_field(k_dep), np.float64)
-    e_rx = antenna_polarisation(k_arr, polarisation) if rx_field is None else np.asarray(rx_field(k_arr), np.float64)
+        gain = gain * np.asarray(rx_gain(-k_arr, *at_rx), dtype=np.float64)
+    e_tx = antenna_polarisation(k_dep, polarisation) if tx_field is None else np.asarray(tx_field(k_dep, *at_tx), np.float64)
+    e_rx = antenna_polarisation(k_arr, polarisation) if rx_field is None else np.asarray(rx_field(k_arr, *at_rx), np.float64)
     # paths sorted by interaction count, most first: slot i is then used by a prefix of the paths
     order_q = np.flatnonzero(keep_path)[np.argsort(-counts[keep_path], kind="stable")]
     t = lambda x: torch.as_tensor(np.ascontiguousarray(x[order_q]))  # noqa: E731

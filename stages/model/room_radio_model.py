@@ -64,13 +64,13 @@ class RoomRadioModel(RadioModel):
         held = np.asarray(self.artifact.free.get("training", {}).get("holdout_tx_ids", []), np.int64)
         return np.flatnonzero(split == 1), np.flatnonzero(split == 0), f"transmitters {held.tolist()} held out"
 
-    def _path_gain_db(self, tx, rx, freqs, progress, advance, chunk_links, physics_only):
+    def _path_gain_db(self, tx, rx, freqs, progress, advance, chunk_links, physics_only, axes=None):
         chunk_links = int(chunk_links or 512)
         if advance is not None:
-            out = self.predictor.predict_db(tx, rx, freqs, chunk_links, _Advance(advance))
+            out = self.predictor.predict_db(tx, rx, freqs, chunk_links, _Advance(advance), axes)
         else:
             with progress.task("predict (room)", total=len(tx)) as bar:
-                out = self.predictor.predict_db(tx, rx, freqs, chunk_links, bar)
+                out = self.predictor.predict_db(tx, rx, freqs, chunk_links, bar, axes)
         if self.residual_terms is None:
             return out, (out.copy() if physics_only else None)
         terms = self.residual_terms.apply_db(tx, rx)[:, None]

@@ -31,6 +31,7 @@ from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 from rfir_core.provenance import Provenance
 from rfir_stages.diagnose.apply import apply_recorded_effects
+from rfir_stages.model.antenna_patterns import RoomAntennas, link_axes
 from rfir_stages.model.crossings import crossing_counts
 from rfir_stages.model.radio_model import load_model
 
@@ -133,15 +134,31 @@ def _refuse_large(model: RadioModel, num_points: int, cfg: dict) -> None:
 
 
 def _path_gain_blocks(model: RadioModel, txs: np.ndarray, rx: np.ndarray, freqs: np.ndarray, chunk_links: int,
-                      bar) -> np.ndarray:
+                      bar, axes=None) -> np.ndarray:
     """Predicted path gain [N, F] dB of links txs / rx [N, 3] m at freqs [F] Hz, POINTS_PER_BLOCK links at a time,
-    with the effects `rfir diagnose` recorded."""
+    with the effects `rfir diagnose` recorded; axes: the links' antenna axes (LinkAxes [N]; None: each end's own)."""
     out = np.empty((len(rx), len(freqs)))
     for lo in range(0, len(rx), POINTS_PER_BLOCK):
         hi = min(len(rx), lo + POINTS_PER_BLOCK)
-        pg = model.predict(txs[lo:hi], rx[lo:hi], freqs, chunk_links=chunk_links, advance=bar.advance)
+        pg = model.predict(txs[lo:hi], rx[lo:hi], freqs, chunk_links=chunk_links, advance=bar.advance,
+                           axes=None if axes is None else axes.rows(slice(lo, hi)))
         out[lo:hi] = apply_recorded_effects(model.artifact, pg, txs[lo:hi], rx[lo:hi], freqs)
     return out
+
+
+def link_axes_for(model: RadioModel, meas, where) -> tuple:
+    """(the antenna axes per link of the measurements `meas` the model predicts (LinkAxes; None: none, or a map),
+    warnings [str]): a model whose antennas were oriented per link predicts links without axes (a map, a file
+    without tx_axis / rx_axis) about each end's stated axis, which a warning says."""
+    axes = None if meas is None else link_axes(meas, str(where))
+    predictor = getattr(model, "predictor", None)          # the room model's (the kind predict rssi loads)
+    antennas = RoomAntennas() if predictor is None else predictor.room.antennas
+    missing = [s for s in antennas.per_link if axes is None or s not in axes.sides]
+    if not missing:
+        return axes, []
+    ends = ", ".join(f"{s} {getattr(antennas, s).text()}" for s in missing)
+    return axes, [f"the model's antennas were oriented per link ({', '.join(missing)}); these links state no "
+                  f"{'/'.join(f'{s}_axis' for s in missing)}: predicted about the stated axis ({ends})"]
 
 
 def _near_tx(rx: np.ndarray, tx: np.ndarray, min_m: float) -> np.ndarray:
@@ -290,10 +307,12 @@ def run_rssi(rf_path, out_path, config: dict, *, tx=None, rx_file=None, grid=Non
         _refuse_large(model, len(rx), cfg)
         warnings += check_points(model.geometry, np.unique(txs, axis=0), "transmitter", bounds, provider=model.provider)
     warnings += check_points(model.geometry, rx, "receiver", bounds, provider=model.provider)   # the CLI prints them
+    axes, axes_note = link_axes_for(model, meas if txs_map is None else None, measurements_path)
+    warnings += axes_note
 
     t0 = time.time()
     with progress.task("predict rssi", total=len(rx_links)) as bar:
-        pg_all = _path_gain_blocks(model, txs, rx_links, freqs, int(cfg["chunk_links"]), bar)
+        pg_all = _path_gain_blocks(model, txs, rx_links, freqs, int(cfg["chunk_links"]), bar, axes)
     pg = pg_all[:, 0]
     predict_s = time.time() - t0
 

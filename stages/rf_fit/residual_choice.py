@@ -286,10 +286,11 @@ def _final(s: _Survey, cfg: dict) -> ResidualTerms:
 
 
 def training_residuals(links, room, params, devices, tx_m, rx_m, fit, target_db, freq_hz: float, band: str,
-                       chunk_links: int = 512) -> np.ndarray:
+                       chunk_links: int = 512, axes=None) -> np.ndarray:
     """measured - physical [M] dB of every training link tx_m, rx_m [M, 3] m (target_db [M] dB) with the fitted
     materials `params` and device gains `devices` (centred, as stored): the fit links `fit` [K] from their traced
-    `links`, the others traced here, chunk_links at a time."""
+    `links`, the others traced here, chunk_links at a time (their antenna axes the rows of `axes`, a LinkAxes of
+    the M links; None: each end's own)."""
     import torch
 
     target = np.asarray(target_db, np.float64)
@@ -300,7 +301,7 @@ def training_residuals(links, room, params, devices, tx_m, rx_m, fit, target_db,
         table = {} if devices is None else devices.table()
         for lo in range(0, len(rest), chunk_links):
             rows = rest[lo:lo + chunk_links]
-            traced = room.band_links(tx_m[rows], rx_m[rows], freq_hz, band)
+            traced = room.band_links(tx_m[rows], rx_m[rows], freq_hz, band, axes=None if axes is None else axes.rows(rows))
             pred[rows] = training_predictor(traced, torch.as_tensor(target[rows, None]))(params)[:, 0].numpy() \
                 + gains_at(table, tx_m[rows], rx_m[rows])[0]
     return target - pred

@@ -21,6 +21,7 @@ from rfir_core.text import plural, standard_errors
 from rfir_core.errors import ConfigError
 from rfir_core.physics.materials import ITU_MATERIALS, power_law
 from rfir_core.provenance import Provenance
+from rfir_stages.model.antenna_patterns import LinkAxes
 from rfir_stages.model.artifact import physical_fields
 from rfir_stages.model.device_gains import CHOICES as DEVICE_CHOICES
 from rfir_stages.model.device_gains import DeviceGains, device_index, whole_device_rows
@@ -296,7 +297,8 @@ def _whole_devices_words(settings: RoomSettings, fit: np.ndarray, tx: np.ndarray
             "gains profiled out in closed form at each step, then every device's gain from all its links")
 
 
-def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent"):
+def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent",
+                 axes=None):
     """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
     it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
     worse on the links those values were fitted to (rfir_stages.model.tabulated)."""
@@ -305,8 +307,8 @@ def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: 
         return None
     rest = rest[np.unique(np.linspace(0, len(rest) - 1, min(len(fit), len(rest))).round().astype(np.int64))]
     if band == "coherent":
-        return room.links(tx[rest], rx[rest], np.full(len(rest), freq_hz)), target_db[rest, None]
-    return room.band_links(tx[rest], rx[rest], freq_hz, band), target_db[rest, None]
+        return room.links(tx[rest], rx[rest], np.full(len(rest), freq_hz), axes=axes.rows(rest)), target_db[rest, None]
+    return room.band_links(tx[rest], rx[rest], freq_hz, band, axes=axes.rows(rest)), target_db[rest, None]
 
 
 def _check_materials(links, res, target_db: np.ndarray, fit: np.ndarray, check, names: list[str], freq_hz: float,
@@ -404,8 +406,10 @@ def _choose_band(links, room, tx, rx, freq_hz: float, target_db: np.ndarray, fit
 
 def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: np.ndarray, scene_path,
              measurements_path, out_path, config: dict, render_cfg, cfg: dict, *, seed: int, config_toml: str,
-             progress, t_start: float, antennas=None):
-    """Trace, fit and write; returns stage.RfFitResult. antennas: antenna_patterns.RoomAntennas (None: isotropic)."""
+             progress, t_start: float, antennas=None, axes=None):
+    """Trace, fit and write; returns stage.RfFitResult. antennas: antenna_patterns.RoomAntennas (None: isotropic);
+    axes: antenna_patterns.LinkAxes of the training links tx, rx (None: each end's own axis)."""
+    axes = axes or LinkAxes()
 
     depth, ideal = simulated_depth(meas), ideal_devices(meas)
     settings, fit_cfg, sharing = room_config(config, depth, ideal)
@@ -457,7 +461,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         band, band_reason = "coherent", "auto: simulated at one frequency"
     elif band == "auto" and ideal and np.allclose(channels, BLE_CHANNELS_HZ, rtol=0, atol=1e3):
         band, band_reason = "ble", "auto: simulated as the mean over BLE's three advertising channels"
-    links = room.band_links(tx[fit], rx[fit], freq_hz, "coherent" if band == "auto" else band)
+    links = room.band_links(tx[fit], rx[fit], freq_hz, "coherent" if band == "auto" else band, axes=axes.rows(fit))
     trace_s = time.time() - t0
     progress.log(f"traced {links.paths.num} specular paths ({links.paths.num / max(len(fit), 1):.1f} per link) "
                  f"in {trace_s:.1f} s")
@@ -481,7 +485,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         if choice.which != "off" and len(fit) < len(tx) and not devices_kept(choice.which, fit, tx, rx, ids):
             fit = whole_device_rows(choice.which, settings.fit_links, tx, rx, ids)
             progress.log(_whole_devices_words(settings, fit, tx, rx, ids))
-            links = room.band_links(tx[fit], rx[fit], freq_hz, band)
+            links = room.band_links(tx[fit], rx[fit], freq_hz, band, axes=axes.rows(fit))
         elif choice.which != "off" and len(fit) < len(tx):
             progress.log(f"device gains on: every device keeps at least {MIN_DEVICE_LINKS} of the {len(fit)} links "
                          "fitted (rf_fit.room.fit_links)")
@@ -504,7 +508,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     if devices is not None and len(fit) < len(tx) and not devices_kept(settings.device_gains, fit, tx, rx, ids):
         # whole devices fitted (a gain per position): the devices left out get their gains from all their links
         t_gains = time.time()
-        gains_from_all_links(devices, res.params, links, fit, lambda r: room.band_links(tx[r], rx[r], freq_hz, band),
+        gains_from_all_links(devices, res.params, links, fit,
+                             lambda r: room.band_links(tx[r], rx[r], freq_hz, band, axes=axes.rows(r)),
                              target_db, link_weights(None if count is None else np.asarray(count)[rows],
                                                      None if spread is None else np.asarray(spread)[rows]))
         progress.log(f"device gains: each from all its links ({len(tx)} training links, {len(tx) - len(fit)} of "
@@ -514,7 +519,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             res.params.gain_db += devices.centre()
     tabulated = [""] * len(names)
     # with device gains, decided on the links they were fitted to (the others have no gain fitted for them)
-    check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band)
+    check = None if devices is not None else _check_links(room, tx, rx, fit, target_db, freq_hz, band, axes)
     if settings.tabulated_materials:
         t_tab = time.time()
         _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
@@ -544,7 +549,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     # residual terms in dB on the fitted physics, chosen on the training links (residual_choice; physics.md 8.15)
     means, t_terms = geom.means.numpy(), time.time()
     terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
-                                                                  target_db, freq_hz, band),
+                                                                  target_db, freq_hz, band, axes=axes),
                                   means.min(0)[:2], means.max(0)[:2], seed,
                                   settings.residual_terms)
     progress.log(f"residual terms: {terms.which} ({terms.reason})"

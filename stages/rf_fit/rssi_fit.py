@@ -15,7 +15,7 @@ import numpy as np
 from rfir_core.errors import ConfigError, InputFileError, StageError
 from rfir_core.progress import NullProgress
 
-from rfir_stages.model.antenna_patterns import room_antennas
+from rfir_stages.model.antenna_patterns import link_axes, room_antennas
 from rfir_stages.model.links import check_overlap, geometry_from_artifact, inside_words, positions_inside
 from .room_stage import run_room
 from .rssi_split import rssi_settings, training_rows
@@ -62,7 +62,7 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
         raise InputFileError("path_gain_db has non-finite training values", path=measurements_path)
     return run_room(scene, meas, geom, rows, held, tx, rx, float(freqs[col]), target_db, scene_path,
                     measurements_path, out_path, config, render_cfg, cfg, seed=seed, config_toml=config_toml,
-                    progress=progress, t_start=t_start, antennas=antennas)
+                    progress=progress, t_start=t_start, antennas=antennas, axes=link_axes(meas, where).rows(rows))
 
 
 MIN_LINK_M = 1e-3   # a transmitter and a receiver closer than this are one point: no direction, no path
