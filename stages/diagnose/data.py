@@ -18,6 +18,7 @@ import numpy as np
 
 from rfir_core.artifacts import read_artifact
 from rfir_core.errors import ConfigError, InputFileError, StageError
+from rfir_stages.model.antenna_patterns import link_axes
 from rfir_stages.model.links import check_overlap, geometry_from_artifact
 from rfir_stages.model.occlusion import make_provider
 from rfir_stages.model.radio_model import load_model
@@ -142,7 +143,8 @@ def _predict_measured(rf, meas, task: str, progress) -> tuple[dict, np.ndarray |
         except ConfigError as err:
             raise InputFileError(f"the measured {err}", path=meas.path) from None
     aspect, rng = meas.get("aspect_rad"), meas.get("range_m")
-    pg = radio.predict(tx, rx, freqs, progress=progress)
+    # a room model weights each link about its antennas' axes where the measurements hold them (tx_axis / rx_axis)
+    pg = radio.predict(tx, rx, freqs, progress=progress, axes=link_axes(meas, str(meas.path)) if task == "rssi" else None)
     pg = apply_recorded_effects(rf, pg, tx, rx, freqs, aspect_rad=aspect, range_m=rng)
     return {"tx_pos": tx, "rx_pos": rx, "freq_hz": freqs, "path_gain_db": pg}, radio.training_split(meas), why
 

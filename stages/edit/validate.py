@@ -27,7 +27,7 @@ from rfir_core.artifacts import read_artifact
 from rfir_core.figures import pyplot, save_figure
 from rfir_core.physics.closed_forms import rcs_from_path_gain
 from rfir_stages.diagnose.apply import apply_recorded_effects
-from rfir_stages.model.antenna_patterns import antenna_from_attrs
+from rfir_stages.model.antenna_patterns import antenna_from_attrs, link_axes
 from rfir_stages.model.radio_model import load_model
 
 from .script import edits_from_options
@@ -45,7 +45,8 @@ def predict_measured(rf_path: Path, meas_path: Path):
     col = int(np.argmin(np.abs(f_meas - freqs[0])))
     tx, rx = np.asarray(meas["tx_pos"], np.float64), np.asarray(meas["rx_pos"], np.float64)
     aspect, range_m = meas.get("aspect_rad"), meas.get("range_m")
-    pg = apply_recorded_effects(model.artifact, model.predict(tx, rx, freqs), tx, rx, freqs, aspect_rad=aspect,
+    axes = link_axes(meas, str(meas_path)) if model.task == "rssi" else None    # each link's antenna axes (room model)
+    pg = apply_recorded_effects(model.artifact, model.predict(tx, rx, freqs, axes=axes), tx, rx, freqs, aspect_rad=aspect,
                                 range_m=range_m)[:, 0]
     split = model.training_split(meas)
     test = np.zeros(len(tx), bool) if split is None else split == 1

@@ -45,7 +45,8 @@ def import_csv_command(
         "--tx-power-dbm", help="Transmit power in dBm: power_db is received dBm (power = rssi).")] = None,
     position_scale: Scale = 1.0,
     antenna: Annotated[Optional[str], typer.Option(
-        "--antenna", help="Both antennas: isotropic, dipole[:AX,AY,AZ], horn:HPBW_DEG or table:FILE.")] = None,
+        "--antenna", help="Both antennas: isotropic, dipole[:AX,AY,AZ], horn:HPBW_DEG or table:FILE, a horn's or "
+        "table's boresight after @AX,AY,AZ (default +z).")] = None,
     antenna_tx: Annotated[Optional[str], typer.Option("--antenna-tx", help="Transmit antenna (as --antenna).")] = None,
     antenna_rx: Annotated[Optional[str], typer.Option("--antenna-rx", help="Receive antenna (as --antenna).")] = None,
     polarisation: Annotated[Optional[str], typer.Option("--polarisation", help="V or H.")] = None,
