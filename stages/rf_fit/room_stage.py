@@ -298,10 +298,10 @@ def _whole_devices_words(settings: RoomSettings, fit: np.ndarray, tx: np.ndarray
 
 
 def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent",
-                 axes=None):
+                 axes: LinkAxes = LinkAxes()):
     """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
     it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
-    worse on the links those values were fitted to (rfir_stages.model.tabulated)."""
+    worse on the links those values were fitted to (rfir_stages.model.tabulated). axes: the LinkAxes of tx, rx."""
     rest = np.setdiff1d(np.arange(len(tx)), fit)
     if len(rest) == 0:
         return None
