@@ -218,6 +218,7 @@ def _axis(row: dict, source: tuple, line: int, problems: RowProblems) -> tuple:
         problems.add(f"line {line}, columns {','.join(source)}: a zero vector has no direction")
     return tuple(v / norm for v in values) if math.isfinite(norm) and norm > 0 else (math.nan,) * 3
 
+
 def _id_numbers(values: list[str]) -> dict[str, int]:
     """{name: number} for an id column that holds names ("sensor11", "p000"): numbered 0.. in sorted order;
     {} when every value is a number (read as given)."""

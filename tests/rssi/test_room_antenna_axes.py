@@ -177,6 +177,9 @@ def test_csv_import_reads_headings_and_axes_and_refuses_bad_ones_on_one_line(tmp
         out = tmp_path / f"bad_{name.replace(' ', '_')}.h5"
         one_line_error(run("import", "csv", p, "-o", out), p.name, column)
         assert not out.exists()
+    for flag in ("horn:60@0,0,0", "dipole@1,0,0", "horn:60@1,0"):      # a stated boresight: three numbers, horn or table
+        one_line_error(run("import", "csv", path, "-o", tmp_path / "bad_flag.h5", "--antenna-rx", flag), flag)
+        assert not (tmp_path / "bad_flag.h5").exists()
 
 
 def test_rf_fit_and_predict_take_each_links_horn_boresight(tmp_path):
