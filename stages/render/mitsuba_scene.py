@@ -10,7 +10,7 @@ right and +y down, so Mitsuba's to_world is our world_from_camera times diag(-1,
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -36,15 +36,21 @@ def mitsuba_variant(variant: str = MITSUBA_VARIANT):
             mi.set_variant(previous)
 
 
+SELF_LIT_VISUALS = ("glass",)   # seen by their own light: a pane shows the daylight behind it
+
+
 @dataclass
 class LightSetup:
     """Point lights (positions (L,3) m, intensity W/sr each) plus an ambient term that is added as
-    `ambient * albedo` after rendering (a noise-free fill light), and the background colour."""
+    `ambient * albedo` after rendering (a noise-free fill light), and the background colour.
+    self_lit_shapes: the scene's shape indices (the shape_index AOV's, from 1) whose pixels show their
+    texture as it is, unshaded (SELF_LIT_VISUALS)."""
 
     positions: np.ndarray
     intensity: float
     ambient: float = 0.35
     background: tuple = (0.55, 0.6, 0.66)
+    self_lit_shapes: tuple = ()
 
 
 def face_uvs(tri: np.ndarray, origin: np.ndarray, tile_m: float) -> np.ndarray:
@@ -115,7 +121,7 @@ def build_scene(mi, spec, width: int, height: int, K: np.ndarray, spp: int, seed
     hfov = np.degrees(2 * np.arctan(0.5 * width / fx))
     scene: dict = {
         "type": "scene",
-        "integrator": {"type": "aov", "aovs": "albedo:albedo,dist:depth",
+        "integrator": {"type": "aov", "aovs": "albedo:albedo,dist:depth,shape:shape_index",
                        # direct light only: one shadow ray per sample, no noisy indirect bounces
                        "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0,
                                       "hide_emitters": True}},
@@ -130,6 +136,7 @@ def build_scene(mi, spec, width: int, height: int, K: np.ndarray, spp: int, seed
     for i, pos in enumerate(lights.positions):
         scene[f"light_{i}"] = {"type": "point", "position": [float(v) for v in pos],
                                "intensity": {"type": "rgb", "value": float(lights.intensity)}}
+    lit_keys: set[str] = set()
     for i, obj in enumerate(spec.objects):
         tri = _triangles(obj)
         if len(tri) == 0:
@@ -151,7 +158,12 @@ def build_scene(mi, spec, width: int, height: int, K: np.ndarray, spp: int, seed
         mesh = build_mesh(mi, f"obj{i}_{obj.name}", tri, lo, tile)
         mesh.set_bsdf(bsdf)
         scene[f"obj{i}"] = mesh
-    return mi.load_dict(scene), lights
+        if visual in SELF_LIT_VISUALS:
+            lit_keys.add(f"obj{i}")
+    loaded = mi.load_dict(scene)
+    # shape_index counts from 1 over the scene's shapes (0: no hit)
+    self_lit = [k + 1 for k, shape in enumerate(loaded.shapes()) if shape.id() in lit_keys]
+    return loaded, replace(lights, self_lit_shapes=tuple(self_lit))
 
 
 def mitsuba_to_world(world_from_camera: np.ndarray) -> np.ndarray:

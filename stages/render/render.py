@@ -104,8 +104,12 @@ def render_views(spec, out_dir: str | Path, n_views: int | None = None, width: i
                 params["sensor.to_world"] = mi.Transform4f(mitsuba_to_world(pose).tolist())
                 params.update()
                 raw = np.array(mi.render(scene, seed=seed * 100003 + i), dtype=np.float32)
-                rgb, alpha, albedo, dist = raw[..., :3], raw[..., 3], raw[..., 4:7], raw[..., 7]
+                rgb, alpha, albedo, dist, shape = raw[..., :3], raw[..., 3], raw[..., 4:7], raw[..., 7], raw[..., 8]
                 linear = rgb + lights.ambient * albedo + (1.0 - alpha)[..., None] * bg
+                # a pane's pixel is its texture, whatever the room's lights (its samples all hit it: the AOV is
+                # their mean, so a pixel on its edge keeps the shaded value)
+                lit = np.isin(shape, lights.self_lit_shapes)
+                linear[lit] = albedo[lit]
                 path = out_dir / "images" / f"view_{i:03d}.png"
                 _write_png(path, _to_srgb8(linear))
                 images.append(path)

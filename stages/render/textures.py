@@ -5,7 +5,8 @@ image in [0, 1], tinted by the object's colour. Every texture carries multi-octa
 random blobs at several sizes, so SIFT finds many distinctive features at any viewing distance
 (a plain colour would leave structure from motion with nothing to match). Feature sizes are set
 in texels, so a texture's world scale (texels per metre) fixes how large its features look. Glass is
-the exception in brightness: a pane shows the daylight behind it, pale and bright (`_pane`).
+the exception: a pane shows the daylight behind it, pale and bright (`_pane`), and the renderer shows it
+unshaded (mitsuba_scene.SELF_LIT_VISUALS).
 """
 from __future__ import annotations
 
@@ -128,7 +129,7 @@ def make_texture(visual: str, color, size: int = 1024, seed: int = 0, texel_m: f
     return np.clip(color[None, None, :] * factor * (1.0 + hue), 0.0, 1.0).astype(np.float32)
 
 
-PANE_BRIGHTNESS = 0.85   # a pane's mean reflectance-equivalent: daylight through it outshines the lit walls
+PANE_BRIGHTNESS = 0.85   # a pane's mean linear radiance (shown unshaded): daylight through it outshines the lit walls
 
 
 def _pane(rng: np.random.Generator, size: int, color) -> np.ndarray:

@@ -8,6 +8,7 @@ from rfir_core.artifacts import read_artifact
 from rfir_stages.render import intrinsics, look_at, object_poses, render_views, room_poses
 from rfir_stages.render.poses import obstacle_boxes
 from rfir_stages.render.textures import make_texture
+from rfir_stages.simulate.scenes import build_scene
 from rfir_stages.render.toy_scenes import box_mesh, marker_scene, textured_object_scene
 
 MARKER = np.array([0.1, -0.05, 0.03])
@@ -134,3 +135,21 @@ def test_glass_pane_is_bright_and_still_has_features():
         wall = make_texture(visual, tint, 512)
         assert pane.mean() - wall.mean() > wall.mean(axis=2).std(), visual
     assert len(sift.detect(cv2.cvtColor((pane * 255).astype(np.uint8), cv2.COLOR_RGB2GRAY), None)) > 500
+
+
+def test_a_pane_shows_its_own_light(tmp_path):
+    """A window is seen by the daylight behind it: its pixels are its texture unshaded (brighter than the lit
+    walls around it), and only the pixels whose every sample hits it."""
+    spec = build_scene("classroom")
+    spec.objects = [o for o in spec.objects if o.name in ("wall_windows", "window_01", "floor", "ceiling")]
+    pose = look_at(np.array([4.75, 3.0, 1.6]), np.array([4.75, 0.0, 1.6]))[None]
+    result = render_views(spec, tmp_path, width=160, height=120, poses=pose, spp=4, texture_px=128, write_depth=False)
+    image = cv2.imread(str(result.image_paths[0]))[..., ::-1] / 255.0
+    K = intrinsics(160, 120, 60.0)
+    # the pane spans x 4.0-5.5 m, z 0.9-2.3 m on the wall 3 m ahead: its middle and the wall beside it
+    col = lambda x: int(K[0, 2] - K[0, 0] * (x - 4.75) / 3.0)      # facing -y: image right is world -x
+    row = lambda z: int(K[1, 2] - K[1, 1] * (z - 1.6) / 3.0)
+    pane = image[row(2.0):row(1.2), col(5.2):col(4.3)]
+    wall = image[row(2.0):row(1.2), col(6.4):col(5.7)]
+    assert pane.mean() > 0.8 and pane.mean() - wall.mean() > 0.15
+    assert pane.std(axis=(0, 1)).max() > 0.01          # its texture is still there
