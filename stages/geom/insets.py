@@ -7,8 +7,10 @@ square cells of `inset_cell_m`; a cell's appearance is the median colour (RGB) a
 [m] of its Gaussians within `inset_depth_m` of the plane whose normals are within `normal_deg` of the surface's (a
 window set into the wall lies behind it, a board stands out by a centimetre or two). The cells' appearance is
 smoothed by the median of each cell's 3 x 3 neighbourhood (texture varies within a cell; an inset is wider than
-three cells). The surface's dominant appearance is the median over its cells, and its own texture spread, per
-feature, the cells' median absolute deviation from it (scaled to a standard deviation): a cell differs when its
+three cells). The surface's dominant appearance is the median over its own cells, and its own texture spread, per
+feature, their median absolute deviation from it (scaled to a standard deviation); its own cells are all of them,
+unless their brightness is clearly bimodal (`_own_cells`: bright panes over a quarter of a wall), then the larger
+mode's. A cell differs when its
 colour (root mean square over R, G, B) or its offset lies more than `inset_spread` spreads from the dominant one.
 The threshold is in units of each surface's own spread, so a plain wall and a brick wall are judged alike.
 
@@ -41,6 +43,8 @@ MIN_CELL_GAUSSIANS = 4            # a median of fewer Gaussians is one Gaussian'
 MIN_SPREAD = np.array([0.01, 0.01, 0.01, 0.002])  # spread floors (RGB, offset m): below photo noise, a flat synthetic
 #                                                 # colour must not make every rounding error an inset
 EDGE_SEARCH_CELLS = 1.5           # an edge is searched this many cells either side of where it stands ...
+BIMODAL_SEPARATION = 4.0         # an Otsu split of one normal population separates its halves by 2.65 within-class
+#                                 # standard deviations: a surface is of two materials only well beyond that
 REFINE_ROUNDS = 4                 # ... and searched again from where it moved, at most this many times
 
 
@@ -136,9 +140,38 @@ def surface_appearance(x: np.ndarray, normals: np.ndarray, colors: np.ndarray, s
     seen = np.isfinite(smooth[..., 0])
     if not seen.any():
         return idx, np.stack([a[idx], b[idx]], 1), feats, smooth, np.full(4, np.nan), np.full(4, np.nan)
-    dominant = np.median(smooth[seen], axis=0)
-    spread = np.maximum(1.4826 * np.median(np.abs(smooth[seen] - dominant), axis=0), MIN_SPREAD)
+    own = smooth[seen][_own_cells(smooth[seen], settings.inset_min_m2 / cell ** 2)]
+    dominant = np.median(own, axis=0)
+    spread = np.maximum(1.4826 * np.median(np.abs(own - dominant), axis=0), MIN_SPREAD)
     return idx, np.stack([a[idx], b[idx]], 1), feats, smooth, dominant, spread
+
+
+def _own_cells(cells: np.ndarray, min_cells: float) -> np.ndarray:
+    """[M] bool: the cells [M, 4] of the surface's own material. Where the cells' brightness (mean of R, G, B) is
+    bimodal - the best two-class split (Otsu's: least within-class variance) separates the class means by more than
+    BIMODAL_SEPARATION within-class standard deviations and the smaller class holds at least min_cells cells - the
+    larger class alone: bright panes over a quarter of a wall would otherwise pull the median towards them and widen
+    the spread until no pane differs by inset_spread. Otherwise all cells."""
+    lum = cells[:, :3].mean(axis=1)
+    n = len(lum)
+    keep = np.ones(n, bool)
+    order = np.argsort(lum)
+    sorted_lum = lum[order]
+    k = np.arange(1, n)                                   # split after the k darkest cells
+    allowed = (k >= min_cells) & (n - k >= min_cells)
+    if not allowed.any():
+        return keep
+    csum, csq = np.cumsum(sorted_lum)[:-1], np.cumsum(sorted_lum ** 2)[:-1]
+    total, total_sq = sorted_lum.sum(), (sorted_lum ** 2).sum()
+    mean_lo, mean_hi = csum / k, (total - csum) / (n - k)
+    within = (csq - k * mean_lo ** 2 + (total_sq - csq) - (n - k) * mean_hi ** 2) / n
+    best = int(np.argmin(np.where(allowed, within, np.inf)))
+    separation = (mean_hi[best] - mean_lo[best]) / np.sqrt(max(within[best], 1e-12))
+    if separation <= BIMODAL_SEPARATION:
+        return keep
+    darker = np.zeros(n, bool)
+    darker[order[:best + 1]] = True
+    return darker if darker.sum() >= n - darker.sum() else ~darker
 
 
 def _median3x3(cells: np.ndarray) -> np.ndarray:
