@@ -144,7 +144,7 @@ def test_tabulated_step_decides_on_training_links_the_fit_did_not_use():
     from rfir_stages.rf_fit.room_stage import _check_links
 
     class Room:                                  # links() as the room's: returns what it was asked for
-        def links(self, tx, rx, freq):
+        def links(self, tx, rx, freq, axes=None):
             return tx, rx, freq
 
     tx, rx = np.arange(100.0)[:, None] * [1, 0, 0], np.zeros((100, 3))
