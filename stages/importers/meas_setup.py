@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from rfir_core.errors import InputFileError
-from rfir_core.physics.antennas import horn_boresight_gain
+from rfir_core.physics.antennas import boresight_split, horn_boresight_gain
 from rfir_core.physics.polarisation import POLARISATIONS
 
 KEYS = ("antenna", "antenna_tx", "antenna_rx", "polarisation", "power", "tx_power_dbm")
@@ -203,7 +203,7 @@ def boresight_gain(attrs: dict, side: str) -> float:
     1 for isotropic or unstated, 1.5 for a dipole (broadside), G0 = 2 (q + 1) for a horn, the table's
     0-degree value for a table."""
     text = str(attrs.get(side, "isotropic"))
-    kind, _, arg = text.partition("@")[0].partition(":") if text.startswith("horn") else text.partition(":")
+    kind, _, arg = boresight_split(text)[0].partition(":")
     if kind == "dipole":
         return 1.5
     if kind == "horn":

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from rfir_core.errors import ConfigError, InputFileError
-from rfir_core.physics.antennas import horn_boresight_gain, horn_exponent
+from rfir_core.physics.antennas import boresight_split, horn_boresight_gain, horn_exponent
 from rfir_core.physics.polarisation import antenna_polarisation
 
 KINDS = ("isotropic", "dipole", "horn", "table")
@@ -191,13 +191,6 @@ VERTICAL = (0.0, 0.0, 1.0)
 SIDES = ("tx", "rx")
 
 
-def boresight_split(text: str) -> tuple[str, str]:
-    """(the antenna text without its boresight, the boresight text or ""): "horn:60@0,1,0" -> ("horn:60", "0,1,0").
-    A horn's or a table's boresight is stated after the last "@" (docs/artifacts.md); other kinds have none."""
-    head, at, tail = text.rpartition("@")
-    return (head, tail) if at and head.split(":")[0] in ("horn", "table") else (text, "")
-
-
 def unit_axis(text: str, what: str, where: str) -> tuple:
     """Three comma-separated numbers, not all zero, as a unit vector (a tuple of 3 floats); a one-line ConfigError
     naming `where` and `what` otherwise."""
@@ -369,13 +362,13 @@ class RoomAntennas:
         return replace(self, per_link=sides)
 
 
-def room_antennas(config: dict, meas, where: str) -> RoomAntennas:
+def room_antennas(config: dict, meas, where: str, axes: LinkAxes = LinkAxes()) -> RoomAntennas:
     """The antennas an RSSI fit's room model uses, source saying why. rf_fit.antenna other than "auto": that pattern
     at both ends (a dipole vertical); "auto": each side as the measurements state it (one side unstated:
     isotropic there, said), else isotropic (said so). A side whose links carry their own axis (the measurements'
-    tx_axis / rx_axis, link_axes) is oriented per link unless its pattern is isotropic (said so)."""
+    tx_axis / rx_axis: `axes`, as link_axes reads them) is oriented per link unless its pattern is isotropic (said
+    so)."""
     kind = str(config.get("antenna", "auto"))
-    axes = link_axes(meas, where) if hasattr(meas, "get") else LinkAxes()
     if kind != "auto":
         end = EndAntenna(resolve_antenna(kind, float(config.get("horn_hpbw_deg", 40.0)),
                                          str(config.get("antenna_table", "")), None, "rssi"))

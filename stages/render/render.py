@@ -106,8 +106,9 @@ def render_views(spec, out_dir: str | Path, n_views: int | None = None, width: i
                 raw = np.array(mi.render(scene, seed=seed * 100003 + i), dtype=np.float32)
                 rgb, alpha, albedo, dist, shape = raw[..., :3], raw[..., 3], raw[..., 4:7], raw[..., 7], raw[..., 8]
                 linear = rgb + lights.ambient * albedo + (1.0 - alpha)[..., None] * bg
-                # a pane's pixel is its texture, whatever the room's lights (its samples all hit it: the AOV is
-                # their mean, so a pixel on its edge keeps the shaded value)
+                # a pane's pixel is its texture, whatever the room's lights; the AOV is the mean index over the
+                # pixel's samples, so a pixel on a pane's edge keeps its shaded value (unless two other shapes'
+                # indices happen to average to the pane's: a stray pixel on an edge)
                 lit = np.isin(shape, lights.self_lit_shapes)
                 linear[lit] = albedo[lit]
                 path = out_dir / "images" / f"view_{i:03d}.png"

@@ -34,7 +34,8 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
         raise ConfigError(f"rf_fit.split = {config['split']!r} is for rcs data; RSSI data uses rf_fit.rssi.split "
                           "('file' or 'holdout_tx')")
     where = str(measurements_path)
-    antennas = room_antennas(config, meas, where)   # each end's pattern, weighting every path (RoomGeometry.links)
+    axes = link_axes(meas, where)                   # each link's antenna axes, where the measurements hold them
+    antennas = room_antennas(config, meas, where, axes)   # each end's pattern, weighting every path (RoomGeometry.links)
     geom = geometry_from_artifact(scene)
     check_overlap(geom, meas, where)
     check_positions_in_extent(geom, meas, where)
@@ -62,7 +63,7 @@ def run_rssi(scene, meas, scene_path: Path, measurements_path: Path, out_path: P
         raise InputFileError("path_gain_db has non-finite training values", path=measurements_path)
     return run_room(scene, meas, geom, rows, held, tx, rx, float(freqs[col]), target_db, scene_path,
                     measurements_path, out_path, config, render_cfg, cfg, seed=seed, config_toml=config_toml,
-                    progress=progress, t_start=t_start, antennas=antennas, axes=link_axes(meas, where).rows(rows))
+                    progress=progress, t_start=t_start, antennas=antennas, axes=axes.rows(rows))
 
 
 MIN_LINK_M = 1e-3   # a transmitter and a receiver closer than this are one point: no direction, no path

@@ -23,6 +23,13 @@ import numpy as np
 DEFAULT_HORN_HPBW_DEG = 40.0
 
 
+def boresight_split(text: str) -> tuple[str, str]:
+    """(an antenna text without its boresight, the boresight text or ""): "horn:60@0,1,0" -> ("horn:60", "0,1,0").
+    A horn's or a table's boresight is stated after the last "@" (docs/artifacts.md); other kinds have none."""
+    head, at, tail = text.rpartition("@")
+    return (head, tail) if at and head.split(":")[0] in ("horn", "table") else (text, "")
+
+
 def horn_exponent(hpbw_deg: float = DEFAULT_HORN_HPBW_DEG) -> float:
     """The exponent q of cos^q with the given half-power (-3.01 dB) beamwidth."""
     if not 0.0 < hpbw_deg < 180.0:
