@@ -110,6 +110,9 @@ class RoomSettings:
     # the terms in dB fitted on the physics' training residuals (rf_fit.residual_choice.parse_request: "auto", "off"
     # or e.g. "field+kriging"; docs/physics.md 8.15)
     residual_terms: str = "auto"
+    # parts of large surfaces whose material differs, found where the residuals gather (rf_fit.radio_inset_stage):
+    # "auto" searches and keeps them when the held-out training links say so, "off"
+    radio_insets: str = "auto"
 
 
 class RoomGeometry:

@@ -28,7 +28,6 @@ from rfir_stages.model.device_gains import DeviceGains, device_index, whole_devi
 from rfir_stages.model.fit_physical import (MODEL_ERROR_DB, STARTS, PhysicalFitConfig, fit_materials,
                                              gains_from_all_links, link_weights, material_index, reflection_ranges,
                                              training_predictor)
-from rfir_stages.model.fit_physical import training_predictor
 from rfir_stages.model.material_checks import check_materials
 from rfir_stages.model.physical import PairSettings
 from rfir_stages.model.residual import SE_MARGIN
@@ -39,6 +38,7 @@ from rfir_stages.predict.rssi import rssi_defaults
 from rfir_stages.predict.rssi_checks import floor_grid
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, named_material, take_tabulated
 
+from . import radio_inset_stage as radio_insets
 from .device_choice import MARGIN_DB, MIN_VALIDATION_LINKS, choose_device_gains, held_out_rows
 from .physical_stage import attach_ranges, bound_warnings, range_words
 from .residual_choice import choose_residual_terms, clutter_map, parse_request, training_residuals
@@ -114,6 +114,9 @@ def room_config(config: dict, depth: int | None = None, ideal: bool = True
                           "must be >= 0")
     if settings.band not in BANDS:
         raise ConfigError(f"rf_fit.room.band = {settings.band!r}: expected one of {', '.join(BANDS)}")
+    if settings.radio_insets not in radio_insets.CHOICES:
+        raise ConfigError(f"rf_fit.room.radio_insets = {settings.radio_insets!r}: expected one of "
+                          f"{', '.join(radio_insets.CHOICES)}")
     if settings.starts_kept < 1:
         raise ConfigError(f"rf_fit.room.starts_kept = {settings.starts_kept}: expected at least 1")
     if settings.scattering not in SCATTERING_CHOICES:
@@ -297,15 +300,22 @@ def _whole_devices_words(settings: RoomSettings, fit: np.ndarray, tx: np.ndarray
             "gains profiled out in closed form at each step, then every device's gain from all its links")
 
 
+def check_rows(num_links: int, fit: np.ndarray) -> np.ndarray:
+    """Rows [C] of up to len(fit) of the num_links training links that are not in fit, evenly spaced."""
+    rest = np.setdiff1d(np.arange(num_links), fit)
+    if len(rest) == 0:
+        return rest
+    return rest[np.unique(np.linspace(0, len(rest) - 1, min(len(fit), len(rest))).round().astype(np.int64))]
+
+
 def _check_links(room, tx, rx, fit: np.ndarray, target_db: np.ndarray, freq_hz: float, band: str = "coherent",
                  axes: LinkAxes = LinkAxes()):
     """(links, target_db [M, 1]) of up to len(fit) training links the fit did not use, evenly spaced, or None when
     it used them all: the tabulated step decides on them, since every alternative to the fitted values looks
     worse on the links those values were fitted to (rfir_stages.model.tabulated). axes: the LinkAxes of tx, rx."""
-    rest = np.setdiff1d(np.arange(len(tx)), fit)
+    rest = check_rows(len(tx), fit)
     if len(rest) == 0:
         return None
-    rest = rest[np.unique(np.linspace(0, len(rest) - 1, min(len(fit), len(rest))).round().astype(np.int64))]
     if band == "coherent":
         return room.links(tx[rest], rx[rest], np.full(len(rest), freq_hz), axes=axes.rows(rest)), target_db[rest, None]
     return room.band_links(tx[rest], rx[rest], freq_hz, band, axes=axes.rows(rest)), target_db[rest, None]
@@ -524,6 +534,28 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
         t_tab = time.time()
         _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
         progress.log(f"tabulated materials tried in {time.time() - t_tab:.1f} s (rf_fit.room.tabulated_materials)")
+    gaussian_data = {k: v for k, v in scene.data.items() if k.startswith("gaussians/")}
+    label_names = [str(s) for s in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
+    # every training link's residual on this fit: where they gather the radio insets are sought, and the residual terms
+    # are fitted to them unless the fit changes below
+    residuals = None
+    if settings.radio_insets == "auto" and devices is None and labels is not None and check is not None:
+        residuals = training_residuals(links, room, res.params, devices, tx, rx, fit, target_db, freq_hz, band, axes=axes)
+        found = radio_insets.search(
+            scene_labels=np.asarray(labels), label_names=label_names, geom=geom, room=room, material=material,
+            names=names, links=links, res=res, check=check, tx=tx, rx=rx, fit=fit, check_rows=check_rows(len(tx), fit),
+            target_db=target_db, freq_hz=freq_hz, band=band, axes=axes, fit_cfg=fit_cfg, progress=progress,
+            residual_db=residuals,
+            weights=weights, make_room=lambda g, lab, mat: RoomGeometry(
+                g, torch.as_tensor(lab), mat, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")),
+                antennas=antennas))
+        if found is not None:
+            geom, room, links, check, res = found.geom, found.room, found.links, found.check, found.res
+            material, names, label_names = found.material, found.names, found.label_names
+            gaussian_data.update({"gaussians/labels": found.labels, "gaussians/means": geom.means.numpy()})
+            tabulated = [""] * len(names)
+            _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
+            residuals = None
     if devices is not None:
         for side, g in devices.gains.items():
             g = g.detach().numpy()
@@ -548,8 +580,9 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     ranges_s = time.time() - t_ranges
     # residual terms in dB on the fitted physics, chosen on the training links (residual_choice; physics.md 8.15)
     means, t_terms = geom.means.numpy(), time.time()
-    terms = choose_residual_terms(tx, rx, ids, training_residuals(links, room, res.params, devices, tx, rx, fit,
-                                                                  target_db, freq_hz, band, axes=axes),
+    if residuals is None or any(f.taken for f in flags):
+        residuals = training_residuals(links, room, res.params, devices, tx, rx, fit, target_db, freq_hz, band, axes=axes)
+    terms = choose_residual_terms(tx, rx, ids, residuals,
                                   means.min(0)[:2], means.max(0)[:2], seed,
                                   settings.residual_terms)
     progress.log(f"residual terms: {terms.which} ({terms.reason})"
@@ -569,7 +602,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     model_attrs.update(room.antennas.attrs())     # RoomPredictor weights its paths with them too
     model_attrs["render.alpha_min"] = render_cfg.alpha_min
     model_attrs["geometry_key"] = room.geometry_key()     # the stored surfel areas are these Gaussians'
-    data.update({k: v for k, v in scene.data.items() if k.startswith("gaussians/")})
+    data.update(gaussian_data)
     data["rf/freq_hz"] = np.asarray([freq_hz], np.float64)
     if ranges is not None:
         data["material/gamma_normal_range"] = np.asarray(ranges, np.float64)
@@ -591,8 +624,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                       "split_protocol": ("rows with split == 0 (train)" if cfg["split"] == "file" else
                                          f"transmitters {np.asarray(held).tolist()} held out (seed {seed})")}
     attrs = {"task": "rssi", "scene": str(meas.attrs.get("scene", scene.attrs.get("scene", "")))}
-    if "label_names" in scene.attrs:
-        attrs["label_names"] = np.asarray([str(s) for s in scene.attrs["label_names"]], dtype=object)
+    if label_names is not None:
+        attrs["label_names"] = np.asarray(label_names, dtype=object)
     prov = Provenance(stage="rf-fit", config_toml=config_toml, device="cpu")
     prov.add_input(scene_path)
     prov.add_input(measurements_path)
