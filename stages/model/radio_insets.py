@@ -12,10 +12,11 @@ the factor `ratio`. The marked cells' connected groups of at least `min_area_m2`
 bounding rectangles the insets' extents. Whether an inset is kept is decided by the fit on held-out training
 links (rf_fit.radio_inset_stage), so a cell marked by chance costs a fit, not a result.
 
-A part of a surface need not lie in its plane: a board hangs a centimetre or two in front of its wall, and at
-12.5 cm wavelength a reflection's phase turns by 4 pi d cos(theta) / lambda for a depth d (a quarter turn at 1.6
-cm). `shift_lengths` moves a set of patches by d along their normals without tracing again: by Fermat's principle
-a path's length changes, to first order in d, by 2 d cos(theta) at each of its reflections off them.
+A part of a surface need not lie in its plane, and photos place a plane to a centimetre or few: a board hangs a
+centimetre or two in front of its wall, and at 12.5 cm wavelength a reflection's phase turns by 4 pi d cos(theta) /
+lambda for a depth d (a quarter turn at 1.6 cm). `shift_lengths` moves patches by d along their normals without
+tracing again: by Fermat's principle a path's length changes, to first order in d, by 2 d cos(theta) at each of
+its reflections off them.
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ MIN_PATCH_AREA_M2 = 4.0   # surfaces searched: those large enough to hold a cand
 MIN_CELL_LINKS = 20       # a cell's mean |residual| is judged on at least this many reflections
 Z_MARK = 4.0              # standard errors over the surface's median cell for a cell to be marked
 RATIO_MARK = 1.15         # and at least this factor over it
+Z_GROW, RATIO_GROW = 2.0, 1.05   # a strip along a candidate's side joins it at this excess (pooled over the strip)
 MIN_AREA_M2 = 1.0         # a candidate's marked cells cover at least this area
 MAX_CANDIDATES = 2        # the candidates with the largest excess kept (each costs a fit)
 PLANE_TOL_M = 0.05        # an inset holds the surfels this close to its surface's plane (photo planes scatter ~2 cm)
@@ -93,13 +95,13 @@ def find_candidates(tx_m: np.ndarray, rx_m: np.ndarray, residual_db: np.ndarray,
         mean = np.bincount(flat, weights=w[ok] * absr[ok], minlength=shape.prod()) / np.maximum(wsum, 1e-300)
         w2 = np.bincount(flat, weights=w[ok] ** 2, minlength=shape.prod())
         n_eff = wsum ** 2 / np.maximum(w2, 1e-300)                       # Kish's effective count of weighted links
-        grids.append((int(p), lo, shape, count >= MIN_CELL_LINKS, mean, n_eff, toward))
+        grids.append((int(p), lo, shape, count >= MIN_CELL_LINKS, mean, n_eff, toward, wsum, w2))
     judged = np.concatenate([g[4][g[3]] for g in grids]) if grids else np.zeros(0)
     if len(judged) < 3:
         return []
     base = float(np.median(judged))
     out = []
-    for p, lo, shape, ok, mean, n_eff, toward in grids:
+    for p, lo, shape, ok, mean, n_eff, toward, wsum, w2 in grids:
         marked = ok & (mean - base > Z_MARK * spread / np.sqrt(np.maximum(n_eff, 1.0))) & (mean > RATIO_MARK * base)
         joined = ndimage.binary_closing(marked.reshape(shape), structure=np.ones((3, 3)), border_value=0) | \
             marked.reshape(shape)
@@ -109,13 +111,39 @@ def find_candidates(tx_m: np.ndarray, rx_m: np.ndarray, residual_db: np.ndarray,
             if len(cells) * cell_m ** 2 < MIN_AREA_M2:
                 continue
             ci, cj = cells // shape[1], cells % shape[1]
-            rect = np.array([lo[0] + ci.min() * cell_m, lo[0] + (ci.max() + 1) * cell_m,
-                             lo[1] + cj.min() * cell_m, lo[1] + (cj.max() + 1) * cell_m])
+            box = _grown([ci.min(), ci.max() + 1, cj.min(), cj.max() + 1], shape, mean, wsum, w2, base, spread)
+            rect = np.array([lo[0] + box[0] * cell_m, lo[0] + box[1] * cell_m,
+                             lo[1] + box[2] * cell_m, lo[1] + box[3] * cell_m])
             mine = cells[ok[cells]]
             excess = float(((mean[mine] - base) * n_eff[mine]).sum())
             out.append(InsetCandidate(p, rect, excess, int(marked[cells].sum()), toward))
     out.sort(key=lambda c: -c.excess)
     return out[:MAX_CANDIDATES]
+
+
+def _grown(box: list, shape, mean: np.ndarray, wsum: np.ndarray, w2: np.ndarray, base: float, spread: float) -> list:
+    """box [i0, i1, j0, j1) of cells, grown a row or column at a time while the strip along a side, pooled, exceeds
+    the baseline by Z_GROW standard errors and RATIO_GROW: a part's edge cells, partly on it, fall below the marking
+    threshold but not below this one."""
+    grid = lambda a: a.reshape(shape)  # noqa: E731
+    m, w, q = grid(mean * wsum), grid(wsum), grid(w2)
+    while True:
+        grown = False
+        for side in range(4):
+            i0, i1, j0, j1 = box
+            strip = {0: (slice(i0 - 1, i0), slice(j0, j1)), 1: (slice(i1, i1 + 1), slice(j0, j1)),
+                     2: (slice(i0, i1), slice(j0 - 1, j0)), 3: (slice(i0, i1), slice(j1, j1 + 1))}[side]
+            if box[side] == (0 if side in (0, 2) else shape[side // 2]):
+                continue
+            sw, sq = w[strip].sum(), q[strip].sum()
+            if sw <= 0:
+                continue
+            pooled, n_eff = m[strip].sum() / sw, sw ** 2 / max(sq, 1e-300)
+            if pooled - base > Z_GROW * spread / np.sqrt(max(n_eff, 1.0)) and pooled > RATIO_GROW * base:
+                box[side] += -1 if side in (0, 2) else 1
+                grown = True
+        if not grown:
+            return box
 
 
 def inset_surfels(candidate: InsetCandidate, patches, surfel_means: np.ndarray, surfel_normals: np.ndarray,
@@ -131,11 +159,10 @@ def inset_surfels(candidate: InsetCandidate, patches, surfel_means: np.ndarray, 
     return np.flatnonzero(near & (su >= r[0]) & (su <= r[1]) & (sv >= r[2]) & (sv <= r[3]))
 
 
-def shift_lengths(paths, moved: np.ndarray, offset_m: float):
-    """The paths (room_paths.RoomPaths) with each length shortened by 2 offset_m cos(theta) per reflection off a
-    patch with moved [P] bool: those patches moved by offset_m [m] toward the side the paths reflect from (first
-    order in offset_m: Fermat's principle). Nothing traced again."""
-    moved_t = torch.as_tensor(np.asarray(moved, bool))
-    on = (paths.kind == 1) & moved_t[paths.patch.clamp(min=0)]
-    delta = 2.0 * float(offset_m) * (paths.cos * on).sum(1)
+def shift_lengths(paths, offset_of_patch: np.ndarray):
+    """The paths (room_paths.RoomPaths) with each length shortened by 2 d_p cos(theta) per reflection off patch p,
+    offset_of_patch [P] m: d_p, each patch moved by it toward the side the paths reflect from (first order in d_p:
+    Fermat's principle). Nothing traced again."""
+    d = torch.as_tensor(np.asarray(offset_of_patch, np.float64))[paths.patch.clamp(min=0)]
+    delta = 2.0 * (paths.cos * d * (paths.kind == 1)).sum(1)
     return replace(paths, length_m=paths.length_m - delta)

@@ -445,6 +445,9 @@ class RoomLinks:
     def components(self, mats: MaterialValues, tables: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(specular field [M] complex, diffuse power [M] W); tables: _tables(mats) where the caller has them.
         Incoherent links: the field is 0 and the specular paths' powers sum_p |a_p|^2 are in the second term."""
+        if int(mats.eps_r.numel()) != self.num_materials:
+            # the tables' blocks are laid out per material: another count would read other materials' coefficients
+            raise ValueError(f"{int(mats.eps_r.numel())} materials given for links of {self.num_materials}")
         tab = self._tables(mats) if tables is None else tables
         coefficients = []
         for at, frac in self._slots:

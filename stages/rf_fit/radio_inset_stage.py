@@ -1,7 +1,9 @@
-"""rf-fit's radio insets (rfir_stages.model.radio_insets; docs/physics.md 8.10): after the room's materials are
-fitted, the parts of its large surfaces where the residuals gather become insets of their own material, placed
-at the depth and started from the material that the held-out training links favour, fitted again, and kept only
-where those links' MAE falls by more than MIN_GAIN_DB and two standard errors of the paired change.
+"""rf-fit's radio insets and surface depths (rfir_stages.model.radio_insets; docs/physics.md 8.10): after the room's
+materials are fitted, the parts of its large surfaces where the residuals gather become insets of their own
+material, and every large surface (inset or not) is placed at the depth along its normal, and started from the
+material, that best predict the fit's links; the moved geometry is traced again and fitted, and the result kept
+only where the training links the fit did not use say so: their MAE falls by more than MIN_GAIN_DB and two
+standard errors of the paired change.
 
 rf_fit.room.radio_insets = "auto" (search; kept by that test) or "off".
 """
@@ -9,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import string
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,17 +21,19 @@ from rfir_core.text import plural
 from rfir_stages.model.fit_physical import fit_materials, training_predictor
 from rfir_stages.model.occlusion import FrozenGeometry
 from rfir_stages.model.physical import MaterialParams
-from rfir_stages.model.radio_insets import find_candidates, inset_surfels, shift_lengths
+from rfir_stages.model.radio_insets import MIN_PATCH_AREA_M2, find_candidates, inset_surfels, shift_lengths
 from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, tabulated_values
 
 CHOICES = ("auto", "off")
-# depths tried for an inset [m] along its surface's normal into the room: a board or a panel on a wall stands a
-# few centimetres proud of it, the photos' plane a centimetre or two either side of the truth
-OFFSETS_M = tuple(np.round(np.arange(-0.02, 0.0601, 0.01), 3))
-# starting materials tried for an inset beside its surface's fitted one (ITU-R P.2040 and metal)
+# depths tried for a surface [m] along its normal into the room: a board or a panel on a wall stands a few
+# centimetres proud of it, the photos' planes a few centimetres either side of the truth
+OFFSETS_M = tuple(np.round(np.arange(-0.05, 0.0601, 0.01), 3))
+# starting materials tried for a surface beside its fitted one (ITU-R P.2040 and metal)
 START_KEYS = ("metal", "glass", "wood", "plasterboard", "concrete")
 MAX_SEARCH_LINKS = 10_000  # training links whose reflections are binned (evenly spaced; a cell needs many)
-MIN_GAIN_DB = 0.05      # an inset set is kept when the held-out MAE falls by more than this and 2 standard errors
+MIN_GAIN_DB = 0.05       # the result is kept when the held-out MAE falls by more than this and 2 standard errors
+MIN_MOVE_GAIN_DB = 0.02  # a surface is moved when that lowers the fitted links' MAE by more than this
+MAX_SURFACES = 12        # the largest surfaces placed (each costs len(OFFSETS_M) x (1 + len(START_KEYS)) evaluations)
 
 
 @dataclass
@@ -56,16 +61,21 @@ def _mae(links, target_db: np.ndarray, params) -> np.ndarray:
                 - torch.as_tensor(target_db)).abs()[:, 0].numpy()
 
 
-def _shifted(links, moved: np.ndarray, offset_m: float):
-    """The links (RoomLinks, or BandLinks of several) with the paths off the patches `moved` [P] bool moved by
-    offset_m (radio_insets.shift_lengths); their diffuse terms as they are."""
+def _shifted(links, offset_of_patch: np.ndarray):
+    """The links (RoomLinks, or BandLinks of several) with their paths moved by offset_of_patch [P] m
+    (radio_insets.shift_lengths); their diffuse terms as they are."""
     if hasattr(links, "parts"):
         out = copy.copy(links)
-        out.parts = [_shifted(p, moved, offset_m) for p in links.parts]
+        out.parts = [_shifted(p, offset_of_patch) for p in links.parts]
         return out
     out = copy.copy(links)
-    out.paths = shift_lengths(links.paths, moved, offset_m)
+    out.paths = shift_lengths(links.paths, offset_of_patch)
     return out
+
+
+def _toward(normal: np.ndarray, point: np.ndarray, tx: np.ndarray) -> np.ndarray:
+    """normal [3] turned toward the side most of the points tx [M, 3] lie on (into the room)."""
+    return normal if np.median((tx - point) @ normal) >= 0 else -normal
 
 
 def _extended(params: MaterialParams, source: list[int]) -> MaterialParams:
@@ -87,11 +97,24 @@ def _set_start(params: MaterialParams, index: int, key: str, freq_hz: float) -> 
                       thickness_m=TYPICAL_THICKNESS_M.get(key, DEFAULT_THICKNESS_M))
 
 
+@dataclass
+class _Move:
+    """A surface searched: its surfels [n], its patches in the searched room [k], the unit normal into the room, its
+    material, the offset [m] and starting material key (None: its fitted values) chosen, and its name for the log."""
+    surfels: np.ndarray
+    patches: np.ndarray
+    toward: np.ndarray
+    material: int
+    name: str
+    offset: float = 0.0
+    key: str | None = None
+
+
 def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: np.ndarray, names: list, links, res,
            check, tx: np.ndarray, rx: np.ndarray, fit: np.ndarray, check_rows: np.ndarray, target_db: np.ndarray,
-           residual_db: np.ndarray,
-           freq_hz: float, band: str, axes, make_room, fit_cfg, progress, weights=None) -> RadioInsets | None:
-    """Search, place, fit and test radio insets (module docstring); None when none is found or kept.
+           residual_db: np.ndarray, freq_hz: float, band: str, axes, make_room, fit_cfg, progress,
+           weights=None) -> RadioInsets | None:
+    """Search, place, fit and test radio insets and surface depths (module docstring); None when nothing is kept.
 
     scene_labels [G] int (-1: none), label_names: the scene's; material [G], names: rf-fit's materials; links /
     check: the fit's and the held-out training links (check = (links, target_db [C, 1])); tx, rx [M, 3] m the
@@ -102,68 +125,105 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
         return None
     target = np.asarray(target_db, np.float64)
     rows = np.unique(np.linspace(0, len(tx) - 1, min(len(tx), MAX_SEARCH_LINKS)).round().astype(np.int64))
-    means = geom.means.numpy()
+    means, normals = geom.means.numpy(), geom.normals.numpy()
     found = find_candidates(tx[rows], rx[rows], np.asarray(residual_db)[rows], room.patches, means)
-    if not found:
-        progress.log("radio insets: none (no part of a surface where the residuals gather; rf_fit.room.radio_insets)")
-        return None
     labels = np.asarray(scene_labels, np.int64).copy()
     mat = np.asarray(material, np.int64).copy()
     lnames, mnames = [str(s) for s in label_names], list(names)
-    moves, source = [], []
+    source = []
     for k, c in enumerate(found):
-        idx = inset_surfels(c, room.patches, means, geom.normals.numpy())
+        idx = inset_surfels(c, room.patches, means, normals)
         letter = string.ascii_lowercase[k]
         labels[idx] = len(lnames)
         lnames.append(f"radio_{letter}_00")
         source.append(int(room.material_of_patch[c.patch]))
         mat[idx] = len(mnames)
         mnames.append(f"radio_{letter}")
-        moves.append((idx, c))
-    progress.log(f"radio insets: {plural(len(found), 'candidate')} where the residuals gather ("
-                 + "; ".join(f"{mnames[len(names) + k]}: {c.area_m2():.1f} m^2 of the {names[source[k]]} surface, "
-                             f"{c.cells} cells" for k, c in enumerate(found))
-                 + "); placing and fitting them (rf_fit.room.radio_insets)")
-    # depth and starting material of each inset on the held-out links, the paths traced once and moved analytically
-    room2 = make_room(geom, labels, mat)
-    check2 = (room2.band_links(tx[check_rows], rx[check_rows], freq_hz, band, axes=axes.rows(check_rows)), check[1])
+    if found:
+        progress.log(f"radio insets: {plural(len(found), 'candidate')} where the residuals gather ("
+                     + "; ".join(f"{mnames[len(names) + k]}: {c.area_m2():.1f} m^2 of the {names[source[k]]} surface, "
+                                 f"{c.cells} cells" for k, c in enumerate(found)) + ")")
+    room2 = make_room(geom, labels, mat) if found else room
+    links2 = room2.band_links(tx[fit], rx[fit], freq_hz, band, axes=axes.rows(fit)) if found else links
+    target_fit = target[fit, None]
     params = _extended(res.params, source)
-    offsets = []
-    for k in range(len(moves)):
+    # the surfaces searched: the insets, then the MAX_SURFACES largest other patches of MIN_PATCH_AREA_M2 or more
+    moves = []
+    for k in range(len(found)):
         m = len(names) + k
-        moved = room2.material_of_patch == m
-        best = (np.inf, 0.0, None)
+        pts = np.flatnonzero(room2.material_of_patch == m)
+        moves.append(_Move(np.flatnonzero(mat == m), pts, found[k].toward, m, mnames[m]))
+    big = [q for q in np.argsort(-room2.patches.area) if room2.patches.area[q] >= MIN_PATCH_AREA_M2
+           and room2.material_of_patch[q] < len(names)][:MAX_SURFACES]
+    for q in big:
+        q = int(q)
+        moves.append(_Move(np.flatnonzero(room2.patches.surfel_patch == q), np.array([q]),
+                           _toward(room2.patches.normal[q], room2.patches.point[q], tx[fit]),
+                           int(room2.material_of_patch[q]),
+                           lnames[int(room2.patches.label[q])] if room2.patches.label[q] >= 0 else f"patch {q}"))
+    offsets = np.zeros(room2.patches.num)
+    t0 = time.time()
+    for _ in range(2):     # the second evaluation builds the diffuse terms' matrix, which the moved copies share
+        _mae(links2, target_fit, params)
+    for mv in moves:
+        # its starting material first, where it is (a move must not stand in for a material the fit missed), then
+        # its depth, moved only where that beats staying by MIN_MOVE_GAIN_DB on the fitted links
+        stay = (float(_mae(_shifted(links2, offsets), target_fit, params).mean()), 0.0, None)
+        for key in START_KEYS:
+            trial = _extended(params, [])
+            _set_start(trial, mv.material, key, freq_hz)
+            err = float(_mae(_shifted(links2, offsets), target_fit, trial).mean())
+            if err < stay[0] - 1e-9:
+                stay = (err, 0.0, key)
+        best = stay
         for offset in OFFSETS_M:
-            shifted = _shifted(check2[0], moved, offset)
+            if offset == 0.0:
+                continue
+            trial_offsets = offsets.copy()
+            trial_offsets[mv.patches] = offset
+            shifted = _shifted(links2, trial_offsets)
             for key in (None,) + START_KEYS:
                 trial = _extended(params, [])
                 if key is not None:
-                    _set_start(trial, m, key, freq_hz)
-                err = float(_mae(shifted, check2[1], trial).mean())
-                if err < best[0]:
+                    _set_start(trial, mv.material, key, freq_hz)
+                err = float(_mae(shifted, target_fit, trial).mean())
+                if err < best[0] - 1e-9:
                     best = (err, float(offset), key)
-        if best[2] is not None:
-            _set_start(params, m, best[2], freq_hz)
-        offsets.append(best[1])
-    # the insets moved for real and traced again: the model predicts what it was fitted on
+        if best[0] > stay[0] - MIN_MOVE_GAIN_DB:
+            best = stay
+        mv.offset, mv.key = best[1], best[2]
+        offsets[mv.patches] = mv.offset
+        if mv.key is not None:
+            _set_start(params, mv.material, mv.key, freq_hz)
+    changed = [mv for mv in moves if mv.offset != 0.0 or mv.key is not None]
+    progress.log(f"radio insets and surface depths: {len(moves)} surfaces placed on the {len(fit)} fitted links in "
+                 f"{time.time() - t0:.1f} s ("
+                 + ("; ".join(f"{mv.name} {mv.offset * 100:+.0f} cm" + (f", from {mv.key}" if mv.key else "")
+                              for mv in changed) if changed else "none moved") + ")")
+    if not found and not changed:
+        progress.log("radio insets: none, and no surface moved (rf_fit.room.radio_insets)")
+        return None
+    # the surfaces moved for real and traced again: the model predicts what it was fitted on
     new_means = geom.means.clone()
-    for (idx, c), offset in zip(moves, offsets):
-        new_means[idx] += torch.as_tensor(offset * c.toward, dtype=new_means.dtype)
+    for mv in moves:
+        if mv.offset != 0.0:
+            new_means[mv.surfels] += torch.as_tensor(mv.offset * mv.toward, dtype=new_means.dtype)
     geom3 = FrozenGeometry(new_means, geom.log_scales, geom.rotations, geom.normals)
     room3 = make_room(geom3, labels, mat)
     links3 = room3.band_links(tx[fit], rx[fit], freq_hz, band, axes=axes.rows(fit))
     check3 = (room3.band_links(tx[check_rows], rx[check_rows], freq_hz, band, axes=axes.rows(check_rows)), check[1])
-    res3 = fit_materials(links3, len(mnames), target[fit, None], fit_cfg, progress, label="physical room, radio insets",
+    res3 = fit_materials(links3, len(mnames), target_fit, fit_cfg, progress, label="physical room, moved surfaces",
                          initial=params, weights=weights)
     before, after = _mae(check[0], check[1], res.params), _mae(check3[0], check3[1], res3.params)
     gain, se = float(before.mean() - after.mean()), float((before - after).std() / np.sqrt(len(before)))
-    lines = [f"{mnames[len(names) + k]}: {c.area_m2():.1f} m^2, moved {offsets[k] * 100:+.0f} cm into the room"
-             for k, (_, c) in enumerate(moves)]
     verdict = (f"held-out MAE {before.mean():.3f} -> {after.mean():.3f} dB on "
                f"{plural(len(before), 'training link')} the fit did not use (standard error of the change {se:.3f})")
     if gain <= max(MIN_GAIN_DB, 2 * se):
-        progress.log(f"radio insets: not kept ({verdict}; kept when it falls by more than {MIN_GAIN_DB:g} dB and 2 "
-                     "standard errors)")
+        progress.log(f"radio insets and surface depths: not kept ({verdict}; kept when it falls by more than "
+                     f"{MIN_GAIN_DB:g} dB and 2 standard errors)")
         return None
-    progress.log(f"radio insets: kept ({verdict}): " + "; ".join(lines))
+    lines = [f"{mv.name}: moved {mv.offset * 100:+.0f} cm into the room" + (f", started from {mv.key}" if mv.key else "")
+             + (f" (a radio inset, {found[k].area_m2():.1f} m^2)" if k < len(found) else "")
+             for k, mv in enumerate(moves) if k < len(found) or mv.offset != 0.0 or mv.key is not None]
+    progress.log(f"radio insets and surface depths: kept ({verdict})")
     return RadioInsets(geom3, labels, lnames, mat, mnames, room3, links3, check3, res3, lines)

@@ -538,7 +538,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     label_names = [str(s) for s in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
     # every training link's residual on this fit: where they gather the radio insets are sought, and the residual terms
     # are fitted to them unless the fit changes below
-    residuals = None
+    residuals, radio_words = None, ""
     if settings.radio_insets == "auto" and devices is None and labels is not None and check is not None:
         residuals = training_residuals(links, room, res.params, devices, tx, rx, fit, target_db, freq_hz, band, axes=axes)
         found = radio_insets.search(
@@ -553,6 +553,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             geom, room, links, check, res = found.geom, found.room, found.links, found.check, found.res
             material, names, label_names = found.material, found.names, found.label_names
             gaussian_data.update({"gaussians/labels": found.labels, "gaussians/means": geom.means.numpy()})
+            radio_words = "; ".join(found.lines)
             tabulated = [""] * len(names)
             _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
             residuals = None
@@ -593,6 +594,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
                                         PairSettings(opacity=settings.opacity, polarisation=settings.polarisation),
                                         names, float(res.params.gain_db.detach()))
     model_attrs["material_tabulated"] = np.asarray(tabulated, dtype=object)   # "": as fitted
+    model_attrs["radio_insets"] = radio_words     # the surfaces rf-fit moved or gave a material of their own
     flag_lines = {f.index: f.words(flags_on) for f in flags}
     model_attrs["material_check"] = np.asarray([flag_lines.get(i, "") for i in range(len(names))], dtype=object)
     model_attrs.update({"model_kind": MODEL_KIND, "sharing": sharing,

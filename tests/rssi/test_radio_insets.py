@@ -120,7 +120,7 @@ def test_moved_patch_lengths_match_the_image_method():
                    torch.as_tensor(np.concatenate([np.tile([1, 0], (50, 1)), np.tile([1, 1], (50, 1))])),
                    torch.as_tensor(np.concatenate([np.tile([0, -1], (50, 1)), np.tile([0, 1], (50, 1))])),
                    torch.as_tensor(np.concatenate([np.stack([c1, np.zeros(50)], 1), np.stack([c2, c2], 1)])))
-    moved = ri.shift_lengths(paths, np.array([True, False]), d).length_m.numpy()
+    moved = ri.shift_lengths(paths, np.array([d, 0.0])).length_m.numpy()
     exact = np.concatenate([once(d)[0], twice(d)[0]])
     assert np.abs(exact - np.concatenate([l1, l2])).max() > 0.02          # the move matters at 12.5 cm
     np.testing.assert_allclose(moved, exact, atol=2 * d ** 2)

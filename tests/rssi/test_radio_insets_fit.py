@@ -27,7 +27,7 @@ FREQ = 2.4e9
 # first-order paths only, no diffuse share: as the measurements were made
 SETS = ["--set", "rf_fit.room.max_order=1", "--set", "rf_fit.room.diffuse=false", "--set", "rf_fit.room.residual_terms=off",
         "--set", "rf_fit.room.reflection_ranges=false", "--set", "rf_fit.room.map_visibility=false",
-        "--set", "rf_fit.physical.iterations=150", "--set", "rf_fit.physical.start_iterations=20"]
+        "--set", "rf_fit.physical.start_iterations=20"]
 
 
 def _scene_fields():
@@ -52,8 +52,9 @@ def _power_db(fields, tx, rx, panel: bool):
     labels = np.asarray(fields["gaussians/labels"], np.int64)
     material = np.where((labels == 6) & panel, 1, 0)
     room = RoomGeometry(geom, torch.as_tensor(labels), material, RoomSettings(max_order=1, diffuse=False))
-    mats = MaterialValues(torch.tensor([5.3, 1.0]), torch.tensor([0.05, 1e7]), 1.0, torch.zeros(2),
-                          torch.tensor([0.2, 0.002]))
+    n = int(material.max()) + 1
+    mats = MaterialValues(torch.tensor([5.3, 1.0][:n]), torch.tensor([0.05, 1e7][:n]), 1.0, torch.zeros(n),
+                          torch.tensor([0.2, 0.002][:n]))
     with torch.no_grad():
         p = room.links(tx, rx, np.full(len(tx), FREQ)).power(mats)[:, 0].numpy()
     return 10 * np.log10(p)
@@ -85,8 +86,13 @@ def test_a_hidden_panel_is_found_and_kept_and_nothing_without_it(tmp_path, panel
     names = [str(s) for s in rf.attrs["label_names"]]
     if not panel:
         assert "radio_a_00" not in names, r.output
+        scene = read_artifact(tmp_path / "scene.h5")
+        # exact planes: no surface moved
+        assert np.abs(np.asarray(rf["gaussians/means"]) - np.asarray(scene["gaussians/means"])).max() < 1e-9, r.output
         return
-    assert "radio insets: kept" in r.output, r.output
+    assert "radio insets and surface depths: kept" in r.output, r.output
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "rf.h5")])
+    assert info.exit_code == 0 and "radio_a: moved" in info.output, info.output
     lab = np.asarray(rf["gaussians/labels"])
     x = np.asarray(rf["gaussians/means"])[lab == names.index("radio_a_00")]
     assert np.all(x[:, 0] < 0.1)                                         # on the x = 0 wall

@@ -84,6 +84,10 @@ def _show_materials(path: str) -> None:
         source = str(model.get("antenna_source", ""))
         console.print(f"antennas: tx {model['antenna_tx']}, rx {model.get('antenna_rx', 'isotropic')}"
                       + (f" ({source})" if source else ""), highlight=False, markup=False)
+    moved = str(model.get("radio_insets", ""))
+    if moved:   # what rf-fit's radio insets and surface depths changed (docs/physics.md 8.10)
+        console.print(f"radio insets and surface depths (rf-fit's, kept by validation): {moved}", highlight=False,
+                      markup=False)
     terms = str(art.free.get("model@attrs", {}).get("residual_terms", "off"))
     if terms != "off":   # the room model's residual terms in dB (docs/physics.md 8.15)
         console.print(f"residual terms on the physics (rf-fit's choice): {terms}", highlight=False, markup=False)
