@@ -33,7 +33,7 @@ START_KEYS = ("metal", "glass", "wood", "plasterboard", "concrete")
 MAX_SEARCH_LINKS = 10_000  # training links whose reflections are binned (evenly spaced; a cell needs many)
 MIN_GAIN_DB = 0.05       # the result is kept when the held-out MAE falls by more than this and 2 standard errors
 MIN_MOVE_GAIN_DB = 0.02  # a surface is moved when that lowers the fitted links' MAE by more than this
-MAX_SURFACES = 12        # the largest surfaces placed (each costs len(OFFSETS_M) x (1 + len(START_KEYS)) evaluations)
+MAX_SURFACES = 12        # the largest surfaces placed (each costs len(OFFSETS_M) + len(START_KEYS) evaluations)
 
 
 @dataclass
@@ -165,9 +165,10 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
     t0 = time.time()
     for _ in range(2):     # the second evaluation builds the diffuse terms' matrix, which the moved copies share
         _mae(links2, target_fit, params)
-    for mv in moves:
+    for k, mv in enumerate(moves):
         # its starting material first, where it is (a move must not stand in for a material the fit missed), then
-        # its depth, moved only where that beats staying by MIN_MOVE_GAIN_DB on the fitted links
+        # its depth with that material (an inset's with every starting material: a board's depth shows only once it
+        # is metal), moved only where that beats staying by MIN_MOVE_GAIN_DB on the fitted links
         stay = (float(_mae(_shifted(links2, offsets), target_fit, params).mean()), 0.0, None)
         for key in START_KEYS:
             trial = _extended(params, [])
@@ -182,7 +183,7 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
             trial_offsets = offsets.copy()
             trial_offsets[mv.patches] = offset
             shifted = _shifted(links2, trial_offsets)
-            for key in (None,) + START_KEYS:
+            for key in ((None,) + START_KEYS if k < len(found) else (stay[2],)):
                 trial = _extended(params, [])
                 if key is not None:
                     _set_start(trial, mv.material, key, freq_hz)
@@ -222,6 +223,11 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
         progress.log(f"radio insets and surface depths: not kept ({verdict}; kept when it falls by more than "
                      f"{MIN_GAIN_DB:g} dB and 2 standard errors)")
         return None
+    # one fit as rf-fit reports and stores it: from the first fit's start, its loss curve through both, in the time of both
+    res3.loss_curve = np.concatenate([res.loss_curve, res3.loss_curve])
+    res3.initial_mae_db, res3.wall_time_s = res.initial_mae_db, res.wall_time_s + res3.wall_time_s
+    res3.steps += res.steps
+    res3.start = res.start
     lines = [f"{mv.name}: moved {mv.offset * 100:+.0f} cm into the room" + (f", started from {mv.key}" if mv.key else "")
              + (f" (a radio inset, {found[k].area_m2():.1f} m^2)" if k < len(found) else "")
              for k, mv in enumerate(moves) if k < len(found) or mv.offset != 0.0 or mv.key is not None]

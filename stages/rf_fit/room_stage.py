@@ -555,7 +555,8 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             gaussian_data.update({"gaussians/labels": found.labels, "gaussians/means": geom.means.numpy()})
             radio_words = "; ".join(found.lines)
             tabulated = [""] * len(names)
-            _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
+            if settings.tabulated_materials:
+                _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
             residuals = None
     if devices is not None:
         for side, g in devices.gains.items():

@@ -99,7 +99,8 @@ def check_positions_in_extent(geom, meas, where: str, share: float = 0.5) -> Non
         if 0.3 * factor * size < reach < 3 * factor * size:
             hint = f": positions in {unit}? (rfir import csv --position-unit {unit})"
     raise InputFileError(f"{int(outside.sum())} of {len(pts)} antenna positions lie outside the geometry's extent "
-                         f"{np.round(lo, 2).tolist()}..{np.round(hi, 2).tolist()} m (they reach {reach:.3g}){hint or ': measurements of another scene, or in another unit?'}",
+                         f"{np.round(lo, 2).tolist()}..{np.round(hi, 2).tolist()} m (they reach {reach:.3g})"
+                         f"{hint or ': measurements of another scene, or in another unit?'}",
                          path=where)
 
 

@@ -31,8 +31,8 @@ def _given(ctx: typer.Context, name: str) -> bool:
 def _report(result) -> None:
     for note in result.notes:
         console.print(note, highlight=False, markup=False, emoji=False, soft_wrap=True)
-    console.print(f"[green]wrote[/green] {escape(str(result.path))}: {plural(result.links, 'link')} x {plural(result.freqs, 'frequency')}, "
-                  f"task {result.task}", highlight=False, emoji=False)
+    console.print(f"[green]wrote[/green] {escape(str(result.path))}: {plural(result.links, 'link')} x "
+                  f"{plural(result.freqs, 'frequency')}, task {result.task}", highlight=False, emoji=False)
 
 
 @import_app.command("csv")
