@@ -540,7 +540,10 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     # are fitted to them unless the fit changes below
     residuals, radio_words = None, ""
     if settings.radio_insets == "auto" and devices is None and labels is not None and check is not None:
+        t_res = time.time()
         residuals = training_residuals(links, room, res.params, devices, tx, rx, fit, target_db, freq_hz, band, axes=axes)
+        progress.log(f"residuals of all {plural(len(tx), 'training link')} (the radio insets' search and the residual "
+                     f"terms): {time.time() - t_res:.1f} s")
         found = radio_insets.search(
             scene_labels=np.asarray(labels), label_names=label_names, geom=geom, room=room, material=material,
             names=names, links=links, res=res, check=check, tx=tx, rx=rx, fit=fit, check_rows=check_rows(len(tx), fit),
