@@ -32,6 +32,7 @@ MIN_CELL_LINKS = 20       # a cell's mean |residual| is judged on at least this 
 Z_MARK = 4.0              # standard errors over the surface's median cell for a cell to be marked
 RATIO_MARK = 1.15         # and at least this factor over it
 Z_GROW, RATIO_GROW = 2.0, 1.05   # a strip along a candidate's side joins it at this excess (pooled over the strip)
+EDGE_STEP_M = 0.1       # an edge's position is searched in steps of this, within a cell of the cells' edge
 MIN_AREA_M2 = 1.0         # a candidate's marked cells cover at least this area
 MAX_CANDIDATES = 2        # the candidates with the largest excess kept (each costs a fit)
 PLANE_TOL_M = 0.05        # an inset holds the surfels this close to its surface's plane (photo planes scatter ~2 cm)
@@ -95,13 +96,14 @@ def find_candidates(tx_m: np.ndarray, rx_m: np.ndarray, residual_db: np.ndarray,
         mean = np.bincount(flat, weights=w[ok] * absr[ok], minlength=shape.prod()) / np.maximum(wsum, 1e-300)
         w2 = np.bincount(flat, weights=w[ok] ** 2, minlength=shape.prod())
         n_eff = wsum ** 2 / np.maximum(w2, 1e-300)                       # Kish's effective count of weighted links
-        grids.append((int(p), lo, shape, count >= MIN_CELL_LINKS, mean, n_eff, toward, wsum, w2))
+        grids.append((int(p), lo, shape, count >= MIN_CELL_LINKS, mean, n_eff, toward, wsum, w2,
+                      np.stack([(hit - o) @ u, (hit - o) @ v, w, absr], 1)[ok]))
     judged = np.concatenate([g[4][g[3]] for g in grids]) if grids else np.zeros(0)
     if len(judged) < 3:
         return []
     base = float(np.median(judged))
     out = []
-    for p, lo, shape, ok, mean, n_eff, toward, wsum, w2 in grids:
+    for p, lo, shape, ok, mean, n_eff, toward, wsum, w2, points in grids:
         marked = ok & (mean - base > Z_MARK * spread / np.sqrt(np.maximum(n_eff, 1.0))) & (mean > RATIO_MARK * base)
         joined = ndimage.binary_closing(marked.reshape(shape), structure=np.ones((3, 3)), border_value=0) | \
             marked.reshape(shape)
@@ -112,8 +114,8 @@ def find_candidates(tx_m: np.ndarray, rx_m: np.ndarray, residual_db: np.ndarray,
                 continue
             ci, cj = cells // shape[1], cells % shape[1]
             box = _grown([ci.min(), ci.max() + 1, cj.min(), cj.max() + 1], shape, mean, wsum, w2, base, spread)
-            rect = np.array([lo[0] + box[0] * cell_m, lo[0] + box[1] * cell_m,
-                             lo[1] + box[2] * cell_m, lo[1] + box[3] * cell_m])
+            rect = _edges(np.array([lo[0] + box[0] * cell_m, lo[0] + box[1] * cell_m,
+                                    lo[1] + box[2] * cell_m, lo[1] + box[3] * cell_m]), points, base, cell_m)
             mine = cells[ok[cells]]
             excess = float(((mean[mine] - base) * n_eff[mine]).sum())
             out.append(InsetCandidate(p, rect, excess, int(marked[cells].sum()), toward))
@@ -144,6 +146,35 @@ def _grown(box: list, shape, mean: np.ndarray, wsum: np.ndarray, w2: np.ndarray,
                 grown = True
         if not grown:
             return box
+
+
+def _edges(rect: np.ndarray, points: np.ndarray, base: float, cell_m: float) -> np.ndarray:
+    """The rectangle [u0, u1, v0, v1] m with each edge placed, within a cell of where the cells put it, at the step
+    that best splits the reflection points (points [n, 4]: u, v, weight, |residual|) across it: a step from the
+    baseline outside to the rectangle's own weighted mean |residual| inside, least squares over EDGE_STEP_M strips
+    (the cells put an edge only to their own size)."""
+    rect = rect.astype(float).copy()
+    u, v, w, a = points.T
+    for side in range(4):
+        along, across = (u, v) if side < 2 else (v, u)
+        lo_x, hi_x = (rect[2], rect[3]) if side < 2 else (rect[0], rect[1])
+        band = (across >= lo_x) & (across <= hi_x)
+        inner = band & (along >= rect[side & ~1]) & (along <= rect[side | 1])
+        if w[inner].sum() <= 0:
+            continue
+        level = float((w[inner] * a[inner]).sum() / w[inner].sum())
+        edges = rect[side] + np.arange(-cell_m, cell_m + 1e-9, EDGE_STEP_M)
+        inward = 1.0 if side % 2 == 0 else -1.0          # u0 / v0 edges: the inset lies at larger values
+        near = band & (np.abs(along - rect[side]) <= 2 * cell_m)
+        cost = []
+        for e in edges:
+            inside = near & ((along - e) * inward >= 0)
+            target = np.where(inside, level, base)
+            cost.append(float((w[near] * (a[near] - target[near]) ** 2).sum()))
+        cost = np.asarray(cost)
+        ties = np.flatnonzero(cost <= cost.min() * (1 + 1e-12))     # no point between two edges: the same cost
+        rect[side] = edges[ties[np.argmin(np.abs(edges[ties] - rect[side]))]]
+    return rect
 
 
 def inset_surfels(candidate: InsetCandidate, patches, surfel_means: np.ndarray, surfel_normals: np.ndarray,

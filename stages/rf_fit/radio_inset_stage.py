@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from rfir_core.text import plural
+from rfir_core.threads import single_thread_torch
 from rfir_stages.model.fit_physical import fit_materials, training_predictor
 from rfir_stages.model.occlusion import FrozenGeometry
 from rfir_stages.model.physical import MaterialParams
@@ -56,7 +57,7 @@ class RadioInsets:
 
 def _mae(links, target_db: np.ndarray, params) -> np.ndarray:
     """|measured - predicted| [M] dB of links with the materials params (no device gains)."""
-    with torch.no_grad():
+    with torch.no_grad(), single_thread_torch():   # many small evaluations: thread hand-offs cost more than the work
         return (training_predictor(links, torch.as_tensor(target_db))(params)
                 - torch.as_tensor(target_db)).abs()[:, 0].numpy()
 

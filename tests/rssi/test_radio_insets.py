@@ -74,8 +74,9 @@ def test_candidate_found_where_a_board_raises_the_residuals_and_nowhere_without_
     corners = patches.point[0] + np.array([[c.rect[0], c.rect[2]], [c.rect[1], c.rect[3]]]) @ \
         np.stack([patches.u[0], patches.v[0]])
     y, z = np.sort(corners[:, 1]), np.sort(corners[:, 2])
-    assert abs(y[0] - 2.0) <= 0.6 and abs(y[1] - 5.0) <= 0.6, y
-    assert abs(z[0] - 0.9) <= 0.6 and abs(z[1] - 2.1) <= 0.6, z      # within a cell (0.5 m) of the board's edges
+    # each edge placed at the step across it, within 0.25 m (the cells alone put it within 0.5 m)
+    assert abs(y[0] - 2.0) <= 0.25 and abs(y[1] - 5.0) <= 0.25, y
+    assert abs(z[0] - 0.9) <= 0.25 and abs(z[1] - 2.1) <= 0.25, z
     picked = ri.inset_surfels(c, patches, means, np.tile(patches.normal[0], (len(means), 1)))
     assert len(picked) > 0 and np.all(patches.surfel_patch[picked] == 0)
     rng = np.random.default_rng(4)
