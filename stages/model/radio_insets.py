@@ -54,6 +54,11 @@ class InsetCandidate:
         return float((self.rect[1] - self.rect[0]) * (self.rect[3] - self.rect[2]))
 
 
+def toward_side(normal: np.ndarray, point: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """normal [3] of the plane through point [3] turned toward the side most of pts [M, 3] lie on (into the room)."""
+    return normal if np.median((pts - point) @ normal) >= 0 else -normal
+
+
 def reflection_points(tx_m: np.ndarray, rx_m: np.ndarray, normal: np.ndarray, point: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First-order specular reflection of links tx_m, rx_m [M, 3] m off the plane (normal [3], point [3]):
@@ -86,9 +91,10 @@ def find_candidates(tx_m: np.ndarray, rx_m: np.ndarray, residual_db: np.ndarray,
         lo, hi = np.array([su.min(), sv.min()]), np.array([su.max(), sv.max()])
         shape = np.maximum(np.ceil((hi - lo) / cell_m).astype(int), 1)
         hit, valid, w = reflection_points(tx_m, rx_m, n, o)
-        toward = n * (1.0 if np.median(((tx_m - o) @ n)[valid]) >= 0 else -1.0) if valid.any() else n
-        i = np.floor(((hit - o) @ u - lo[0]) / cell_m).astype(int)
-        j = np.floor(((hit - o) @ v - lo[1]) / cell_m).astype(int)
+        toward = toward_side(n, o, tx_m[valid]) if valid.any() else n
+        hu, hv = (hit - o) @ u, (hit - o) @ v
+        i = np.floor((hu - lo[0]) / cell_m).astype(int)
+        j = np.floor((hv - lo[1]) / cell_m).astype(int)
         ok = valid & (i >= 0) & (i < shape[0]) & (j >= 0) & (j < shape[1])
         flat = i[ok] * shape[1] + j[ok]
         count = np.bincount(flat, minlength=shape.prod())
@@ -97,7 +103,7 @@ def find_candidates(tx_m: np.ndarray, rx_m: np.ndarray, residual_db: np.ndarray,
         w2 = np.bincount(flat, weights=w[ok] ** 2, minlength=shape.prod())
         n_eff = wsum ** 2 / np.maximum(w2, 1e-300)                       # Kish's effective count of weighted links
         grids.append((int(p), lo, shape, count >= MIN_CELL_LINKS, mean, n_eff, toward, wsum, w2,
-                      np.stack([(hit - o) @ u, (hit - o) @ v, w, absr], 1)[ok]))
+                      np.stack([hu, hv, w, absr], 1)[ok]))
     judged = np.concatenate([g[4][g[3]] for g in grids]) if grids else np.zeros(0)
     if len(judged) < 3:
         return []

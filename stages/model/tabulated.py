@@ -67,6 +67,13 @@ def named_material(name: str) -> str | None:
     return None
 
 
+def set_tabulated(params, index: int, key: str, freq_hz: float, thickness_m: float) -> None:
+    """Set material `index` of params (physical.MaterialParams) to tabulated material `key` at freq_hz [Hz],
+    thickness_m [m] thick (tabulated_values)."""
+    eps, sig = tabulated_values(key, freq_hz, params.sigma_exponent)
+    params.set_values(index, eps_r=eps, sigma_1ghz=sig, thickness_m=thickness_m)
+
+
 def tabulated_values(key: str, freq_hz: float, sigma_exponent: float) -> tuple[float, float]:
     """(eps_r, sigma at 1 GHz [S/m]) of tabulated material `key` in MaterialParams' law sigma_1GHz (f / 1 GHz)^
     sigma_exponent, equal to the table's law at freq_hz [Hz]."""
@@ -109,8 +116,7 @@ def take_tabulated(predict_db: Callable[[MaterialParams], torch.Tensor], params:
         return float(d.mean()) / max(block_standard_error(d), 1e-300)
 
     def put(i: int, key: str, th: float) -> None:
-        eps, sig = tabulated_values(key, freq_hz, params.sigma_exponent)
-        params.set_values(i, eps_r=eps, sigma_1ghz=sig, thickness_m=th)
+        set_tabulated(params, i, key, freq_hz, th)
 
     # many evaluations of small tensor ops: on a shared CPU thread hand-offs cost more than they save (as the fit)
     with torch.no_grad(), single_thread_torch():

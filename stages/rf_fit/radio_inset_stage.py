@@ -22,8 +22,9 @@ from rfir_core.threads import single_thread_torch
 from rfir_stages.model.fit_physical import fit_materials, training_predictor
 from rfir_stages.model.occlusion import FrozenGeometry
 from rfir_stages.model.physical import MaterialParams
-from rfir_stages.model.radio_insets import MIN_PATCH_AREA_M2, find_candidates, inset_surfels, shift_lengths
-from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, tabulated_values
+from rfir_stages.model.radio_insets import (MIN_PATCH_AREA_M2, find_candidates, inset_surfels, shift_lengths,
+                                           toward_side)
+from rfir_stages.model.tabulated import DEFAULT_THICKNESS_M, TYPICAL_THICKNESS_M, set_tabulated
 
 CHOICES = ("auto", "off")
 # depths tried for a surface [m] along its normal into the room: a board or a panel on a wall stands a few
@@ -74,11 +75,6 @@ def _shifted(links, offset_of_patch: np.ndarray):
     return out
 
 
-def _toward(normal: np.ndarray, point: np.ndarray, tx: np.ndarray) -> np.ndarray:
-    """normal [3] turned toward the side most of the points tx [M, 3] lie on (into the room)."""
-    return normal if np.median((tx - point) @ normal) >= 0 else -normal
-
-
 def _extended(params: MaterialParams, source: list[int]) -> MaterialParams:
     """params with one more material per entry of source, each a copy of material source[k]'s values."""
     n = params.num + len(source)
@@ -93,9 +89,8 @@ def _extended(params: MaterialParams, source: list[int]) -> MaterialParams:
 
 
 def _set_start(params: MaterialParams, index: int, key: str, freq_hz: float) -> None:
-    eps_r, sigma = tabulated_values(key, freq_hz, params.sigma_exponent)
-    params.set_values(index, eps_r=eps_r, sigma_1ghz=max(sigma, 1e-4),
-                      thickness_m=TYPICAL_THICKNESS_M.get(key, DEFAULT_THICKNESS_M))
+    """Material `index` of params set to tabulated material `key` at its typical thickness."""
+    set_tabulated(params, index, key, freq_hz, TYPICAL_THICKNESS_M.get(key, DEFAULT_THICKNESS_M))
 
 
 @dataclass
@@ -159,7 +154,7 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
     for q in big:
         q = int(q)
         moves.append(_Move(np.flatnonzero(room2.patches.surfel_patch == q), np.array([q]),
-                           _toward(room2.patches.normal[q], room2.patches.point[q], tx[fit]),
+                           toward_side(room2.patches.normal[q], room2.patches.point[q], tx[fit]),
                            int(room2.material_of_patch[q]),
                            lnames[int(room2.patches.label[q])] if room2.patches.label[q] >= 0 else f"patch {q}"))
     offsets = np.zeros(room2.patches.num)

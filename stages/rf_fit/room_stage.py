@@ -431,9 +431,13 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     material, names, sharing = room_materials(sharing, scene, geom)
     labels = scene.get("gaussians/labels")
     t0 = time.time()
-    room = RoomGeometry(geom, None if labels is None else torch.as_tensor(np.asarray(labels, dtype=np.int64)),
-                        material, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")),
-                        antennas=antennas)
+
+    def make_room(g, lab, mat) -> RoomGeometry:
+        """The room of Gaussians g, labels lab [G] (None: none) and materials mat [G] under these settings."""
+        return RoomGeometry(g, None if lab is None else torch.as_tensor(np.asarray(lab, dtype=np.int64)), mat, settings,
+                            render_cfg.alpha_min, str(config.get("occlusion", "auto")), antennas=antennas)
+
+    room = make_room(geom, labels, material)
     progress.log(f"rf-fit (rssi, physical room model): {geom.num} Gaussians in {room.patches.num} planar patches "
                  f"({patch_grouping(settings, room.patches.merge_tol_m)}), "
                  f"{plural(len(rows), 'training link')}, materials per {sharing} ({len(names)}; scattering S "
@@ -549,9 +553,7 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
             names=names, links=links, res=res, check=check, tx=tx, rx=rx, fit=fit, check_rows=check_rows(len(tx), fit),
             target_db=target_db, freq_hz=freq_hz, band=band, axes=axes, fit_cfg=fit_cfg, progress=progress,
             residual_db=residuals,
-            weights=weights, make_room=lambda g, lab, mat: RoomGeometry(
-                g, torch.as_tensor(lab), mat, settings, render_cfg.alpha_min, str(config.get("occlusion", "auto")),
-                antennas=antennas))
+            weights=weights, make_room=make_room)
         if found is not None:
             geom, room, links, check, res = found.geom, found.room, found.links, found.check, found.res
             material, names, label_names = found.material, found.names, found.label_names
