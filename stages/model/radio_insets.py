@@ -29,7 +29,8 @@ from scipy import ndimage
 CELL_M = 0.5              # residual cells on a surface [m]: a few per whiteboard, many links per cell
 MIN_PATCH_AREA_M2 = 4.0   # surfaces searched: those large enough to hold a candidate and its surround
 MIN_CELL_LINKS = 20       # a cell's mean |residual| is judged on at least this many reflections
-Z_MARK = 4.0              # standard errors over the surface's median cell for a cell to be marked
+Z_MARK = 3.0              # standard errors over the median cell for a cell to be marked (a chance cell once
+                          # in ~700; a candidate that no starting material or depth helps is dropped by the search)
 RATIO_MARK = 1.15         # and at least this factor over it
 Z_GROW, RATIO_GROW = 2.0, 1.05   # a strip along a candidate's side joins it at this excess (pooled over the strip)
 EDGE_STEP_M = 0.1       # an edge's position is searched in steps of this, within a cell of the cells' edge

@@ -93,10 +93,32 @@ def _set_start(params: MaterialParams, index: int, key: str, freq_hz: float) -> 
     set_tabulated(params, index, key, freq_hz, TYPICAL_THICKNESS_M.get(key, DEFAULT_THICKNESS_M))
 
 
+def _labelled(found: list, scene_labels, label_names, material: np.ndarray, names: list, room, means: np.ndarray,
+              normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, list, list]:
+    """(labels [G], material [G], label names, material names, source) with each candidate of found a label
+    (`radio_a_00`, ...) and a material (`radio_a`, ...) of its own after the scene's and rf-fit's: its surfels
+    (radio_insets.inset_surfels) in room (its patches' indices); source[k]: the material of candidate k's surface,
+    whose values it starts from."""
+    labels = np.asarray(scene_labels, np.int64).copy()
+    mat = np.asarray(material, np.int64).copy()
+    lnames, mnames = [str(s) for s in label_names], list(names)
+    source = []
+    for k, c in enumerate(found):
+        idx = inset_surfels(c, room.patches, means, normals)
+        letter = string.ascii_lowercase[k]
+        labels[idx] = len(lnames)
+        lnames.append(f"radio_{letter}_00")
+        source.append(int(room.material_of_patch[c.patch]))
+        mat[idx] = len(mnames)
+        mnames.append(f"radio_{letter}")
+    return labels, mat, lnames, mnames, source
+
+
 @dataclass
 class _Move:
     """A surface searched: its surfels [n], its patches in the searched room [k], the unit normal into the room, its
-    material, the offset [m] and starting material key (None: its fitted values) chosen, and its name for the log."""
+    material, the offset [m] and starting material key (None: its fitted values) chosen, its name for the log, and
+    the fitted links' MAE before and after its search."""
     surfels: np.ndarray
     patches: np.ndarray
     toward: np.ndarray
@@ -104,6 +126,60 @@ class _Move:
     name: str
     offset: float = 0.0
     key: str | None = None
+    as_surface: float = 0.0    # the fitted links' MAE [dB] with it as the surface around it (before its search)
+    err: float = 0.0           # and with its chosen offset and start
+
+
+def _searched_room(found, labels, mat, mnames, source, num_fitted, room, links, res, geom, tx, rx, fit, target_fit,
+                   freq_hz, band, axes, make_room):
+    """(room, its fitted links, the materials' parameters, a _Move per inset, the patches' offsets [P] m, all 0) with
+    the insets of found (labelled by _labelled: labels, mat, mnames, source), each started from its surface's values;
+    num_fitted: the first fit's material count; target_fit [K, 1] dB the fitted links' measurements."""
+    room2 = make_room(geom, labels, mat) if found else room
+    links2 = room2.band_links(tx[fit], rx[fit], freq_hz, band, axes=axes.rows(fit)) if found else links
+    params = _extended(res.params, source)
+    moves = [_Move(np.flatnonzero(mat == m), np.flatnonzero(room2.material_of_patch == m), found[k].toward, m, mnames[m])
+             for k, m in enumerate(range(num_fitted, num_fitted + len(found)))]
+    for _ in range(2):     # the second evaluation builds the diffuse terms' matrix, which the moved copies share
+        _mae(links2, target_fit, params)
+    return room2, links2, params, moves, np.zeros(room2.patches.num)
+
+
+def _place(mv: _Move, inset: bool, links, offsets: np.ndarray, params: MaterialParams, target_fit: np.ndarray,
+           freq_hz: float) -> None:
+    """Surface mv given the starting material, then the depth, that best predict the fitted links (links, target_fit
+    [K, 1] dB), with the other surfaces at offsets [P] m and materials params (both updated with its choice): its
+    starting material first, where it is (a move must not stand in for a material the fit missed), then its depth
+    with that material (an inset's with every starting material: a board's depth shows only once it is metal), moved
+    only where that beats staying by MIN_MOVE_GAIN_DB."""
+    stay = (float(_mae(_shifted(links, offsets), target_fit, params).mean()), 0.0, None)
+    mv.as_surface = stay[0]
+    for key in START_KEYS:
+        trial = _extended(params, [])
+        _set_start(trial, mv.material, key, freq_hz)
+        err = float(_mae(_shifted(links, offsets), target_fit, trial).mean())
+        if err < stay[0] - 1e-9:
+            stay = (err, 0.0, key)
+    best = stay
+    for offset in OFFSETS_M:
+        if offset == 0.0:
+            continue
+        trial_offsets = offsets.copy()
+        trial_offsets[mv.patches] = offset
+        shifted = _shifted(links, trial_offsets)
+        for key in ((None,) + START_KEYS if inset else (stay[2],)):
+            trial = _extended(params, [])
+            if key is not None:
+                _set_start(trial, mv.material, key, freq_hz)
+            err = float(_mae(shifted, target_fit, trial).mean())
+            if err < best[0] - 1e-9:
+                best = (err, float(offset), key)
+    if best[0] > stay[0] - MIN_MOVE_GAIN_DB:
+        best = stay
+    mv.offset, mv.key, mv.err = best[1], best[2], best[0]
+    offsets[mv.patches] = mv.offset
+    if mv.key is not None:
+        _set_start(params, mv.material, mv.key, freq_hz)
 
 
 def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: np.ndarray, names: list, links, res,
@@ -123,32 +199,40 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
     rows = np.unique(np.linspace(0, len(tx) - 1, min(len(tx), MAX_SEARCH_LINKS)).round().astype(np.int64))
     means, normals = geom.means.numpy(), geom.normals.numpy()
     found = find_candidates(tx[rows], rx[rows], np.asarray(residual_db)[rows], room.patches, means)
-    labels = np.asarray(scene_labels, np.int64).copy()
-    mat = np.asarray(material, np.int64).copy()
-    lnames, mnames = [str(s) for s in label_names], list(names)
-    source = []
-    for k, c in enumerate(found):
-        idx = inset_surfels(c, room.patches, means, normals)
-        letter = string.ascii_lowercase[k]
-        labels[idx] = len(lnames)
-        lnames.append(f"radio_{letter}_00")
-        source.append(int(room.material_of_patch[c.patch]))
-        mat[idx] = len(mnames)
-        mnames.append(f"radio_{letter}")
+    labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names, room, means,
+                                                    normals)
     if found:
         progress.log(f"radio insets: {plural(len(found), 'candidate')} where the residuals gather ("
                      + "; ".join(f"{mnames[len(names) + k]}: {c.area_m2():.1f} m^2 of the {names[source[k]]} surface, "
                                  f"{c.cells} cells" for k, c in enumerate(found)) + ")")
-    room2 = make_room(geom, labels, mat) if found else room
-    links2 = room2.band_links(tx[fit], rx[fit], freq_hz, band, axes=axes.rows(fit)) if found else links
     target_fit = target[fit, None]
-    params = _extended(res.params, source)
-    # the surfaces searched: the insets, then the MAX_SURFACES largest other patches of MIN_PATCH_AREA_M2 or more
-    moves = []
-    for k in range(len(found)):
-        m = len(names) + k
-        pts = np.flatnonzero(room2.material_of_patch == m)
-        moves.append(_Move(np.flatnonzero(mat == m), pts, found[k].toward, m, mnames[m]))
+    t0 = time.time()
+    room2, links2, params, moves, offsets = _searched_room(found, labels, mat, mnames, source, len(names), room, links,
+                                                           res, geom, tx, rx, fit, target_fit, freq_hz, band, axes,
+                                                           make_room)
+    for mv in moves:
+        _place(mv, True, links2, offsets, params, target_fit, freq_hz)
+    # an inset that no starting material or depth makes predict the fitted links better than its surface's fitted
+    # material there (a group of cells high by chance) is dropped: its surfels return to their surface
+    dropped = [mv.name for mv in moves if not mv.err < mv.as_surface - MIN_MOVE_GAIN_DB]
+    if dropped:
+        progress.log(f"radio insets: {', '.join(dropped)} dropped: no starting material or depth beats its surface's "
+                     f"fitted material there by {MIN_MOVE_GAIN_DB:g} dB on the fitted links"
+                     + (" (the others lettered anew)" if len(dropped) < len(moves) else ""))
+        kept = [k for k, mv in enumerate(moves) if mv.name not in dropped]
+        found = [found[k] for k in kept]
+        labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names, room, means,
+                                                        normals)
+        placed = [moves[k] for k in kept]
+        room2, links2, params, moves, offsets = _searched_room(found, labels, mat, mnames, source, len(names), room,
+                                                               links, res, geom, tx, rx, fit, target_fit, freq_hz, band,
+                                                               axes, make_room)
+        for mv, was in zip(moves, placed):
+            mv.offset, mv.key, mv.as_surface, mv.err = was.offset, was.key, was.as_surface, was.err
+            offsets[mv.patches] = mv.offset
+            if mv.key is not None:
+                _set_start(params, mv.material, mv.key, freq_hz)
+    # then the MAX_SURFACES largest other patches of MIN_PATCH_AREA_M2 or more
     big = [q for q in np.argsort(-room2.patches.area) if room2.patches.area[q] >= MIN_PATCH_AREA_M2
            and room2.material_of_patch[q] < len(names)][:MAX_SURFACES]
     for q in big:
@@ -157,41 +241,7 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
                            toward_side(room2.patches.normal[q], room2.patches.point[q], tx[fit]),
                            int(room2.material_of_patch[q]),
                            lnames[int(room2.patches.label[q])] if room2.patches.label[q] >= 0 else f"patch {q}"))
-    offsets = np.zeros(room2.patches.num)
-    t0 = time.time()
-    for _ in range(2):     # the second evaluation builds the diffuse terms' matrix, which the moved copies share
-        _mae(links2, target_fit, params)
-    for k, mv in enumerate(moves):
-        # its starting material first, where it is (a move must not stand in for a material the fit missed), then
-        # its depth with that material (an inset's with every starting material: a board's depth shows only once it
-        # is metal), moved only where that beats staying by MIN_MOVE_GAIN_DB on the fitted links
-        stay = (float(_mae(_shifted(links2, offsets), target_fit, params).mean()), 0.0, None)
-        for key in START_KEYS:
-            trial = _extended(params, [])
-            _set_start(trial, mv.material, key, freq_hz)
-            err = float(_mae(_shifted(links2, offsets), target_fit, trial).mean())
-            if err < stay[0] - 1e-9:
-                stay = (err, 0.0, key)
-        best = stay
-        for offset in OFFSETS_M:
-            if offset == 0.0:
-                continue
-            trial_offsets = offsets.copy()
-            trial_offsets[mv.patches] = offset
-            shifted = _shifted(links2, trial_offsets)
-            for key in ((None,) + START_KEYS if k < len(found) else (stay[2],)):
-                trial = _extended(params, [])
-                if key is not None:
-                    _set_start(trial, mv.material, key, freq_hz)
-                err = float(_mae(shifted, target_fit, trial).mean())
-                if err < best[0] - 1e-9:
-                    best = (err, float(offset), key)
-        if best[0] > stay[0] - MIN_MOVE_GAIN_DB:
-            best = stay
-        mv.offset, mv.key = best[1], best[2]
-        offsets[mv.patches] = mv.offset
-        if mv.key is not None:
-            _set_start(params, mv.material, mv.key, freq_hz)
+        _place(moves[-1], False, links2, offsets, params, target_fit, freq_hz)
     changed = [mv for mv in moves if mv.offset != 0.0 or mv.key is not None]
     progress.log(f"radio insets and surface depths: {len(moves)} surfaces placed on the {len(fit)} fitted links in "
                  f"{time.time() - t0:.1f} s ("

@@ -3,7 +3,9 @@ apart (the panel's surfels labelled as one more wall, so it shares the walls' ma
 from the room model itself with the panel metal and the rest concrete (first-order paths, no diffuse share): the
 test is of the search, not of the physics (tests/rssi/test_room_physical.py and tests/model hold those). rf-fit
 must find the panel as a radio inset over it and keep it on the held-out training links' verdict, which predicts
-the test links better than the same fit without insets; without the panel it keeps none."""
+the test links better than the same fit without insets; without the panel it keeps none. Where the residuals gather
+by chance (noise on the links reflecting off the panel's rectangle of a plain wall), the candidate found there is
+dropped: no material or depth predicts noise."""
 from __future__ import annotations
 
 import json
@@ -18,6 +20,7 @@ from rfir_core.artifacts import read_artifact, write_artifact
 from rfir_stages.geom import gaussians_from_mesh, write_scene_artifact
 from rfir_stages.model.occlusion import FrozenGeometry
 from rfir_stages.model.physical import MaterialValues
+from rfir_stages.model.radio_insets import reflection_points
 from rfir_stages.model.room import RoomGeometry, RoomSettings
 from rfir_stages.simulate.scenes import _merge, rect_xy, wall
 
@@ -60,7 +63,7 @@ def _power_db(fields, tx, rx, panel: bool):
     return 10 * np.log10(p)
 
 
-def _write(tmp_path, panel: bool, seed: int):
+def _write(tmp_path, panel: bool, seed: int, noisy_spot: bool = False):
     fields, names = _scene_fields()
     write_scene_artifact(tmp_path / "scene.h5", fields, label_names=names)
     rng = np.random.default_rng(seed)
@@ -68,9 +71,14 @@ def _write(tmp_path, panel: bool, seed: int):
     lo, hi = np.array([0.4, 0.4, 0.8]), np.array([ROOM[0] - 0.4, ROOM[1] - 0.4, 2.4])
     tx, rx = rng.uniform(lo, hi, (n, 3)), rng.uniform(lo, hi, (n, 3))
     split = (rng.random(n) < 0.2).astype(np.int64)
+    gain_db = _power_db(fields, tx, rx, panel)
+    if noisy_spot:        # links reflecting off the x = 0 wall inside the panel's rectangle: 4 dB of noise
+        hit, valid, _ = reflection_points(tx, rx, np.array([1.0, 0.0, 0.0]), np.zeros(3))
+        spot = valid & (hit[:, 1] > PANEL[0]) & (hit[:, 1] < PANEL[1]) & (hit[:, 2] > PANEL[2]) & (hit[:, 2] < PANEL[3])
+        gain_db = gain_db + spot * rng.normal(0.0, 4.0, n)
     write_artifact(tmp_path / "meas.h5", "measurements",
                    {"tx_pos": tx, "rx_pos": rx, "freq_hz": np.array([FREQ]), "split": split,
-                    "path_gain_db": _power_db(fields, tx, rx, panel)[:, None],
+                    "path_gain_db": gain_db[:, None],
                     "scene_bounds": np.array([[0.0, 0.0, 0.0], list(ROOM)])},
                    attrs={"task": "rssi", "scene": "panel_room"},
                    free={"simulator": {"@attrs": {"simulator": "tests: rfir's room model"}}})
@@ -114,3 +122,13 @@ def test_a_hidden_panel_is_found_and_kept_and_nothing_without_it(tmp_path, panel
     with_inset = json.loads(out.read_text())["metrics"]["mae_db"]
     without = json.loads((tmp_path / "q.json").read_text())["metrics"]["mae_db"]
     assert with_inset < without - 0.1, (with_inset, without)
+
+
+def test_a_candidate_no_material_or_depth_explains_is_dropped(tmp_path):
+    _write(tmp_path, panel=False, seed=2, noisy_spot=True)
+    r = CliRunner().invoke(app, [*SETS, "rf-fit", str(tmp_path / "scene.h5"), str(tmp_path / "meas.h5"),
+                                 "-o", str(tmp_path / "rf.h5")])
+    assert r.exit_code == 0, r.output
+    assert "radio insets: 1 candidate" in r.output and "radio_a dropped" in r.output, r.output
+    rf = read_artifact(tmp_path / "rf.h5", "rf")
+    assert "radio_a_00" not in [str(s) for s in rf.attrs["label_names"]], r.output
