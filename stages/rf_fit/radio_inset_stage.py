@@ -36,6 +36,7 @@ MAX_SEARCH_LINKS = 10_000  # training links whose reflections are binned (evenly
 MIN_GAIN_DB = 0.05       # the result is kept when the held-out MAE falls by more than this and 2 standard errors
 MIN_MOVE_GAIN_DB = 0.02  # a surface is moved when that lowers the fitted links' MAE by more than this
 MAX_SURFACES = 12        # the largest surfaces placed (each costs len(OFFSETS_M) + len(START_KEYS) evaluations)
+ROUNDS = 2               # searches on the kept result's residuals (a part shows once a larger one is fitted)
 
 
 @dataclass
@@ -96,16 +97,18 @@ def _set_start(params: MaterialParams, index: int, key: str, freq_hz: float) -> 
 def _labelled(found: list, scene_labels, label_names, material: np.ndarray, names: list, room, means: np.ndarray,
               normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, list, list]:
     """(labels [G], material [G], label names, material names, source) with each candidate of found a label
-    (`radio_a_00`, ...) and a material (`radio_a`, ...) of its own after the scene's and rf-fit's: its surfels
+    (`radio_a_00`, ...; after an earlier round's) and a material (`radio_a`, ...) of its own after the scene's and
+    rf-fit's: its surfels
     (radio_insets.inset_surfels) in room (its patches' indices); source[k]: the material of candidate k's surface,
     whose values it starts from."""
     labels = np.asarray(scene_labels, np.int64).copy()
     mat = np.asarray(material, np.int64).copy()
     lnames, mnames = [str(s) for s in label_names], list(names)
     source = []
+    earlier = sum(n.startswith("radio_") for n in mnames)       # an earlier round's insets keep their letters
     for k, c in enumerate(found):
         idx = inset_surfels(c, room.patches, means, normals)
-        letter = string.ascii_lowercase[k]
+        letter = string.ascii_lowercase[(earlier + k) % 26]
         labels[idx] = len(lnames)
         lnames.append(f"radio_{letter}_00")
         source.append(int(room.material_of_patch[c.patch]))
@@ -224,6 +227,7 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
         labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names, room, means,
                                                         normals)
         placed = [moves[k] for k in kept]
+        room2 = links2 = None      # freed before the next room is built: rooms of photo geometry take a gigabyte
         room2, links2, params, moves, offsets = _searched_room(found, labels, mat, mnames, source, len(names), room,
                                                                links, res, geom, tx, rx, fit, target_fit, freq_hz, band,
                                                                axes, make_room)
@@ -256,6 +260,7 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
         if mv.offset != 0.0:
             new_means[mv.surfels] += torch.as_tensor(mv.offset * mv.toward, dtype=new_means.dtype)
     geom3 = FrozenGeometry(new_means, geom.log_scales, geom.rotations, geom.normals)
+    room2 = links2 = None
     room3 = make_room(geom3, labels, mat)
     links3 = room3.band_links(tx[fit], rx[fit], freq_hz, band, axes=axes.rows(fit))
     check3 = (room3.band_links(tx[check_rows], rx[check_rows], freq_hz, band, axes=axes.rows(check_rows)), check[1])

@@ -542,27 +542,31 @@ def run_room(scene, meas, geom, rows, held, tx, rx, freq_hz: float, target_db: n
     label_names = [str(s) for s in scene.attrs["label_names"]] if "label_names" in scene.attrs else None
     # every training link's residual on this fit: where they gather the radio insets are sought, and the residual terms
     # are fitted to them unless the fit changes below
-    residuals, radio_words = None, ""
-    if settings.radio_insets == "auto" and devices is None and labels is not None and check is not None:
+    residuals, radio_lines = None, []
+    searched = settings.radio_insets == "auto" and devices is None and labels is not None and check is not None
+    scene_labels = np.asarray(labels) if labels is not None else None
+    for _ in range(radio_insets.ROUNDS if searched else 0):
         t_res = time.time()
         residuals = training_residuals(links, room, res.params, devices, tx, rx, fit, target_db, freq_hz, band, axes=axes)
         progress.log(f"residuals of all {plural(len(tx), 'training link')} (the radio insets' search and the residual "
                      f"terms): {time.time() - t_res:.1f} s")
         found = radio_insets.search(
-            scene_labels=np.asarray(labels), label_names=label_names, geom=geom, room=room, material=material,
+            scene_labels=scene_labels, label_names=label_names, geom=geom, room=room, material=material,
             names=names, links=links, res=res, check=check, tx=tx, rx=rx, fit=fit, check_rows=check_rows(len(tx), fit),
             target_db=target_db, freq_hz=freq_hz, band=band, axes=axes, fit_cfg=fit_cfg, progress=progress,
             residual_db=residuals,
             weights=weights, make_room=make_room)
-        if found is not None:
-            geom, room, links, check, res = found.geom, found.room, found.links, found.check, found.res
-            material, names, label_names = found.material, found.names, found.label_names
-            gaussian_data.update({"gaussians/labels": found.labels, "gaussians/means": geom.means.numpy()})
-            radio_words = "; ".join(found.lines)
-            tabulated = [""] * len(names)
-            if settings.tabulated_materials:
-                _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
-            residuals = None
+        if found is None:
+            break
+        geom, room, links, check, res = found.geom, found.room, found.links, found.check, found.res
+        material, names, label_names, scene_labels = found.material, found.names, found.label_names, found.labels
+        gaussian_data.update({"gaussians/labels": found.labels, "gaussians/means": geom.means.numpy()})
+        radio_lines += found.lines
+        tabulated = [""] * len(names)
+        if settings.tabulated_materials:
+            _take_tabulated(links, res, target_db[fit, None], check, freq_hz, names, devices, tabulated, progress)
+        residuals = None
+    radio_words = "; ".join(radio_lines)
     if devices is not None:
         for side, g in devices.gains.items():
             g = g.detach().numpy()

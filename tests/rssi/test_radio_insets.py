@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from rfir_stages.model import radio_insets as ri
+from rfir_stages.rf_fit.radio_inset_stage import _labelled
 
 
 def test_reflection_point_obeys_the_mirror_law():
@@ -125,3 +126,17 @@ def test_moved_patch_lengths_match_the_image_method():
     exact = np.concatenate([once(d)[0], twice(d)[0]])
     assert np.abs(exact - np.concatenate([l1, l2])).max() > 0.02          # the move matters at 12.5 cm
     np.testing.assert_allclose(moved, exact, atol=2 * d ** 2)
+
+
+def test_a_later_rounds_insets_take_the_next_letters():
+    # one patch, the x = 0 plane; a candidate over y 1..2, z 1..2; rf-fit's materials already hold an earlier radio_a
+    patches = SimpleNamespace(point=np.zeros((1, 3)), normal=np.array([[1.0, 0.0, 0.0]]), u=np.array([[0.0, 1.0, 0.0]]),
+                              v=np.array([[0.0, 0.0, 1.0]]))
+    room = SimpleNamespace(patches=patches, material_of_patch=np.array([0]))
+    means = np.array([[0.0, 1.5, 1.5], [0.0, 3.0, 1.5], [0.01, 1.2, 1.8]])
+    normals = np.tile([1.0, 0.0, 0.0], (3, 1))
+    cand = ri.InsetCandidate(0, np.array([1.0, 2.0, 1.0, 2.0]), 1.0, 4, np.array([1.0, 0.0, 0.0]))
+    labels, mat, lnames, mnames, source = _labelled([cand], np.array([0, 0, 1]), ["wall_00", "radio_a_00"],
+                                                    np.array([0, 0, 1]), ["wall", "radio_a"], room, means, normals)
+    assert lnames[-1] == "radio_b_00" and mnames[-1] == "radio_b" and source == [0]
+    assert labels.tolist() == [2, 0, 2] and mat.tolist() == [2, 0, 2]
