@@ -95,26 +95,32 @@ def _set_start(params: MaterialParams, index: int, key: str, freq_hz: float) -> 
 
 
 def _labelled(found: list, scene_labels, label_names, material: np.ndarray, names: list, room, means: np.ndarray,
-              normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, list, list]:
-    """(labels [G], material [G], label names, material names, source) with each candidate of found a label
-    (`radio_a_00`, ...; after an earlier round's) and a material (`radio_a`, ...) of its own after the scene's and
-    rf-fit's: its surfels
-    (radio_insets.inset_surfels) in room (its patches' indices); source[k]: the material of candidate k's surface,
-    whose values it starts from."""
+              normals: np.ndarray) -> tuple[list, np.ndarray, np.ndarray, list, list, list]:
+    """(the candidates kept, labels [G], material [G], label names, material names, source) with each candidate of
+    found a label (`radio_a_00`, ...; lettered after an earlier round's) and a material (`radio_a`, ...) of its own
+    after the scene's and rf-fit's, on its surfels (radio_insets.inset_surfels, patch indices of room) that no
+    earlier candidate holds; one left without surfels is not kept (a material no patch has would leave the room's
+    links a material short). source[k]: the material of kept candidate k's surface, whose values it starts from."""
     labels = np.asarray(scene_labels, np.int64).copy()
     mat = np.asarray(material, np.int64).copy()
     lnames, mnames = [str(s) for s in label_names], list(names)
-    source = []
+    kept, source = [], []
+    taken = np.zeros(len(mat), bool)
     earlier = sum(n.startswith("radio_") for n in mnames)       # an earlier round's insets keep their letters
-    for k, c in enumerate(found):
+    for c in found:
         idx = inset_surfels(c, room.patches, means, normals)
-        letter = string.ascii_lowercase[(earlier + k) % 26]
+        idx = idx[~taken[idx]]
+        if len(idx) == 0:
+            continue
+        taken[idx] = True
+        letter = string.ascii_lowercase[(earlier + len(kept)) % 26]
         labels[idx] = len(lnames)
         lnames.append(f"radio_{letter}_00")
         source.append(int(room.material_of_patch[c.patch]))
         mat[idx] = len(mnames)
         mnames.append(f"radio_{letter}")
-    return labels, mat, lnames, mnames, source
+        kept.append(c)
+    return kept, labels, mat, lnames, mnames, source
 
 
 @dataclass
@@ -202,8 +208,8 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
     rows = np.unique(np.linspace(0, len(tx) - 1, min(len(tx), MAX_SEARCH_LINKS)).round().astype(np.int64))
     means, normals = geom.means.numpy(), geom.normals.numpy()
     found = find_candidates(tx[rows], rx[rows], np.asarray(residual_db)[rows], room.patches, means)
-    labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names, room, means,
-                                                    normals)
+    found, labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names, room,
+                                                           means, normals)
     if found:
         progress.log(f"radio insets: {plural(len(found), 'candidate')} where the residuals gather ("
                      + "; ".join(f"{mnames[len(names) + k]}: {c.area_m2():.1f} m^2 of the {names[source[k]]} surface, "
@@ -224,8 +230,8 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
                      + (" (the others lettered anew)" if len(dropped) < len(moves) else ""))
         kept = [k for k, mv in enumerate(moves) if mv.name not in dropped]
         found = [found[k] for k in kept]
-        labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names, room, means,
-                                                        normals)
+        found, labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names,
+                                                               room, means, normals)
         placed = [moves[k] for k in kept]
         room2 = links2 = None      # freed before the next room is built: rooms of photo geometry take a gigabyte
         room2, links2, params, moves, offsets = _searched_room(found, labels, mat, mnames, source, len(names), room,

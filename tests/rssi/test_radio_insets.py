@@ -136,7 +136,13 @@ def test_a_later_rounds_insets_take_the_next_letters():
     means = np.array([[0.0, 1.5, 1.5], [0.0, 3.0, 1.5], [0.01, 1.2, 1.8]])
     normals = np.tile([1.0, 0.0, 0.0], (3, 1))
     cand = ri.InsetCandidate(0, np.array([1.0, 2.0, 1.0, 2.0]), 1.0, 4, np.array([1.0, 0.0, 0.0]))
-    labels, mat, lnames, mnames, source = _labelled([cand], np.array([0, 0, 1]), ["wall_00", "radio_a_00"],
-                                                    np.array([0, 0, 1]), ["wall", "radio_a"], room, means, normals)
-    assert lnames[-1] == "radio_b_00" and mnames[-1] == "radio_b" and source == [0]
+    kept, labels, mat, lnames, mnames, source = _labelled([cand], np.array([0, 0, 1]), ["wall_00", "radio_a_00"],
+                                                          np.array([0, 0, 1]), ["wall", "radio_a"], room, means, normals)
+    assert kept == [cand] and lnames[-1] == "radio_b_00" and mnames[-1] == "radio_b" and source == [0]
     assert labels.tolist() == [2, 0, 2] and mat.tolist() == [2, 0, 2]
+    # a second candidate over the same surfels, and one over none, get no label or material: every material kept has
+    # surfels (the room's links count their materials from them)
+    empty = ri.InsetCandidate(0, np.array([4.0, 5.0, 1.0, 2.0]), 1.0, 4, np.array([1.0, 0.0, 0.0]))
+    kept, labels, mat, lnames, mnames, _ = _labelled([cand, cand, empty], np.array([0, 0, 0]), ["wall_00"],
+                                                     np.array([0, 0, 0]), ["wall"], room, means, normals)
+    assert kept == [cand] and mnames == ["wall", "radio_a"] and mat.tolist() == [1, 0, 1]
