@@ -161,12 +161,13 @@ def _place(mv: _Move, inset: bool, links, offsets: np.ndarray, params: MaterialP
     starting material first, where it is (a move must not stand in for a material the fit missed), then its depth
     with that material (an inset's with every starting material: a board's depth shows only once it is metal), moved
     only where that beats staying by MIN_MOVE_GAIN_DB."""
-    stay = (float(_mae(_shifted(links, offsets), target_fit, params).mean()), 0.0, None)
+    here = _shifted(links, offsets)
+    stay = (float(_mae(here, target_fit, params).mean()), 0.0, None)
     mv.as_surface = stay[0]
     for key in START_KEYS:
         trial = _extended(params, [])
         _set_start(trial, mv.material, key, freq_hz)
-        err = float(_mae(_shifted(links, offsets), target_fit, trial).mean())
+        err = float(_mae(here, target_fit, trial).mean())
         if err < stay[0] - 1e-9:
             stay = (err, 0.0, key)
     best = stay
@@ -223,12 +224,12 @@ def search(*, scene_labels, label_names, geom: FrozenGeometry, room, material: n
         _place(mv, True, links2, offsets, params, target_fit, freq_hz)
     # an inset that no starting material or depth makes predict the fitted links better than its surface's fitted
     # material there (a group of cells high by chance) is dropped: its surfels return to their surface
-    dropped = [mv.name for mv in moves if not mv.err < mv.as_surface - MIN_MOVE_GAIN_DB]
+    kept = [k for k, mv in enumerate(moves) if mv.err < mv.as_surface - MIN_MOVE_GAIN_DB]
+    dropped = [mv.name for k, mv in enumerate(moves) if k not in kept]
     if dropped:
         progress.log(f"radio insets: {', '.join(dropped)} dropped: no starting material or depth beats its surface's "
                      f"fitted material there by {MIN_MOVE_GAIN_DB:g} dB on the fitted links"
                      + (" (the others lettered anew)" if len(dropped) < len(moves) else ""))
-        kept = [k for k, mv in enumerate(moves) if mv.name not in dropped]
         found = [found[k] for k in kept]
         found, labels, mat, lnames, mnames, source = _labelled(found, scene_labels, label_names, material, names,
                                                                room, means, normals)
